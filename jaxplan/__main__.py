@@ -1,0 +1,3 @@
+from jaxplan.cli import main
+
+raise SystemExit(main())

@@ -1,0 +1,35 @@
+"""Command line: ``jaxplan eval SUITE [...]`` (also ``python -m jaxplan``)."""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(prog="jaxplan", description=__doc__)
+    sub = p.add_subparsers(dest="cmd", required=True)
+    e = sub.add_parser("eval", help="run an evaluation suite and write OUT/metrics.json and plots")
+    e.add_argument("suite", help="suite name, or 'all'")
+    e.add_argument("--scenarios", help="directory of scenario JSON files (shared format)")
+    e.add_argument("--out", default="results", help="output directory (default: results)")
+    e.add_argument("--n", type=int, help="number of scenes / cases")
+    e.add_argument("--seed", type=int, default=0)
+    e.add_argument("--quick", action="store_true", help="small sizes, for a demo or a smoke test")
+    args = p.parse_args(argv)
+    if args.cmd == "eval":
+        from jaxplan.eval.registry import SuiteArgs, run_suite
+
+        try:
+            m = run_suite(args.suite, SuiteArgs(out=args.out, n=args.n, seed=args.seed,
+                                                quick=args.quick, scenarios=args.scenarios))
+        except ValueError as err:
+            print(f"jaxplan: error: {err}", file=sys.stderr)
+            return 2
+        json.dump(m, sys.stdout, indent=1, sort_keys=True)
+        print(f"\nwrote {args.out}/metrics.json")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,34 @@
+"""The one geometry core every planner uses."""
+from jaxplan.geometry.boxes import box_corners, headings_from_path, poses_to_boxes, vehicle_corners
+from jaxplan.geometry.frenet import (
+    ReferenceLine,
+    frenet_to_cartesian_state,
+    ref_state,
+    reference_line,
+    to_cartesian,
+    to_frenet,
+    wrap_angle,
+)
+from jaxplan.geometry.lines import (
+    cross2,
+    dot2,
+    line_intersection,
+    normalize,
+    perpendicular,
+    point_on_segment,
+    project_point,
+    segment_point_distance,
+)
+from jaxplan.geometry.polygons import (
+    CORNER_OF_A,
+    CORNER_OF_B,
+    EDGE_CROSSING,
+    OverlapPolygon,
+    has_overlap,
+    overlap_polygon,
+    overlap_polygon_tagged,
+    points_in_polygon,
+    polygon_area,
+    polygon_edges,
+    separation,
+)

@@ -1,0 +1,96 @@
+"""Oriented boxes, path headings and the car's contour corners."""
+from __future__ import annotations
+
+import jax.numpy as jnp
+from jax import lax
+
+from jaxplan.types import VehicleParams, check_boxes, check_trailing, is_concrete
+
+# Corner offsets in units of (length/2, width/2): front-left, rear-left,
+# rear-right, front-right -- counter-clockwise.
+_CORNER_SIGNS = ((1.0, 1.0), (-1.0, 1.0), (-1.0, -1.0), (1.0, -1.0))
+
+
+def box_corners(boxes):
+    """Corners of oriented boxes.
+
+    Args:
+        boxes: ``(..., 5)`` = [x, y, length, width, heading].
+
+    Returns:
+        ``(..., 4, 2)`` corners, counter-clockwise from the front-left corner.
+    """
+    if is_concrete(boxes):
+        check_boxes(boxes)
+    boxes = jnp.asarray(boxes)
+    x, y, length, width, heading = (boxes[..., i] for i in range(5))
+    c, s = jnp.cos(heading), jnp.sin(heading)
+    signs = jnp.asarray(_CORNER_SIGNS, dtype=boxes.dtype)
+    dx = 0.5 * length[..., None] * signs[:, 0]  # (..., 4) along the body
+    dy = 0.5 * width[..., None] * signs[:, 1]  # (..., 4) to the left
+    cx = x[..., None] + c[..., None] * dx - s[..., None] * dy
+    cy = y[..., None] + s[..., None] * dx + c[..., None] * dy
+    return jnp.stack([cx, cy], axis=-1)
+
+
+def headings_from_path(xy, eps: float = 1e-9):
+    """Heading of every path point from consecutive points.
+
+    ``theta[i] = atan2(xy[i] - xy[i-1])`` and the first point takes the next
+    difference. Zero-length steps (repeated points) keep the heading of the
+    nearest earlier step, or of the first non-zero step at the start. A path
+    of one point, or one with no non-zero step, has heading 0.
+
+    Args:
+        xy: ``(..., T, 2)``.
+
+    Returns:
+        ``(..., T)`` headings in radians.
+    """
+    if is_concrete(xy):
+        check_trailing("path xy", xy, (2,))
+        if jnp.ndim(xy) < 2:
+            raise ValueError(f"path xy: expected shape (..., T, 2), got {jnp.shape(xy)}")
+    xy = jnp.asarray(xy)
+    T = xy.shape[-2]
+    if T < 2:
+        return jnp.zeros(xy.shape[:-1], xy.dtype)
+    d = xy[..., 1:, :] - xy[..., :-1, :]  # (..., T-1, 2)
+    ok = jnp.sum(d * d, axis=-1) > eps * eps
+    idx = jnp.arange(T - 1)
+    last_ok = lax.cummax(jnp.where(ok, idx, -1), axis=ok.ndim - 1)
+    first_ok = jnp.argmax(ok, axis=-1)[..., None]
+    pick = jnp.where(last_ok < 0, first_ok, last_ok)
+    d = jnp.take_along_axis(d, pick[..., None], axis=-2)
+    h = jnp.arctan2(d[..., 1], d[..., 0])
+    return jnp.concatenate([h[..., :1], h], axis=-1)
+
+
+def poses_to_boxes(xy, heading, vehicle: VehicleParams):
+    """Car boxes ``(..., 5)`` from reference-point positions ``(..., 2)`` and headings ``(...)``."""
+    xy = jnp.asarray(xy)
+    heading = jnp.asarray(heading, xy.dtype)
+    off = jnp.asarray(vehicle.center_offset, xy.dtype)
+    cx = xy[..., 0] + off * jnp.cos(heading)
+    cy = xy[..., 1] + off * jnp.sin(heading)
+    length = jnp.broadcast_to(jnp.asarray(vehicle.length, xy.dtype), cx.shape)
+    width = jnp.broadcast_to(jnp.asarray(vehicle.width, xy.dtype), cx.shape)
+    return jnp.stack([cx, cy, length, width, heading], axis=-1)
+
+
+def vehicle_corners(path_xy, vehicle: VehicleParams, heading=None):
+    """The car's four contour corners at every trajectory point.
+
+    Args:
+        path_xy: ``(..., T, 2)`` positions of the car's reference point.
+        vehicle: car size and reference point.
+        heading: optional ``(..., T)``; by default ``headings_from_path(path_xy)``.
+
+    Returns:
+        ``(..., T, 4, 2)`` corners, counter-clockwise from the front-left corner.
+    """
+    if is_concrete(vehicle):
+        vehicle.validate()
+    if heading is None:
+        heading = headings_from_path(path_xy)
+    return box_corners(poses_to_boxes(path_xy, heading, vehicle))

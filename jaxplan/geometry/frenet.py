@@ -1,0 +1,170 @@
+"""Reference line and Frenet frame (s along the line, l to its left).
+
+The line is a polyline: positions move along the chords, the heading is
+interpolated linearly in arc length between vertex headings (the mean of the
+adjoining chords), so the normal turns continuously and the Frenet map has a
+unique inverse wherever ``1 - kappa * l > 0``. Beyond both ends the line is
+extended straight along its end headings.
+"""
+from __future__ import annotations
+
+import dataclasses
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxplan.geometry.lines import cross2, dot2
+from jaxplan.types import check_trailing
+
+
+def wrap_angle(a):
+    """Angles wrapped to (-pi, pi]."""
+    return jnp.arctan2(jnp.sin(a), jnp.cos(a))
+
+
+@jax.tree_util.register_dataclass
+@dataclasses.dataclass(frozen=True)
+class ReferenceLine:
+    """A reference line sampled at N >= 2 distinct points.
+
+    Attributes:
+        xy: ``(N, 2)`` vertices.
+        s: ``(N,)`` arc length at the vertices (chord lengths summed), s[0] = 0.
+        theta: ``(N,)`` unwrapped vertex headings.
+        kappa: ``(N,)`` vertex curvatures (d theta / d s).
+    """
+
+    xy: Any
+    s: Any
+    theta: Any
+    kappa: Any
+
+    @property
+    def length(self):
+        return self.s[-1]
+
+    @classmethod
+    def from_polyline(cls, xy) -> "ReferenceLine":
+        """Host-side constructor: checks the input and drops repeated points.
+
+        Args:
+            xy: ``(N, 2)`` finite points, at least two distinct.
+        """
+        a = check_trailing("reference line", xy, (2,))
+        if a.ndim != 2:
+            raise ValueError(f"reference line: expected shape (N, 2), got {a.shape}")
+        if len(a):
+            keep = np.concatenate([[True], np.linalg.norm(np.diff(a, axis=0), axis=1) > 1e-9])
+            a = a[keep]
+        if len(a) < 2:
+            raise ValueError("reference line: needs at least two distinct points")
+        return reference_line(jnp.asarray(a, dtype=jnp.result_type(float)))
+
+
+def reference_line(xy) -> ReferenceLine:
+    """Jittable constructor from ``(N, 2)`` distinct points (see ``ReferenceLine.from_polyline``)."""
+    xy = jnp.asarray(xy)
+    d = xy[1:] - xy[:-1]
+    seg = jnp.linalg.norm(d, axis=-1)
+    s = jnp.concatenate([jnp.zeros((1,), xy.dtype), jnp.cumsum(seg)])
+    phi = jnp.unwrap(jnp.arctan2(d[:, 1], d[:, 0]))
+    theta = jnp.concatenate([phi[:1], 0.5 * (phi[1:] + phi[:-1]), phi[-1:]])
+    rate = (theta[1:] - theta[:-1]) / seg  # (N-1,) curvature on each segment
+    kappa = jnp.concatenate([rate[:1], 0.5 * (rate[1:] + rate[:-1]), rate[-1:]])
+    return ReferenceLine(xy, s, theta, kappa)
+
+
+def ref_state(ref: ReferenceLine, s):
+    """Position, heading, curvature and its derivative of the line at arc length ``s``.
+
+    Args:
+        s: ``(...)``.
+
+    Returns:
+        (xy ``(..., 2)``, theta ``(...)`` unwrapped, kappa ``(...)``, dkappa ``(...)``).
+    """
+    s = jnp.asarray(s, ref.xy.dtype)
+    n = ref.s.shape[0]
+    i = jnp.clip(jnp.searchsorted(ref.s, s, side="right") - 1, 0, n - 2)
+    s0, s1 = ref.s[i], ref.s[i + 1]
+    seg = s1 - s0
+    u = s - s0
+    chord = (ref.xy[i + 1] - ref.xy[i]) / seg[..., None]
+    xy = ref.xy[i] + u[..., None] * chord
+    inside = (s >= ref.s[0]) & (s <= ref.s[-1])
+    f = jnp.clip(u / seg, 0.0, 1.0)
+    theta = ref.theta[i] + f * (ref.theta[i + 1] - ref.theta[i])
+    kappa = jnp.where(inside, ref.kappa[i] + f * (ref.kappa[i + 1] - ref.kappa[i]), 0.0)
+    dkappa = jnp.where(inside, (ref.kappa[i + 1] - ref.kappa[i]) / seg, 0.0)
+    # Straight extension beyond the ends: heading of the end chord.
+    end_theta = jnp.where(s < ref.s[0], ref.theta[0], ref.theta[-1])
+    theta = jnp.where(inside, theta, end_theta)
+    return xy, theta, kappa, dkappa
+
+
+def _unit(theta):
+    return jnp.stack([jnp.cos(theta), jnp.sin(theta)], axis=-1)
+
+
+def to_cartesian(ref: ReferenceLine, s, l):
+    """Frenet ``(s, l)`` (each ``(...)``) to Cartesian ``(..., 2)``."""
+    xy, theta, _, _ = ref_state(ref, s)
+    nrm = _unit(theta + 0.5 * jnp.pi)
+    return xy + jnp.asarray(l, xy.dtype)[..., None] * nrm
+
+
+def to_frenet(ref: ReferenceLine, xy, newton_steps: int = 4):
+    """Cartesian points ``(..., 2)`` to Frenet ``(s, l)``, each ``(...)``.
+
+    The nearest chord gives a first guess; Newton steps on
+    ``<p - pos(s), tangent(s)> = 0`` make it the exact inverse of ``to_cartesian``.
+    """
+    p = jnp.asarray(xy, ref.xy.dtype)
+    a = ref.xy[:-1]
+    d = ref.xy[1:] - a
+    seg = ref.s[1:] - ref.s[:-1]
+    t = dot2(p[..., None, :] - a, d) / (seg * seg)  # (..., N-1)
+    tc = jnp.clip(t, 0.0, 1.0)
+    dist = jnp.linalg.norm(p[..., None, :] - (a + tc[..., None] * d), axis=-1)
+    i = jnp.argmin(dist, axis=-1)
+    nseg = seg.shape[0]
+    ti = jnp.take_along_axis(t, i[..., None], axis=-1)[..., 0]
+    lo = jnp.where(i == 0, -jnp.inf, 0.0)  # the end chords extend the line
+    hi = jnp.where(i == nseg - 1, jnp.inf, 1.0)
+    ti = jnp.clip(ti, lo, hi)
+    s = ref.s[i] + ti * seg[i]
+    max_step = jnp.max(seg)
+    for _ in range(newton_steps):
+        pos, theta, kappa, _ = ref_state(ref, s)
+        tan = _unit(theta)
+        r = p - pos
+        f = dot2(r, tan)
+        i = jnp.clip(jnp.searchsorted(ref.s, s, side="right") - 1, 0, nseg - 1)
+        chord = d[i] / seg[i][..., None]
+        fp = -dot2(chord, tan) + kappa * cross2(tan, r)
+        fp = jnp.where(fp < -0.05, fp, -0.05)
+        s = s - jnp.clip(f / fp, -max_step, max_step)
+    pos, theta, _, _ = ref_state(ref, s)
+    l = cross2(_unit(theta), p - pos)
+    return s, l
+
+
+def frenet_to_cartesian_state(ref: ReferenceLine, s, l, dl, ddl):
+    """A Frenet curve l(s) with derivatives to Cartesian position, heading, curvature.
+
+    Args:
+        s, l, dl, ddl: ``(...)`` arc length, offset, dl/ds, d2l/ds2.
+
+    Returns:
+        (xy ``(..., 2)``, theta ``(...)`` wrapped, kappa ``(...)``).
+    """
+    pos, theta_r, kr, dkr = ref_state(ref, s)
+    xy = pos + jnp.asarray(l, pos.dtype)[..., None] * _unit(theta_r + 0.5 * jnp.pi)
+    one = 1.0 - kr * l
+    dtheta = jnp.arctan2(dl, one)
+    cos_d = jnp.cos(dtheta)
+    tan_d = jnp.tan(dtheta)
+    kappa = ((ddl + (dkr * l + kr * dl) * tan_d) * cos_d ** 2 / one + kr) * cos_d / one
+    return xy, wrap_angle(theta_r + dtheta), kappa

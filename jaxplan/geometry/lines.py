@@ -1,0 +1,79 @@
+"""Lines in vector form: a point ``p (..., 2)`` and a direction ``d (..., 2)``.
+
+Never slope form, so vertical lines need no special case. Parallel lines are
+reported through a ``valid`` flag instead of producing inf.
+"""
+from __future__ import annotations
+
+import jax.numpy as jnp
+
+
+def cross2(u, v):
+    """z-component of the cross product of ``(..., 2)`` vectors. Returns ``(...)``."""
+    return u[..., 0] * v[..., 1] - u[..., 1] * v[..., 0]
+
+
+def dot2(u, v):
+    """Dot product of ``(..., 2)`` vectors. Returns ``(...)``."""
+    return jnp.sum(u * v, axis=-1)
+
+
+def normalize(d, eps=1e-12):
+    """Unit vectors ``(..., 2)``; a zero vector stays zero."""
+    n = jnp.linalg.norm(d, axis=-1, keepdims=True)
+    return d / jnp.where(n > eps, n, 1.0)
+
+
+def perpendicular(d):
+    """``d`` rotated by +90 degrees (to the left). ``(..., 2)``."""
+    return jnp.stack([-d[..., 1], d[..., 0]], axis=-1)
+
+
+def line_intersection(p1, d1, p2, d2, rel_eps=1e-9):
+    """Intersection of the lines ``p1 + t1 d1`` and ``p2 + t2 d2``.
+
+    Args:
+        p1, d1, p2, d2: ``(..., 2)``.
+
+    Returns:
+        (point ``(..., 2)``, t1 ``(...)``, t2 ``(...)``, valid ``(...)``); valid is
+        False for parallel lines or a zero direction, and then the point is ``p1``.
+    """
+    den = cross2(d1, d2)
+    scale = jnp.linalg.norm(d1, axis=-1) * jnp.linalg.norm(d2, axis=-1)
+    valid = jnp.abs(den) > rel_eps * scale
+    safe = jnp.where(valid, den, 1.0)
+    w = p2 - p1
+    t1 = jnp.where(valid, cross2(w, d2) / safe, 0.0)
+    t2 = jnp.where(valid, cross2(w, d1) / safe, 0.0)
+    return p1 + t1[..., None] * d1, t1, t2, valid
+
+
+def project_point(p, a, d):
+    """Orthogonal projection of ``p`` on the line ``a + t d``.
+
+    Returns:
+        (t ``(...)`` in units of ``d``, foot point ``(..., 2)``); t = 0 for a zero ``d``.
+    """
+    dd = dot2(d, d)
+    t = jnp.where(dd > 0, dot2(p - a, d) / jnp.where(dd > 0, dd, 1.0), 0.0)
+    return t, a + t[..., None] * d
+
+
+def point_on_segment(p, a, b, tol=1e-6):
+    """Whether ``p`` lies on the segment ``a-b`` within distance ``tol``.
+
+    A zero-length segment is its single point. Returns ``(...)`` bool.
+    """
+    t, foot = project_point(p, a, b - a)
+    length = jnp.linalg.norm(b - a, axis=-1)
+    slack = tol / jnp.maximum(length, tol)
+    near = jnp.linalg.norm(p - foot, axis=-1) <= tol
+    return near & (t >= -slack) & (t <= 1 + slack)
+
+
+def segment_point_distance(p, a, b):
+    """Distance from ``p`` to the segment ``a-b`` (``(...)``); works for zero length."""
+    t, _ = project_point(p, a, b - a)
+    foot = a + jnp.clip(t, 0.0, 1.0)[..., None] * (b - a)
+    return jnp.linalg.norm(p - foot, axis=-1)

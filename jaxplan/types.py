@@ -1,0 +1,249 @@
+"""Pytrees shared by every planner.
+
+Array fields carry any number of leading batch dimensions. Each type has a
+host-side ``validate()`` that raises ``ValueError`` with a clear message; call it
+at the API boundary, before ``jax.jit``.
+"""
+from __future__ import annotations
+
+import dataclasses
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+REAR_AXLE = "rear_axle"
+CENTER = "center"
+
+
+def _pytree(data_fields, meta_fields=()):
+    def wrap(cls):
+        cls = dataclasses.dataclass(frozen=True)(cls)
+        return jax.tree_util.register_dataclass(
+            cls, data_fields=list(data_fields), meta_fields=list(meta_fields)
+        )
+
+    return wrap
+
+
+def check_finite(name: str, x: Any) -> np.ndarray:
+    """Host-side check: ``x`` is a real array with no NaN or inf."""
+    a = np.asarray(x)
+    if not np.issubdtype(a.dtype, np.number):
+        raise ValueError(f"{name}: expected a numeric array, got dtype {a.dtype}")
+    if a.size and not np.all(np.isfinite(a)):
+        raise ValueError(f"{name}: contains NaN or inf")
+    return a
+
+
+def check_trailing(name: str, x: Any, trailing: tuple[int, ...]) -> np.ndarray:
+    """Host-side check: ``x`` is finite and its trailing shape is ``trailing``."""
+    a = check_finite(name, x)
+    k = len(trailing)
+    if a.ndim < k or tuple(a.shape[a.ndim - k:]) != tuple(trailing):
+        raise ValueError(f"{name}: expected shape (..., {', '.join(map(str, trailing))}), got {a.shape}")
+    return a
+
+
+def check_boxes(boxes: Any, name: str = "boxes") -> np.ndarray:
+    """Host-side check of oriented boxes ``(..., 5)`` = [x, y, length, width, heading]."""
+    a = check_trailing(name, boxes, (5,))
+    if a.size and np.any(a[..., 2:4] <= 0):
+        raise ValueError(f"{name}: length and width must be positive")
+    return a
+
+
+def check_polygons(vertices: Any, valid: Any = None, name: str = "polygon",
+                   reorient: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    """Host-side check of convex polygons ``(..., N, 2)`` with optional mask ``(..., N)``.
+
+    Valid vertices must form a prefix, number at least 3, span a positive area,
+    and be convex and counter-clockwise. With ``reorient=True`` clockwise polygons
+    are reversed (in the returned copy) instead of refused. Vectorised.
+
+    Returns:
+        (vertices as float64 ``(..., N, 2)``, mask ``(..., N)``).
+    """
+    v = check_trailing(name, vertices, (2,)).astype(np.float64)
+    if v.ndim < 2:
+        raise ValueError(f"{name}: expected shape (..., N, 2), got {v.shape}")
+    m = np.ones(v.shape[:-1], bool) if valid is None else np.asarray(valid, bool)
+    if m.shape != v.shape[:-1]:
+        raise ValueError(f"{name}: valid mask shape {m.shape} != vertices shape {v.shape[:-1]}")
+    n = v.shape[-2]
+    k = m.sum(-1)
+    if np.any(np.cumprod(m, axis=-1) != m):
+        raise ValueError(f"{name}: valid vertices must come first (padding at the end)")
+    if np.any(k < 3):
+        raise ValueError(f"{name}: a polygon needs at least 3 valid vertices, got {int(k.min())}")
+    idx = np.arange(n)
+    nxt = np.where((idx + 1 < k[..., None]), idx + 1, 0)
+    e = np.take_along_axis(v, nxt[..., None], axis=-2) - v
+    e_next = np.take_along_axis(e, nxt[..., None], axis=-2)
+    cross = e[..., 0] * e_next[..., 1] - e[..., 1] * e_next[..., 0]
+    area2 = np.sum(np.where(m, v[..., 0] * (v + e)[..., 1] - v[..., 1] * (v + e)[..., 0], 0.0), axis=-1)
+    scale = np.maximum(1.0, np.max(np.abs(np.where(m[..., None], v, 0.0)), axis=(-2, -1)))
+    if np.any(np.abs(area2) <= 1e-12 * scale ** 2):
+        raise ValueError(f"{name}: degenerate polygon (zero area)")
+    cw = area2 < 0
+    if np.any(cw):
+        if not reorient:
+            raise ValueError(f"{name}: polygon is clockwise; give vertices counter-clockwise")
+        rev = np.where(idx < k[..., None], k[..., None] - 1 - idx, idx)
+        v = np.where(cw[..., None, None], np.take_along_axis(v, rev[..., None], axis=-2), v)
+        cross = np.where(cw[..., None], -cross, cross)
+    if np.any(m & (cross < -1e-9 * scale[..., None] ** 2)):
+        raise ValueError(f"{name}: polygon is not convex")
+    return v, m
+
+
+def is_concrete(*xs) -> bool:
+    """True when none of ``xs`` is a JAX tracer (so host-side checks can run)."""
+    return not any(isinstance(x, jax.core.Tracer) for x in jax.tree_util.tree_leaves(xs))
+
+
+@_pytree(data_fields=("length", "width", "wheelbase", "rear_overhang", "max_steer"),
+         meta_fields=("reference",))
+class VehicleParams:
+    """Car geometry. Lengths in metres, ``max_steer`` in radians (front wheel).
+
+    ``reference`` says where trajectory points sit on the car: ``"rear_axle"``
+    (centre of the rear axle) or ``"center"`` (centre of the box). The front
+    overhang is ``length - wheelbase - rear_overhang``.
+    """
+
+    length: Any = 4.8
+    width: Any = 1.9
+    wheelbase: Any = 2.9
+    rear_overhang: Any = 0.95
+    max_steer: Any = 0.55
+    reference: str = REAR_AXLE
+
+    @property
+    def front_overhang(self):
+        return self.length - self.wheelbase - self.rear_overhang
+
+    @property
+    def center_offset(self):
+        """Distance from the reference point forward to the box centre."""
+        if self.reference == CENTER:
+            return 0.0 * self.length
+        return 0.5 * self.length - self.rear_overhang
+
+    def validate(self) -> "VehicleParams":
+        if self.reference not in (REAR_AXLE, CENTER):
+            raise ValueError(f"VehicleParams.reference must be '{REAR_AXLE}' or '{CENTER}', got {self.reference!r}")
+        for f in ("length", "width", "wheelbase", "max_steer"):
+            a = check_finite(f"VehicleParams.{f}", getattr(self, f))
+            if np.any(a <= 0):
+                raise ValueError(f"VehicleParams.{f} must be positive, got {a}")
+        ro = check_finite("VehicleParams.rear_overhang", self.rear_overhang)
+        if np.any(ro < 0):
+            raise ValueError("VehicleParams.rear_overhang must be >= 0")
+        if np.any(np.asarray(self.front_overhang) < 0):
+            raise ValueError("VehicleParams: wheelbase + rear_overhang exceeds length")
+        if np.any(np.asarray(self.max_steer) >= np.pi / 2):
+            raise ValueError("VehicleParams.max_steer must be below pi/2")
+        return self
+
+
+@_pytree(data_fields=("vertices", "valid"))
+class Polygon:
+    """Convex polygons, counter-clockwise, padded to a fixed vertex count.
+
+    Attributes:
+        vertices: ``(..., N, 2)``.
+        valid: ``(..., N)`` bool; valid vertices form a prefix.
+    """
+
+    vertices: Any
+    valid: Any
+
+    @classmethod
+    def from_vertices(cls, vertices, valid=None, reorient: bool = True) -> "Polygon":
+        v, m = check_polygons(vertices, valid, reorient=reorient)
+        return cls(jnp.asarray(v, dtype=jnp.result_type(float)), jnp.asarray(m))
+
+    def validate(self) -> "Polygon":
+        check_polygons(self.vertices, self.valid)
+        return self
+
+
+@_pytree(data_fields=("x", "y", "theta", "kappa", "v", "a", "t", "s", "gear"))
+class Trajectory:
+    """Time-stamped trajectory, every field ``(..., T)``.
+
+    ``gear`` is +1 forward, -1 reverse; ``s`` is signed arc length travelled.
+    """
+
+    x: Any
+    y: Any
+    theta: Any
+    kappa: Any
+    v: Any
+    a: Any
+    t: Any
+    s: Any
+    gear: Any
+
+    @property
+    def xy(self):
+        return jnp.stack([self.x, self.y], axis=-1)
+
+    def validate(self) -> "Trajectory":
+        shape = np.shape(self.x)
+        if len(shape) < 1 or shape[-1] < 1:
+            raise ValueError(f"Trajectory: fields must have shape (..., T) with T >= 1, got {shape}")
+        for f in dataclasses.fields(self):
+            a = check_finite(f"Trajectory.{f.name}", getattr(self, f.name))
+            if a.shape != shape:
+                raise ValueError(f"Trajectory.{f.name}: shape {a.shape} differs from x's {shape}")
+        if np.any(np.diff(np.asarray(self.t), axis=-1) < 0):
+            raise ValueError("Trajectory.t must be non-decreasing")
+        return self
+
+
+@_pytree(data_fields=("boxes", "valid", "t"))
+class Obstacles:
+    """Moving (or static) box obstacles padded to a fixed count.
+
+    Attributes:
+        boxes: ``(..., K, T, 5)`` pose and size of each obstacle at each time
+            ``[x, y, length, width, heading]``; a static obstacle repeats its box.
+        valid: ``(..., K, T)`` bool; False for padding and for times where the
+            obstacle is not known (it then blocks nothing).
+        t: ``(..., T)`` the time stamps of the predictions.
+    """
+
+    boxes: Any
+    valid: Any
+    t: Any
+
+    @classmethod
+    def empty(cls, t) -> "Obstacles":
+        t = jnp.asarray(t)
+        return cls(jnp.zeros(t.shape[:-1] + (0, t.shape[-1], 5)), jnp.zeros(t.shape[:-1] + (0, t.shape[-1]), bool), t)
+
+    @classmethod
+    def static(cls, boxes, t, valid=None) -> "Obstacles":
+        """Static obstacles ``(..., K, 5)`` held over times ``(T,)``."""
+        boxes = jnp.asarray(boxes)
+        t = jnp.asarray(t)
+        b = jnp.broadcast_to(boxes[..., None, :], boxes.shape[:-1] + (t.shape[-1], 5))
+        m = jnp.ones(boxes.shape[:-1], bool) if valid is None else jnp.asarray(valid, bool)
+        return cls(b, jnp.broadcast_to(m[..., None], b.shape[:-1]), t)
+
+    def validate(self) -> "Obstacles":
+        b = check_trailing("Obstacles.boxes", self.boxes, (5,))
+        if b.ndim < 3:
+            raise ValueError(f"Obstacles.boxes: expected shape (..., K, T, 5), got {b.shape}")
+        m = np.asarray(self.valid)
+        if m.shape != b.shape[:-1]:
+            raise ValueError(f"Obstacles.valid: shape {m.shape} != boxes shape {b.shape[:-1]}")
+        if np.any(b[..., 2:4][m] <= 0):
+            raise ValueError("Obstacles.boxes: valid boxes must have positive length and width")
+        t = check_finite("Obstacles.t", self.t)
+        if t.shape[-1] != b.shape[-2]:
+            raise ValueError(f"Obstacles.t: {t.shape[-1]} time stamps for {b.shape[-2]} poses")
+        return self

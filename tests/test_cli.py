@@ -1,0 +1,21 @@
+import json
+import os
+
+import pytest
+
+from jaxplan.cli import main
+
+
+def test_eval_geometry_writes_metrics_and_plot(tmp_path):
+    out = str(tmp_path / "res")
+    assert main(["eval", "geometry", "--quick", "--n", "300", "--out", out]) == 0
+    m = json.load(open(os.path.join(out, "metrics.json")))
+    assert m["geometry.pairs"] == 300
+    assert m["geometry.overlap_agreement"] > 0.99
+    assert m["geometry.area_rel_err_max_f32"] < 1e-3
+    assert os.path.exists(os.path.join(out, "geometry.png"))
+
+
+def test_unknown_suite_is_an_error(tmp_path, capsys):
+    assert main(["eval", "nope", "--out", str(tmp_path)]) == 2
+    assert "unknown suite" in capsys.readouterr().err
