@@ -32,7 +32,15 @@ def register(name: str):
 
 
 def _load_builtin_suites():
-    from jaxplan.eval import geometry_suite  # noqa: F401  (registers itself)
+    """Import every ``jaxplan/eval/*_suite.py``; each registers itself."""
+    import importlib
+    import pkgutil
+
+    import jaxplan.eval as pkg
+
+    for mod in pkgutil.iter_modules(pkg.__path__):
+        if mod.name.endswith("_suite"):
+            importlib.import_module(f"jaxplan.eval.{mod.name}")
 
 
 def run_suite(name: str, args: SuiteArgs) -> dict:
