@@ -6,7 +6,7 @@ import pytest
 
 shapely = pytest.importorskip("shapely")
 
-from jaxplan.geometry import (CORNER_OF_A, CORNER_OF_B, EDGE_CROSSING, box_corners, has_overlap,
+from jaxplan.geometry import (CORNER_OF_A, CORNER_OF_B, EDGE_CROSSING, box_corners, overlap_area,
                               overlap_polygon_tagged, polygon_area, separation)
 from jaxplan.scenarios.shapes import edge_case_box_pairs, random_boxes, random_convex_polygons
 
@@ -56,6 +56,7 @@ def oracle():
 
 _tagged = jax.jit(overlap_polygon_tagged)
 _sep = jax.jit(separation)
+_area = jax.jit(overlap_area)
 
 
 @pytest.mark.parametrize("x64,band", [(True, 1e-6), (False, 1e-4)])
@@ -87,14 +88,17 @@ def test_overlap_area_matches_shapely(oracle, x64, rtol):
         dtype = jnp.float64 if x64 else jnp.float32
         out = _tagged(jnp.asarray(oracle["a"], dtype), jnp.asarray(oracle["b"], dtype),
                       oracle["va"], oracle["vb"])
-        area = np.asarray(polygon_area(out.vertices, out.valid))
+        area_poly = np.asarray(polygon_area(out.vertices, out.valid))
+        area_fast = np.asarray(_area(jnp.asarray(oracle["a"], dtype), jnp.asarray(oracle["b"], dtype),
+                                     oracle["va"], oracle["vb"]))
     ref = oracle["area"]
     big = ref > 1e-3
-    rel = np.abs(area[big] - ref[big]) / ref[big]
     assert big.sum() > 1000
-    assert rel.max() < rtol, (rel.max(), np.argmax(rel))
-    # No area where shapely finds none.
-    assert np.all(area[ref == 0] < 1e-6 if x64 else area[ref == 0] < 1e-3)
+    for area in (area_poly, area_fast):
+        rel = np.abs(area[big] - ref[big]) / ref[big]
+        assert rel.max() < rtol, (rel.max(), np.argmax(rel))
+        # No area where shapely finds none.
+        assert np.all(area[ref == 0] < (1e-6 if x64 else 1e-3))
 
 
 def test_overlap_vertices_and_tags_match_shapely(oracle):

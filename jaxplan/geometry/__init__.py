@@ -25,6 +25,7 @@ from jaxplan.geometry.polygons import (
     EDGE_CROSSING,
     OverlapPolygon,
     has_overlap,
+    overlap_area,
     overlap_polygon,
     overlap_polygon_tagged,
     points_in_polygon,

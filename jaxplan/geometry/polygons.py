@@ -138,21 +138,7 @@ class OverlapPolygon(NamedTuple):
     index_b: jnp.ndarray
 
 
-def overlap_polygon_tagged(poly_a, poly_b, valid_a=None, valid_b=None) -> OverlapPolygon:
-    """Convex intersection polygon with every vertex tagged by where it comes from.
-
-    Vertices of one polygon lying on the other's boundary count as inside and
-    take the corner tag (A's before B's) rather than the crossing tag; points
-    closer than a dtype-scaled tolerance are merged. An empty or degenerate
-    (touching) intersection has fewer than 3 valid vertices and zero area.
-
-    Args:
-        poly_a: ``(..., N, 2)``; poly_b: ``(..., M, 2)``; masks ``(..., N)``, ``(..., M)``.
-
-    Returns:
-        ``OverlapPolygon`` with ``N + M`` vertex slots.
-    """
-    _check(poly_a, poly_b, valid_a, valid_b)
+def _prepare(poly_a, poly_b, valid_a, valid_b):
     a, b = jnp.asarray(poly_a), jnp.asarray(poly_b)
     dtype = jnp.result_type(a, b)
     a, b = a.astype(dtype), b.astype(dtype)
@@ -161,63 +147,129 @@ def overlap_polygon_tagged(poly_a, poly_b, valid_a=None, valid_b=None) -> Overla
     b = jnp.broadcast_to(b, lead + b.shape[-2:])
     va = jnp.broadcast_to(_mask(a, valid_a), a.shape[:-1])
     vb = jnp.broadcast_to(_mask(b, valid_b), b.shape[:-1])
+    return a, va, b, vb, _tol(a, b)
+
+
+def _clip_edges(p, vp, q, vq, tol, keep_shared):
+    """Clip every edge of convex P to convex Q (Cyrus-Beck).
+
+    An edge lying on Q's boundary with the same outward side is kept only when
+    ``keep_shared`` (so a shared boundary is counted once, for A); one lying on
+    Q's boundary facing the other way (the polygons only touch) is dropped.
+
+    Returns:
+        (edges ``(..., N, 2)``, t_in, t_out ``(..., N)``, kept ``(..., N)``,
+        index of Q's edge that bounds the entry ``(..., N)``).
+    """
+    e, n_p, ok_p = polygon_edges(p, vp)
+    _, n_q, ok_q = polygon_edges(q, vq)
+    # Signed distances of each edge's two ends beyond each of Q's edge lines,
+    # snapped to 0 within tol so that collinear and touching cases are exact.
+    d0 = jnp.einsum("...jk,...ijk->...ij", n_q, p[..., :, None, :] - q[..., None, :, :])  # (..., N, M)
+    d1 = d0 + jnp.einsum("...jk,...ik->...ij", n_q, e)
+    tl = tol[..., None, None]
+    z0, z1 = jnp.abs(d0) <= tl, jnp.abs(d1) <= tl
+    s0, s1 = jnp.where(z0, 0.0, d0), jnp.where(z1, 0.0, d1)
+    okq = ok_q[..., None, :]
+    on_line = okq & z0 & z1
+    outside = okq & ~(z0 & z1) & (s0 >= 0) & (s1 >= 0)
+    enter = okq & (s0 > 0) & (s1 < 0)
+    leave = okq & (s0 < 0) & (s1 > 0)
+    tq = s0 / jnp.where(enter | leave, s0 - s1, 1.0)
+    t_enter = jnp.where(enter, tq, -_BIG)
+    t_in = jnp.maximum(jnp.max(t_enter, axis=-1), 0.0)
+    t_out = jnp.minimum(jnp.min(jnp.where(leave, tq, _BIG), axis=-1), 1.0)
+    same_side = jnp.einsum("...ik,...jk->...ij", n_p, n_q) > 0
+    blocked = outside | (on_line & ~(same_side & keep_shared))
+    kept = ok_p & ~jnp.any(blocked, axis=-1) & (t_out > t_in)
+    return e, t_in, t_out, kept, jnp.argmax(t_enter, axis=-1)
+
+
+def overlap_area(poly_a, poly_b, valid_a=None, valid_b=None):
+    """Area of the intersection of convex polygons, without building the polygon.
+
+    The boundary of A-and-B is A's edges clipped to B plus B's edges clipped to
+    A; the area is the sum of their shoelace terms. Fast and differentiable.
+
+    Args:
+        poly_a: ``(..., N, 2)``; poly_b: ``(..., M, 2)``; masks ``(..., N)``, ``(..., M)``.
+
+    Returns:
+        ``(...)``.
+    """
+    _check(poly_a, poly_b, valid_a, valid_b)
+    a, va, b, vb, tol = _prepare(poly_a, poly_b, valid_a, valid_b)
+    c = a[..., :1, :]  # shoelace about a nearby point, for precision
+    total = 0.0
+    for p, vp, q, vq, first in ((a, va, b, vb, True), (b, vb, a, va, False)):
+        e, t_in, t_out, kept, _ = _clip_edges(p, vp, q, vq, tol, first)
+        p0 = p - c + t_in[..., None] * e
+        p1 = p - c + t_out[..., None] * e
+        cr = p0[..., 0] * p1[..., 1] - p0[..., 1] * p1[..., 0]
+        total = total + 0.5 * jnp.sum(jnp.where(kept, cr, 0.0), axis=-1)
+    return jnp.maximum(total, 0.0)
+
+
+def overlap_polygon_tagged(poly_a, poly_b, valid_a=None, valid_b=None) -> OverlapPolygon:
+    """Convex intersection polygon with every vertex tagged by where it comes from.
+
+    Each vertex is the start of one boundary piece: an edge of A clipped to B or
+    an edge of B clipped to A. A piece starting at its own polygon's vertex gives
+    a corner tag (a vertex on the other's boundary counts as inside), one
+    starting where it enters the other polygon gives EDGE_CROSSING. A shared
+    boundary is A's. Points closer than a dtype-scaled tolerance are merged.
+    An empty or touching intersection has fewer than 3 valid vertices.
+
+    Args:
+        poly_a: ``(..., N, 2)``; poly_b: ``(..., M, 2)``; masks ``(..., N)``, ``(..., M)``.
+
+    Returns:
+        ``OverlapPolygon`` with ``N + M`` vertex slots.
+    """
+    _check(poly_a, poly_b, valid_a, valid_b)
+    a, va, b, vb, tol = _prepare(poly_a, poly_b, valid_a, valid_b)
     N, M = a.shape[-2], b.shape[-2]
-    tol = _tol(a, b)
-
-    in_b = points_in_polygon(a, b, vb, tol) & va  # (..., N)
-    in_a = points_in_polygon(b, a, va, tol) & vb  # (..., M)
-
-    # Edge-edge crossings: p + t r = q + u s.
-    r, _, ok_a = polygon_edges(a, va)
-    s, _, ok_b = polygon_edges(b, vb)
-    p = a[..., :, None, :]
-    rr = r[..., :, None, :]
-    q = b[..., None, :, :]
-    ss = s[..., None, :, :]
-    qp = q - p
-
-    def cross(u, v):
-        return u[..., 0] * v[..., 1] - u[..., 1] * v[..., 0]
-
-    den = cross(rr, ss)  # (..., N, M)
-    lr = jnp.linalg.norm(rr, axis=-1)
-    ls = jnp.linalg.norm(ss, axis=-1)
-    par = jnp.abs(den) <= 1e-9 * lr * ls
-    safe = jnp.where(par, 1.0, den)
-    t = cross(qp, ss) / safe
-    u = cross(qp, rr) / safe
-    tt = tol[..., None, None] / jnp.maximum(lr, tol[..., None, None])
-    tu = tol[..., None, None] / jnp.maximum(ls, tol[..., None, None])
-    hit = (ok_a[..., :, None] & ok_b[..., None, :] & ~par
-           & (t >= -tt) & (t <= 1 + tt) & (u >= -tu) & (u <= 1 + tu))
-    xpt = p + jnp.clip(t, 0.0, 1.0)[..., None] * rr  # (..., N, M, 2)
-
-    K = N + M + N * M
-    pts = jnp.concatenate([a, b, xpt.reshape(lead + (N * M, 2))], axis=-2)
-    ok = jnp.concatenate([in_b, in_a, hit.reshape(lead + (N * M,))], axis=-1)
-    src = jnp.concatenate([jnp.full((N,), CORNER_OF_A), jnp.full((M,), CORNER_OF_B),
-                           jnp.full((N * M,), EDGE_CROSSING)])
-    ia = jnp.concatenate([jnp.arange(N), jnp.full((M,), -1), jnp.repeat(jnp.arange(N), M)])
-    ib = jnp.concatenate([jnp.full((N,), -1), jnp.arange(M), jnp.tile(jnp.arange(M), N)])
-
-    # Merge near-duplicates, keeping the first in (A corners, B corners, crossings) order.
+    parts = []
+    for p, vp, q, vq, first in ((a, va, b, vb, True), (b, vb, a, va, False)):
+        e, t_in, t_out, kept, j = _clip_edges(p, vp, q, vq, tol, first)
+        tl = tol[..., None]
+        length = jnp.maximum(jnp.linalg.norm(e, axis=-1), tl)
+        kept = kept & ((t_out - t_in) * length > tl)
+        corner = t_in * length <= tl
+        own = jnp.broadcast_to(jnp.arange(p.shape[-2]), kept.shape)
+        other = jnp.where(corner, -1, j)
+        src = jnp.where(corner, CORNER_OF_A if first else CORNER_OF_B, EDGE_CROSSING)
+        ia, ib = (own, other) if first else (other, own)
+        parts.append((p + t_in[..., None] * e, kept, src, ia, ib))
+    (pa, ka, sa, iaa, iba), (pb, kb, sb, iab, ibb) = parts
+    pts = jnp.concatenate([pa, pb], axis=-2)
+    ok = jnp.concatenate([ka, kb], axis=-1)
+    src = jnp.concatenate([sa, sb], axis=-1)
+    ia = jnp.concatenate([iaa, iab], axis=-1)
+    ib = jnp.concatenate([iba, ibb], axis=-1)
+    K = N + M
+    # Merge near-duplicates (degenerate contacts), keeping A's pieces first.
     d2 = jnp.sum((pts[..., :, None, :] - pts[..., None, :, :]) ** 2, axis=-1)
     earlier = jnp.tril(jnp.ones((K, K), bool), k=-1)
-    merge = (4 * tol[..., None, None]) ** 2
-    dup = jnp.any((d2 <= merge) & earlier & ok[..., None, :], axis=-1)
+    dup = jnp.any((d2 <= (4 * tol[..., None, None]) ** 2) & earlier & ok[..., None, :], axis=-1)
     keep = ok & ~dup
-
+    # Counter-clockwise order: rank by angle about the mean (pairwise ranks, no sort).
     cnt = jnp.maximum(jnp.sum(keep, axis=-1, keepdims=True), 1)
     centre = jnp.sum(jnp.where(keep[..., None], pts, 0.0), axis=-2) / cnt
     rel = pts - centre[..., None, :]
-    ang = jnp.arctan2(rel[..., 1], rel[..., 0])
-    order = jnp.argsort(jnp.where(keep, ang, jnp.inf), axis=-1)[..., : N + M]
+    key = jnp.where(keep, jnp.arctan2(rel[..., 1], rel[..., 0]), 10.0)
+    idx = jnp.arange(K)
+    before = (key[..., None, :] < key[..., :, None]) | (
+        (key[..., None, :] == key[..., :, None]) & (idx[None, :] < idx[:, None]))
+    rank = jnp.sum(before, axis=-1)  # (..., K), a permutation
+    onehot = rank[..., :, None] == idx  # (..., K_from, K_to)
 
-    def take(x):
-        return jnp.take_along_axis(jnp.broadcast_to(x, lead + (K,)) if x.ndim == 1 else x, order, axis=-1)
+    def place(x):
+        return jnp.einsum("...ij,...i->...j", onehot.astype(pts.dtype), x.astype(pts.dtype))
 
-    verts = jnp.take_along_axis(pts, order[..., None], axis=-2)
-    return OverlapPolygon(verts, take(keep), take(src), take(ia), take(ib))
+    verts = jnp.einsum("...ij,...ik->...jk", onehot.astype(pts.dtype), pts)
+    return OverlapPolygon(verts, place(keep) > 0.5, jnp.rint(place(src)).astype(jnp.int32),
+                          jnp.rint(place(ia)).astype(jnp.int32), jnp.rint(place(ib)).astype(jnp.int32))
 
 
 def overlap_polygon(poly_a, poly_b, valid_a=None, valid_b=None):
