@@ -195,3 +195,15 @@ def test_empty_obstacles_mean_nothing_in_the_way():
     hit = has_overlap(car, obs_c, None, None) if obs_c.shape[0] else jnp.zeros((0, 20), bool)
     assert hit.shape == (0, 20) and not bool(jnp.any(hit))
     Trajectory(*(jnp.zeros(5) for _ in range(9))).validate()
+
+
+def test_box_separation_equals_polygon_separation(rng):
+    with jax.enable_x64(True):
+        a = np.stack([rng.uniform(-4, 4, 4000), rng.uniform(-4, 4, 4000), rng.uniform(0.5, 5, 4000),
+                      rng.uniform(0.3, 3, 4000), rng.uniform(-4, 4, 4000)], -1)
+        b = np.stack([rng.uniform(-4, 4, 4000), rng.uniform(-4, 4, 4000), rng.uniform(0.5, 5, 4000),
+                      rng.uniform(0.3, 3, 4000), rng.uniform(-4, 4, 4000)], -1)
+        fast = np.asarray(jp.geometry.box_separation(a, b))
+        poly = np.asarray(separation(box_corners(a), box_corners(b)))
+    np.testing.assert_allclose(fast, poly, atol=1e-9)
+    assert (fast < 0).sum() > 500 and (fast > 0).sum() > 500

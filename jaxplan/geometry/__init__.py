@@ -1,5 +1,12 @@
 """The one geometry core every planner uses."""
-from jaxplan.geometry.boxes import box_corners, headings_from_path, poses_to_boxes, vehicle_corners
+from jaxplan.geometry.boxes import (
+    box_corners,
+    box_has_overlap,
+    box_separation,
+    headings_from_path,
+    poses_to_boxes,
+    vehicle_corners,
+)
 from jaxplan.geometry.frenet import (
     ReferenceLine,
     frenet_to_cartesian_state,
