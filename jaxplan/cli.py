@@ -16,7 +16,18 @@ def main(argv=None) -> int:
     e.add_argument("--n", type=int, help="number of scenes / cases")
     e.add_argument("--seed", type=int, default=0)
     e.add_argument("--quick", action="store_true", help="small sizes, for a demo or a smoke test")
+    r = sub.add_parser("report", help="write RESULTS_DIR/report.md from its metrics and plots")
+    r.add_argument("results_dir")
     args = p.parse_args(argv)
+    if args.cmd == "report":
+        from jaxplan.eval.report import write_report
+
+        try:
+            print(f"wrote {write_report(args.results_dir)}")
+        except ValueError as err:
+            print(f"jaxplan: error: {err}", file=sys.stderr)
+            return 2
+        return 0
     if args.cmd == "eval":
         from jaxplan.eval.registry import SuiteArgs, run_suite
 

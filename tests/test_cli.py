@@ -19,3 +19,12 @@ def test_eval_geometry_writes_metrics_and_plot(tmp_path):
 def test_unknown_suite_is_an_error(tmp_path, capsys):
     assert main(["eval", "nope", "--out", str(tmp_path)]) == 2
     assert "unknown suite" in capsys.readouterr().err
+
+
+def test_report_lists_figures_and_plots(tmp_path):
+    out = str(tmp_path / "res")
+    assert main(["eval", "geometry", "--quick", "--n", "200", "--out", out]) == 0
+    assert main(["report", out]) == 0
+    text = open(os.path.join(out, "report.md")).read()
+    assert "## geometry" in text and "overlap_agreement" in text and "![geometry.png](geometry.png)" in text
+    assert main(["report", str(tmp_path / "missing")]) == 2
