@@ -37,18 +37,36 @@ def check_finite(name: str, x: Any) -> np.ndarray:
     return a
 
 
-def check_trailing(name: str, x: Any, trailing: tuple[int, ...]) -> np.ndarray:
-    """Host-side check: ``x`` is finite and its trailing shape is ``trailing``."""
+# Beyond this distance from the origin float32 keeps less than about 1 cm.
+FLOAT32_MAX_COORD = 1e5
+
+
+def check_coordinates(name: str, xy: np.ndarray) -> None:
+    """Refuse coordinates too far from the origin for float32 (unless x64 is on)."""
+    if xy.size and not jax.config.jax_enable_x64 and np.abs(xy).max() > FLOAT32_MAX_COORD:
+        raise ValueError(f"{name}: coordinates up to {np.abs(xy).max():.3g} m are too far from the origin "
+                         f"for float32 (limit {FLOAT32_MAX_COORD:g} m); move the scene to a local frame "
+                         f"(the scenario loaders do) or enable jax_enable_x64")
+
+
+def check_trailing(name: str, x: Any, trailing: tuple[int, ...], coords: int = 0) -> np.ndarray:
+    """Host-side check: ``x`` is finite and its trailing shape is ``trailing``.
+
+    The first ``coords`` entries of the last axis are positions, checked by
+    ``check_coordinates``.
+    """
     a = check_finite(name, x)
     k = len(trailing)
     if a.ndim < k or tuple(a.shape[a.ndim - k:]) != tuple(trailing):
         raise ValueError(f"{name}: expected shape (..., {', '.join(map(str, trailing))}), got {a.shape}")
+    if coords:
+        check_coordinates(name, a[..., :coords])
     return a
 
 
 def check_boxes(boxes: Any, name: str = "boxes") -> np.ndarray:
     """Host-side check of oriented boxes ``(..., 5)`` = [x, y, length, width, heading]."""
-    a = check_trailing(name, boxes, (5,))
+    a = check_trailing(name, boxes, (5,), coords=2)
     if a.size and np.any(a[..., 2:4] <= 0):
         raise ValueError(f"{name}: length and width must be positive")
     return a
@@ -65,7 +83,7 @@ def check_polygons(vertices: Any, valid: Any = None, name: str = "polygon",
     Returns:
         (vertices as float64 ``(..., N, 2)``, mask ``(..., N)``).
     """
-    v = check_trailing(name, vertices, (2,)).astype(np.float64)
+    v = check_trailing(name, vertices, (2,), coords=2).astype(np.float64)
     if v.ndim < 2:
         raise ValueError(f"{name}: expected shape (..., N, 2), got {v.shape}")
     m = np.ones(v.shape[:-1], bool) if valid is None else np.asarray(valid, bool)
@@ -235,7 +253,7 @@ class Obstacles:
         return cls(b, jnp.broadcast_to(m[..., None], b.shape[:-1]), t)
 
     def validate(self) -> "Obstacles":
-        b = check_trailing("Obstacles.boxes", self.boxes, (5,))
+        b = check_trailing("Obstacles.boxes", self.boxes, (5,), coords=2)
         if b.ndim < 3:
             raise ValueError(f"Obstacles.boxes: expected shape (..., K, T, 5), got {b.shape}")
         m = np.asarray(self.valid)

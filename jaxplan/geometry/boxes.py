@@ -48,7 +48,7 @@ def headings_from_path(xy, eps: float = 1e-9):
         ``(..., T)`` headings in radians.
     """
     if is_concrete(xy):
-        check_trailing("path xy", xy, (2,))
+        check_trailing("path xy", xy, (2,), coords=2)
         if jnp.ndim(xy) < 2:
             raise ValueError(f"path xy: expected shape (..., T, 2), got {jnp.shape(xy)}")
     xy = jnp.asarray(xy)

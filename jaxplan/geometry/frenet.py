@@ -19,6 +19,12 @@ from jaxplan.geometry.lines import cross2, dot2
 from jaxplan.types import check_trailing
 
 
+# Points closer than this (m) to the previous one are dropped.
+MIN_SPACING = 1e-3
+# Consecutive segments may turn by at most 120 degrees (a cusp has no Frenet frame).
+MAX_TURN_COS = -0.5
+
+
 def wrap_angle(a):
     """Angles wrapped to (-pi, pi]."""
     return jnp.arctan2(jnp.sin(a), jnp.cos(a))
@@ -52,14 +58,23 @@ class ReferenceLine:
         Args:
             xy: ``(N, 2)`` finite points, at least two distinct.
         """
-        a = check_trailing("reference line", xy, (2,))
+        a = check_trailing("reference line", xy, (2,), coords=2)
         if a.ndim != 2:
             raise ValueError(f"reference line: expected shape (N, 2), got {a.shape}")
-        if len(a):
-            keep = np.concatenate([[True], np.linalg.norm(np.diff(a, axis=0), axis=1) > 1e-9])
+        if len(a):  # drop points within MIN_SPACING of the previous kept point
+            keep = [0]
+            for i in range(1, len(a)):
+                if np.linalg.norm(a[i] - a[keep[-1]]) > MIN_SPACING:
+                    keep.append(i)
             a = a[keep]
         if len(a) < 2:
             raise ValueError("reference line: needs at least two distinct points")
+        d = np.diff(a, axis=0)
+        cos_turn = np.sum(d[1:] * d[:-1], axis=1) / (np.linalg.norm(d[1:], axis=1) * np.linalg.norm(d[:-1], axis=1))
+        if np.any(cos_turn < MAX_TURN_COS):
+            i = int(np.argmax(cos_turn < MAX_TURN_COS)) + 1
+            raise ValueError(f"reference line: turns back on itself at point {i} "
+                             f"(more than {np.degrees(np.arccos(MAX_TURN_COS)):.0f} degrees between segments)")
         return reference_line(jnp.asarray(a, dtype=jnp.result_type(float)))
 
 
