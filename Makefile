@@ -11,6 +11,7 @@ $(BIN)/jaxplan: pyproject.toml
 
 demo: $(BIN)/jaxplan
 	$(BIN)/jaxplan eval all --quick --out results
+	$(BIN)/jaxplan report results
 
 test: $(BIN)/jaxplan
 	$(BIN)/python -m pytest tests

@@ -29,6 +29,7 @@ def write_report(results_dir: str, filename: str = "report.md") -> str:
         by_suite[suite][name or suite] = v
     pngs = sorted(p for p in os.listdir(results_dir) if p.endswith(".png"))
     lines = ["# jaxplan evaluation report", "", f"Results folder: `{os.path.abspath(results_dir)}`", ""]
+    shown = set()
     for suite in sorted(by_suite):
         lines += [f"## {suite}", "", "| figure | value |", "| --- | --- |"]
         lines += [f"| {k} | {_fmt(v)} |" for k, v in sorted(by_suite[suite].items())]
@@ -36,6 +37,10 @@ def write_report(results_dir: str, filename: str = "report.md") -> str:
         for p in pngs:
             if p.startswith(suite):
                 lines += [f"![{p}]({p})", ""]
+                shown.add(p)
+    rest = [p for p in pngs if p not in shown]
+    if rest:
+        lines += ["## other plots", ""] + [f"![{p}]({p})\n" for p in rest]
     out = os.path.join(results_dir, filename)
     with open(out + ".tmp", "w") as f:
         f.write("\n".join(lines))
