@@ -273,10 +273,10 @@ def lane_at(scenario: Scenario, xy, heading: float | None = None) -> Lane:
     return best
 
 
-def lane_reference(scenario: Scenario, lane: Lane | int | None = None, max_length: float = 500.0,
-                   back: float = 20.0) -> ReferenceLine:
-    """Reference line along a lane's centre line, following predecessors back a little
-    and successors forward (first successor each time) up to ``max_length`` metres.
+def lane_polyline(scenario: Scenario, lane: Lane | int | None = None, max_length: float = 500.0,
+                  back: float = 20.0) -> np.ndarray:
+    """Centre-line points ``(P, 2)`` along a lane, following one predecessor back (when
+    ``back > 0``) and successors forward (first unvisited one each time) up to ``max_length``.
 
     Default lane: the one at the ego start.
     """
@@ -300,4 +300,10 @@ def lane_reference(scenario: Scenario, lane: Lane | int | None = None, max_lengt
         seen.add(nxt.id)
         total += np.linalg.norm(np.diff(nxt.center, axis=0), axis=1).sum()
         cur = nxt
-    return ReferenceLine.from_polyline(np.concatenate(pts))
+    return np.concatenate(pts)
+
+
+def lane_reference(scenario: Scenario, lane: Lane | int | None = None, max_length: float = 500.0,
+                   back: float = 20.0) -> ReferenceLine:
+    """``ReferenceLine`` along ``lane_polyline(scenario, lane, max_length, back)``."""
+    return ReferenceLine.from_polyline(lane_polyline(scenario, lane, max_length, back))
