@@ -64,6 +64,7 @@ class Scenario:
         origin: ``(2,)`` the world position moved to the origin.
         goal: the first goal of the planning problem, coordinates shifted.
         skipped: ids of obstacles without a usable shape or trajectory.
+        problem_id: id of the planning problem whose start is the ego.
     """
 
     id: str
@@ -78,6 +79,7 @@ class Scenario:
     goal: dict
     origin: np.ndarray
     skipped: tuple = ()
+    problem_id: int = 0
 
     def lane(self, lane_id: int) -> Lane:
         for ln in self.lanes:
@@ -148,6 +150,18 @@ def load_scenario(path: str, horizon: float | None = None) -> Scenario:
             d = json.load(f)
     except json.JSONDecodeError as e:
         raise ScenarioError(f"{path}: not valid JSON ({e.msg} at line {e.lineno})") from None
+    except UnicodeDecodeError:
+        raise ScenarioError(f"{path}: not a UTF-8 text file") from None
+    return parse_scenario(d, path, horizon)
+
+
+def parse_scenario(d: Any, path: str, horizon: float | None = None) -> Scenario:
+    """Build a ``Scenario`` from an already parsed scenario object (see ``load_scenario``).
+
+    Args:
+        d: the scenario object of the shared JSON format.
+        path: name used in error messages.
+    """
     if not isinstance(d, dict):
         raise ScenarioError(f"{path}: top level should be an object")
     dt = _number(d, "dt", "scenario", path)
@@ -236,11 +250,11 @@ def load_scenario(path: str, horizon: float | None = None) -> Scenario:
     goal = dict(goals[0]) if goals else {}
     if "rectangle" in goal:
         r = dict(goal["rectangle"])
-        r["center"] = list(np.asarray(r["center"], float) - origin)
+        r["center"] = (np.asarray(r["center"], float) - origin).tolist()
         goal["rectangle"] = r
     return Scenario(str(d.get("id", os.path.basename(path))), str(d.get("source", "")),
                     tuple(d.get("tags", [])), dt, tuple(lanes), obs, np.asarray(ids), tuple(types),
-                    ego, goal, origin, tuple(skipped))
+                    ego, goal, origin, tuple(skipped), int(problems[0].get("id", 0)))
 
 
 def load_dir(directory: str, pattern: str = "*.json", **kw) -> list[Scenario]:
