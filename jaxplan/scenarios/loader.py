@@ -17,7 +17,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxplan.geometry.frenet import ReferenceLine
-from jaxplan.types import Obstacles
+from jaxplan.types import FLOAT32_MAX_COORD, Obstacles
 
 
 # Sizes (length, width) for road users the files give without one.
@@ -155,6 +155,71 @@ def load_scenario(path: str, horizon: float | None = None) -> Scenario:
     return parse_scenario(d, path, horizon)
 
 
+def _int(obj, key, where, path) -> int:
+    v = _field(obj, key, where, path)
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v != int(v):
+        raise ScenarioError(f"{path}: field {where}.{key} should be an integer, got {v!r}")
+    return int(v)
+
+
+def _ids(obj, key, where, path) -> tuple:
+    """An optional list of integer ids (missing or null means none)."""
+    v = obj.get(key) if isinstance(obj, dict) else None
+    if v is None:
+        return ()
+    if not isinstance(v, list):
+        raise ScenarioError(f"{path}: field {where}.{key} should be a list of ids")
+    return tuple(_int({key: x}, key, where, path) for x in v)
+
+
+def _adjacent(ln: dict, key: str, where: str, path: str) -> int | None:
+    """Id of a same-direction neighbour lanelet, or None."""
+    v = ln.get(key)
+    if v is None:
+        return None
+    if not isinstance(v, dict):
+        raise ScenarioError(f"{path}: field {where}.{key} should be an object")
+    if v.get("drivingDir", "same") != "same":
+        return None
+    return _int(v, "ref", f"{where}.{key}", path)
+
+
+def _size(o, where, path) -> tuple[float, float]:
+    if "length" not in o and o.get("type") in DEFAULT_SIZE:
+        return DEFAULT_SIZE[o["type"]]  # the format gives no size for these
+    length, width = _number(o, "length", where, path), _number(o, "width", where, path)
+    if length <= 0 or width <= 0:
+        raise ScenarioError(f"{path}: field {where}.length/width must be positive")
+    return length, width
+
+
+def _states(o, where, path) -> np.ndarray:
+    st = o["states"]
+    try:
+        st = np.asarray(st, dtype=np.float64)
+    except (TypeError, ValueError):
+        st = None
+    if st is None or st.ndim != 2 or st.shape[1] < 4 or not np.all(np.isfinite(st[:, :4])):
+        raise ScenarioError(f"{path}: field {where}.states should be rows of finite [t, x, y, theta, ...]")
+    return st
+
+
+def _goal(problem: dict, origin: np.ndarray, path: str) -> dict:
+    goals = _field(problem, "goals", "planning_problems[0]", path, list)
+    goal = goals[0] if goals else {}
+    if not isinstance(goal, dict):
+        raise ScenarioError(f"{path}: field planning_problems[0].goals[0] should be an object")
+    goal = dict(goal)
+    if "rectangle" in goal:
+        r = _field(goal, "rectangle", "planning_problems[0].goals[0]", path, dict)
+        where = "planning_problems[0].goals[0].rectangle"
+        c = _points([_field(r, "center", where, path)], f"{where}.center", path)[0]
+        goal["rectangle"] = {"center": (c - origin).tolist(), "length": _number(r, "length", where, path),
+                             "width": _number(r, "width", where, path),
+                             "orientation": float(r.get("orientation", 0.0) or 0.0)}
+    return goal
+
+
 def parse_scenario(d: Any, path: str, horizon: float | None = None) -> Scenario:
     """Build a ``Scenario`` from an already parsed scenario object (see ``load_scenario``).
 
@@ -170,14 +235,12 @@ def parse_scenario(d: Any, path: str, horizon: float | None = None) -> Scenario:
     problems = _field(d, "planning_problems", "scenario", path, list)
     if not problems:
         raise ScenarioError(f"{path}: field scenario.planning_problems is empty")
-    init = _field(problems[0], "initial_state", "planning_problems[0]", path, dict)
-    pos = _points([_field(init, "position", "planning_problems[0].initial_state", path)],
-                  "planning_problems[0].initial_state.position", path)[0]
     w = "planning_problems[0].initial_state"
-    t0 = float(init.get("t", 0.0))
-    ego = EgoState(0.0, 0.0, _number(init, "orientation", w, path), _number(init, "velocity", w, path),
-                   float(init.get("acceleration", 0.0)), 0.0)
-    origin = pos
+    init = _field(problems[0], "initial_state", "planning_problems[0]", path, dict)
+    origin = _points([_field(init, "position", w, path)], f"{w}.position", path)[0]
+    t0 = _number(init, "t", w, path) if "t" in init else 0.0
+    a0 = _number(init, "acceleration", w, path) if init.get("acceleration") is not None else 0.0
+    ego = EgoState(0.0, 0.0, _number(init, "orientation", w, path), _number(init, "velocity", w, path), a0, 0.0)
 
     lanes = []
     for i, ln in enumerate(_field(d, "lanelets", "scenario", path, list)):
@@ -186,42 +249,38 @@ def parse_scenario(d: Any, path: str, horizon: float | None = None) -> Scenario:
         right = _points(_field(ln, "right", where, path), f"{where}.right", path, 2) - origin
         if left.shape != right.shape:
             raise ScenarioError(f"{path}: field {where}.left and .right differ in length")
-        adj = lambda k: (ln.get(k) or {}).get("ref") if isinstance(ln.get(k), dict) and \
-            (ln.get(k) or {}).get("drivingDir", "same") == "same" else None
-        lanes.append(Lane(int(_field(ln, "id", where, path)), left, right, 0.5 * (left + right),
-                          tuple(ln.get("successors", [])), tuple(ln.get("predecessors", [])),
-                          adj("adjacentLeft"), adj("adjacentRight"), ln.get("speed_limit")))
+        limit = ln.get("speed_limit")
+        if limit is not None:
+            limit = _number(ln, "speed_limit", where, path)
+        lanes.append(Lane(_int(ln, "id", where, path), left, right, 0.5 * (left + right),
+                          _ids(ln, "successors", where, path), _ids(ln, "predecessors", where, path),
+                          _adjacent(ln, "adjacentLeft", where, path), _adjacent(ln, "adjacentRight", where, path),
+                          limit))
 
-    boxes, valids, ids, types, skipped = [], [], [], [], []
     obstacles = _field(d, "obstacles", "scenario", path, list)
-    n_steps = 1
-    for o in obstacles:
-        if "states" in o and o["states"]:
-            n_steps = max(n_steps, len(o["states"]))
+    for i, o in enumerate(obstacles):
+        if not isinstance(o, dict):
+            raise ScenarioError(f"{path}: field obstacles[{i}] should be an object")
+    states = {i: _states(o, f"obstacles[{i}]", path) for i, o in enumerate(obstacles) if o.get("states")}
+    n_steps = max([1] + [len(st) for st in states.values()])
     if horizon is not None:
         n_steps = min(n_steps, int(round(horizon / dt)) + 1)
     t = np.arange(n_steps) * dt
+    boxes, valids, ids, types, skipped = [], [], [], [], []
     for i, o in enumerate(obstacles):
         where = f"obstacles[{i}]"
-        oid = _field(o, "id", where, path)
+        oid = _int(o, "id", where, path)
         b = np.zeros((n_steps, 5))
         ok = np.zeros(n_steps, bool)
-        if o.get("states"):
-            if "length" not in o and o.get("type") in DEFAULT_SIZE:
-                length, width = DEFAULT_SIZE[o["type"]]  # the format gives no size for these
-            else:
-                length, width = _number(o, "length", where, path), _number(o, "width", where, path)
-            if length <= 0 or width <= 0:
-                raise ScenarioError(f"{path}: field {where}.length/width must be positive")
-            st = np.asarray(o["states"], dtype=np.float64)
-            if st.ndim != 2 or st.shape[1] < 4 or not np.all(np.isfinite(st[:, :4])):
-                raise ScenarioError(f"{path}: field {where}.states should be rows [t, x, y, theta, ...]")
-            k = np.rint((st[:, 0] - t0) / dt).astype(int)
+        if i in states:
+            length, width = _size(o, where, path)
+            st = states[i]
+            k = np.rint((st[:, 0] - t0) / dt)
             keep = (k >= 0) & (k < n_steps)
-            b[k[keep]] = np.column_stack([st[keep, 1] - origin[0], st[keep, 2] - origin[1],
-                                          np.full(keep.sum(), length), np.full(keep.sum(), width),
-                                          st[keep, 3]])
-            ok[k[keep]] = True
+            k = k[keep].astype(int)
+            b[k] = np.column_stack([st[keep, 1] - origin[0], st[keep, 2] - origin[1],
+                                    np.full(keep.sum(), length), np.full(keep.sum(), width), st[keep, 3]])
+            ok[k] = True
         elif "polygon" in o:
             poly = _points(o["polygon"], f"{where}.polygon", path, 3) - origin
             try:
@@ -231,30 +290,27 @@ def parse_scenario(d: Any, path: str, horizon: float | None = None) -> Scenario:
             ok[:] = True
         elif "center" in o:
             c = _points([o["center"]], f"{where}.center", path)[0] - origin
-            length, width = _number(o, "length", where, path), _number(o, "width", where, path)
-            if length <= 0 or width <= 0:
-                raise ScenarioError(f"{path}: field {where}.length/width must be positive")
+            length, width = _size(o, where, path)
             b[:] = [c[0], c[1], length, width, _number(o, "orientation", where, path)]
             ok[:] = True
         else:
             skipped.append(oid)
             continue
+        if np.abs(b[ok][:, :2]).max(initial=0.0) > FLOAT32_MAX_COORD:
+            raise ScenarioError(f"{path}: field {where} lies more than {FLOAT32_MAX_COORD:.0e} m from the ego start")
         boxes.append(b)
         valids.append(ok)
         ids.append(oid)
-        types.append(o.get("type", "unknown"))
+        types.append(str(o.get("type", "unknown")))
     K = len(boxes)
     obs = Obstacles(jnp.asarray(np.array(boxes).reshape(K, n_steps, 5), jnp.float32),
                     jnp.asarray(np.array(valids, bool).reshape(K, n_steps)), jnp.asarray(t, jnp.float32))
-    goals = _field(problems[0], "goals", "planning_problems[0]", path, list)
-    goal = dict(goals[0]) if goals else {}
-    if "rectangle" in goal:
-        r = dict(goal["rectangle"])
-        r["center"] = (np.asarray(r["center"], float) - origin).tolist()
-        goal["rectangle"] = r
+    tags = d.get("tags") or []
     return Scenario(str(d.get("id", os.path.basename(path))), str(d.get("source", "")),
-                    tuple(d.get("tags", [])), dt, tuple(lanes), obs, np.asarray(ids), tuple(types),
-                    ego, goal, origin, tuple(skipped), int(problems[0].get("id", 0)))
+                    tuple(map(str, tags)) if isinstance(tags, list) else (), dt, tuple(lanes), obs,
+                    np.asarray(ids), tuple(types), ego, _goal(problems[0], origin, path), origin,
+                    tuple(skipped), _int(problems[0], "id", "planning_problems[0]", path)
+                    if "id" in problems[0] else 0)
 
 
 def load_dir(directory: str, pattern: str = "*.json", **kw) -> list[Scenario]:
