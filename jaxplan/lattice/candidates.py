@@ -1,0 +1,236 @@
+"""The candidate lattice: end speeds x lanes x lateral offsets, time-stamped at dt.
+
+Layout: candidates are indexed ``(level, speed, lane, offset)`` flattened in that
+order (``N = levels * speeds * lanes * offsets``). ``level`` is the speed-variation
+escalation: level ``e`` uses the speed deltas scaled by ``escalation[e]``.
+
+Each speed profile gives the distance ``s(t)`` along the reference line; the lateral
+path ``l(s)`` is a quintic reaching its offset after ``S = max(s(t_end), s_min)``.
+Positions, headings and curvatures come from ``frenet_to_cartesian_state``; the
+reference line is evaluated once per (level, speed, time) and shared by every
+lateral offset. The Cartesian speed is ``ds/dt * sqrt((1 - kappa_r l)^2 + l'^2)``;
+the acceleration is its central difference in time.
+"""
+from __future__ import annotations
+
+import dataclasses
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxplan.geometry.frenet import ReferenceLine, frenet_to_cartesian_state, ref_state
+from jaxplan.lattice.profiles import accel_profile, jerk_profile
+from jaxplan.lattice.quintic import cartesian_to_frenet_state, quintic_coeffs, quintic_eval
+from jaxplan.types import Trajectory, VehicleParams, _pytree, check_finite
+
+KMH = 1.0 / 3.6
+
+
+@dataclasses.dataclass(frozen=True)
+class LatticeConfig:
+    """Static sizes and settings of the lattice (hashable; a static argument under jit).
+
+    Attributes:
+        horizon: planning horizon (s); the candidates have ``round(horizon / dt) + 1`` samples.
+        dt: time step (s); keep 0.1 to compare with recorded futures.
+        speed_deltas_kmh: end speeds ``v0 + delta`` (km/h), clipped to ``[0, v_max]``.
+        escalation: scale of the deltas for each re-plan level; level 0 is the normal
+            plan, the others are tried (in order) when every candidate of the lower
+            levels collides. ``(1.0,)`` disables escalation.
+        lanes: lane indices relative to the reference line (0 = current lane, +1 = left);
+            ``(0,)`` is normal mode, ``(0, 1)`` a lane change to the left.
+        target_lane: the lane of the local reference path (D_toLRP is measured to it).
+        lane_width: metres between lane centres.
+        n_offsets, offset_span: offsets per lane, ``linspace(-span, span, n)`` about its centre.
+        profile: ``"jerk"`` (constant-jerk ramps) or ``"accel"`` (constant acceleration).
+        jerk, a_min, a_max: profile limits.
+        v_max: highest end speed (m/s).
+        s_min: shortest lateral manoeuvre (m).
+        vehicle: the car (static floats).
+        ttc_min: TTC floor (s) in the risk ``1 / max(TTC, ttc_min)``.
+        sep_eps: softness (m) of the smooth collision feature ``sigmoid(-min_sep / eps)``.
+        d_threshold, d_margin, stop_length, stop_width: crossroad virtual target: when
+            the distance to the crossroad is below ``d_threshold`` a stopped box of
+            ``stop_length x stop_width`` starts ``d_margin`` beyond it on the reference line.
+    """
+
+    horizon: float = 5.0
+    dt: float = 0.1
+    speed_deltas_kmh: tuple = (-20.0, -10.0, 0.0, 10.0, 20.0)
+    escalation: tuple = (1.0, 2.0, 3.0)
+    lanes: tuple = (0,)
+    target_lane: int = 0
+    lane_width: float = 3.5
+    n_offsets: int = 5
+    offset_span: float = 1.0
+    profile: str = "jerk"
+    jerk: float = 2.0
+    a_min: float = -4.0
+    a_max: float = 2.5
+    v_max: float = 40.0
+    s_min: float = 10.0
+    vehicle: VehicleParams = VehicleParams()
+    ttc_min: float = 0.1
+    sep_eps: float = 0.05
+    d_threshold: float = 50.0
+    d_margin: float = 0.0
+    stop_length: float = 1.0
+    stop_width: float = 12.0
+
+    @property
+    def n_steps(self) -> int:
+        return int(round(self.horizon / self.dt)) + 1
+
+    @property
+    def grid(self) -> tuple:
+        """``(levels, speeds, lanes, offsets)``."""
+        return (len(self.escalation), len(self.speed_deltas_kmh), len(self.lanes), self.n_offsets)
+
+    @property
+    def n_candidates(self) -> int:
+        return int(np.prod(self.grid))
+
+    def validate(self) -> "LatticeConfig":
+        if self.dt <= 0 or self.horizon < self.dt:
+            raise ValueError(f"LatticeConfig: need 0 < dt <= horizon, got dt={self.dt}, horizon={self.horizon}")
+        if self.profile not in ("jerk", "accel"):
+            raise ValueError(f"LatticeConfig.profile must be 'jerk' or 'accel', got {self.profile!r}")
+        if not self.speed_deltas_kmh or not self.escalation or not self.lanes or self.n_offsets < 1:
+            raise ValueError("LatticeConfig: speeds, escalation levels, lanes and offsets must be non-empty")
+        if self.target_lane not in self.lanes:
+            raise ValueError(f"LatticeConfig.target_lane {self.target_lane} is not one of lanes {self.lanes}")
+        if not (self.a_min < 0 < self.a_max) or self.jerk <= 0 or self.s_min <= 0:
+            raise ValueError("LatticeConfig: need a_min < 0 < a_max, jerk > 0, s_min > 0")
+        self.vehicle.validate()
+        return self
+
+
+@_pytree(data_fields=("x", "y", "heading", "kappa", "v", "a", "v_set", "d_crossroad"))
+class PlanState:
+    """The car's state, each field ``(...)``.
+
+    ``v_set`` is the set (cruise) speed; ``d_crossroad`` the distance along the
+    reference line to the next crossroad (``inf`` when there is none).
+    """
+
+    x: Any
+    y: Any
+    heading: Any
+    kappa: Any = 0.0
+    v: Any = 0.0
+    a: Any = 0.0
+    v_set: Any = None
+    d_crossroad: Any = float("inf")
+
+    @classmethod
+    def make(cls, x, y, heading, v, a=0.0, kappa=0.0, v_set=None, d_crossroad=float("inf")) -> "PlanState":
+        """Host-side constructor with checks; ``v_set`` defaults to ``v``."""
+        f = jnp.result_type(float)
+        st = cls(*(jnp.asarray(z, f) for z in (x, y, heading, kappa, v, a, v if v_set is None else v_set,
+                                                d_crossroad)))
+        return st.validate()
+
+    def validate(self) -> "PlanState":
+        for name in ("x", "y", "heading", "kappa", "v", "a", "v_set"):
+            check_finite(f"PlanState.{name}", getattr(self, name))
+        if np.any(np.asarray(self.v) < 0):
+            raise ValueError("PlanState.v must be >= 0")
+        if np.any(np.isnan(np.asarray(self.d_crossroad))):
+            raise ValueError("PlanState.d_crossroad is NaN (use inf for no crossroad)")
+        return self
+
+
+@_pytree(data_fields=("traj", "s", "l", "dl", "v_end", "offset", "level", "speed_index", "lane", "l_target"))
+class Candidates:
+    """Every candidate of the lattice, flattened to ``N`` (see the module docstring).
+
+    Attributes:
+        traj: ``Trajectory`` with fields ``(..., N, T)`` (reference point of the car).
+        s, l, dl: ``(..., N, T)`` Frenet arc length (absolute), offset and dl/ds.
+        v_end, offset: ``(..., N)`` target end speed (m/s) and lateral offset (m).
+        level, speed_index, lane: ``(..., N)`` int grid indices.
+        l_target: ``(...)`` the local reference path's offset (target lane centre).
+    """
+
+    traj: Any
+    s: Any
+    l: Any
+    dl: Any
+    v_end: Any
+    offset: Any
+    level: Any
+    speed_index: Any
+    lane: Any
+    l_target: Any
+
+
+def _grid_values(config: LatticeConfig, v0, dtype):
+    E, V, Ln, O = config.grid
+    scale = jnp.asarray(config.escalation, dtype)[:, None]
+    deltas = jnp.asarray(config.speed_deltas_kmh, dtype)[None, :] * KMH
+    v_end = jnp.clip(v0[..., None, None] + scale * deltas, 0.0, config.v_max)  # (..., E, V)
+    centre = jnp.asarray(config.lanes, dtype) * config.lane_width
+    offsets = centre[:, None] + jnp.linspace(-config.offset_span, config.offset_span, O, dtype=dtype) \
+        if O > 1 else centre[:, None] + jnp.zeros((1,), dtype)
+    return v_end, offsets  # (..., E, V), (Ln, O)
+
+
+def generate(state: PlanState, ref: ReferenceLine, config: LatticeConfig) -> Candidates:
+    """All candidates of the lattice for one state (any leading batch dims via vmap).
+
+    Args:
+        state: ``PlanState`` with scalar fields.
+        ref: the reference line (the current lane's centre).
+        config: static settings.
+
+    Returns:
+        ``Candidates`` with ``N = config.n_candidates`` and ``T = config.n_steps``.
+    """
+    dtype = ref.xy.dtype
+    E, V, Ln, O = config.grid
+    T = config.n_steps
+    t = jnp.arange(T, dtype=dtype) * config.dt
+    v0 = jnp.asarray(state.v, dtype)
+    s0, l0, dl0, ddl0 = cartesian_to_frenet_state(ref, jnp.stack([state.x, state.y]).astype(dtype),
+                                                  state.heading, state.kappa)
+    _, _, kr0, _ = ref_state(ref, s0)
+    # the profiles run in ds/dt along the reference line: ds/dt = v / sqrt((1 - kr l)^2 + l'^2)
+    to_sdot = 1.0 / jnp.sqrt((1.0 - kr0 * l0) ** 2 + dl0 ** 2)
+    sdot0 = v0 * to_sdot
+    a0 = jnp.asarray(state.a, dtype) * to_sdot
+    v_end, offsets = _grid_values(config, v0, dtype)
+    if config.profile == "jerk":
+        s_rel, sd, _ = jerk_profile(sdot0, a0, v_end, t, config.jerk, config.a_min, config.a_max)
+    else:
+        s_rel, sd, _ = accel_profile(sdot0, v_end, t, config.a_min, config.a_max)
+    # s_rel, sd: (E, V, T)
+    S = jnp.maximum(s_rel[..., -1], config.s_min)  # (E, V)
+    coeffs = quintic_coeffs(l0, dl0, ddl0, offsets[None, None], S[..., None, None])  # (E, V, Ln, O, 6)
+    sg = s_rel[:, :, None, None, :]
+    l, dl, ddl = quintic_eval(coeffs, jnp.broadcast_to(S[..., None, None], coeffs.shape[:-1]), sg)
+    s_abs = s0 + sg  # (E, V, 1, 1, T): the reference line is evaluated once per speed profile
+    xy, theta, kappa = frenet_to_cartesian_state(ref, s_abs, l, dl, ddl)
+    _, _, kr, _ = ref_state(ref, s_abs)
+    speed = sd[:, :, None, None, :] * jnp.sqrt((1.0 - kr * l) ** 2 + dl ** 2)
+    shape = (E, V, Ln, O, T)
+    N = E * V * Ln * O
+
+    def flat(x):
+        return jnp.broadcast_to(x, shape).reshape(N, T)
+
+    x, y, theta, kappa, speed = (flat(z) for z in (xy[..., 0], xy[..., 1], theta, kappa, speed))
+    acc = jnp.gradient(speed, config.dt, axis=-1) if T > 2 else jnp.zeros_like(speed)
+    seg = jnp.hypot(jnp.diff(x, axis=-1), jnp.diff(y, axis=-1))
+    arc = jnp.concatenate([jnp.zeros((N, 1), dtype), jnp.cumsum(seg, axis=-1)], axis=-1)
+    traj = Trajectory(x, y, theta, kappa, speed, acc, jnp.broadcast_to(t, (N, T)), arc,
+                      jnp.ones((N, T), dtype))
+    idx = np.indices((E, V, Ln, O)).reshape(4, N)
+    lane_ids = np.asarray(config.lanes)[idx[2]]
+    return Candidates(traj, flat(s_abs), flat(l), flat(dl),
+                      jnp.broadcast_to(v_end[:, :, None, None], (E, V, Ln, O)).reshape(N),
+                      jnp.broadcast_to(offsets, (E, V, Ln, O)).reshape(N),
+                      jnp.asarray(idx[0]), jnp.asarray(idx[1]), jnp.asarray(lane_ids),
+                      jnp.asarray(config.target_lane * config.lane_width, dtype))
+

@@ -1,0 +1,98 @@
+"""Time-aware collision risk of candidates against moving obstacles.
+
+The car's box at step ``k`` is checked against every obstacle's predicted box at the
+same step with the geometry core's ``box_separation`` (SAT on the four box axes;
+negative = overlap). Per candidate: the minimum signed separation over obstacles at
+every step, collision yes/no, the first colliding sample time, and the time to
+collision (TTC): the zero crossing of the minimum separation, linearly
+interpolated between the last free and the first colliding sample (exact for two
+boxes closing at constant velocity without rotation; ``0`` when already
+overlapping at ``t = 0``; ``inf`` without collision).
+"""
+from __future__ import annotations
+
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+
+from jaxplan.geometry.boxes import box_separation, poses_to_boxes
+from jaxplan.types import Obstacles, Trajectory, VehicleParams, _pytree
+
+BIG = 1e6  # separation given to invalid (padding / unknown) obstacle entries
+
+
+@_pytree(data_fields=("min_sep", "collided", "first_t", "ttc"))
+class Risk:
+    """Attributes: ``min_sep (..., N, T)`` metres; ``collided (..., N)`` bool;
+    ``first_t (..., N)`` first colliding sample time (inf if none); ``ttc (..., N)``."""
+
+    min_sep: Any
+    collided: Any
+    first_t: Any
+    ttc: Any
+
+
+def align_obstacles(obstacles: Obstacles, n_steps: int) -> Obstacles:
+    """Obstacle predictions cut or padded (invalid) to ``n_steps`` samples.
+
+    Step ``k`` of the obstacles is taken to be time ``k * dt`` of the candidates.
+    """
+    T = obstacles.boxes.shape[-2]
+    if T >= n_steps:
+        return Obstacles(obstacles.boxes[..., :n_steps, :], obstacles.valid[..., :n_steps],
+                         obstacles.t[..., :n_steps])
+    pad = n_steps - T
+    b = jnp.concatenate([obstacles.boxes, jnp.broadcast_to(obstacles.boxes[..., -1:, :],
+                                                           obstacles.boxes.shape[:-2] + (pad, 5))], axis=-2)
+    v = jnp.concatenate([obstacles.valid, jnp.zeros(obstacles.valid.shape[:-1] + (pad,), bool)], axis=-1)
+    dt = obstacles.t[..., -1:] - obstacles.t[..., -2:-1] if T > 1 else jnp.ones_like(obstacles.t[..., -1:])
+    t = jnp.concatenate([obstacles.t, obstacles.t[..., -1:] + dt * jnp.arange(1, pad + 1)], axis=-1)
+    return Obstacles(b, v, t)
+
+
+def min_separation(car_boxes, obstacles: Obstacles):
+    """Minimum signed separation over obstacles at every step.
+
+    Args:
+        car_boxes: ``(N, T, 5)`` the car's box per candidate and step.
+        obstacles: boxes ``(K, T, 5)``, valid ``(K, T)``, same T.
+
+    Returns:
+        ``(N, T)``; ``BIG`` where no obstacle is valid.
+    """
+    K = obstacles.boxes.shape[-3]
+    if K == 0:
+        return jnp.full(car_boxes.shape[:-1], BIG, car_boxes.dtype)
+    sep = box_separation(car_boxes[:, None], obstacles.boxes[None])  # (N, K, T)
+    sep = jnp.where(obstacles.valid[None], sep, BIG)
+    return jnp.min(sep, axis=-2)
+
+
+def risk_from_separation(min_sep, t) -> Risk:
+    """Collision flags, first collision time and TTC from ``min_sep (..., N, T)`` and ``t (T,)``."""
+    hit = min_sep < 0
+    collided = jnp.any(hit, axis=-1)
+    k = jnp.argmax(hit, axis=-1)
+    first_t = jnp.where(collided, t[k], jnp.inf)
+    kp = jnp.maximum(k - 1, 0)
+    sep_k = jnp.take_along_axis(min_sep, k[..., None], axis=-1)[..., 0]
+    sep_p = jnp.take_along_axis(min_sep, kp[..., None], axis=-1)[..., 0]
+    frac = sep_p / jnp.maximum(sep_p - sep_k, 1e-12)
+    ttc = jnp.where(k == 0, 0.0, t[kp] + frac * (t[k] - t[kp]))
+    return Risk(min_sep, collided, first_t, jnp.where(collided, ttc, jnp.inf))
+
+
+def trajectory_boxes(traj: Trajectory, vehicle: VehicleParams):
+    """The car's boxes ``(..., T, 5)`` along a trajectory."""
+    return poses_to_boxes(jnp.stack([traj.x, traj.y], axis=-1), traj.theta, vehicle)
+
+
+def collision_risk(traj: Trajectory, obstacles: Obstacles, vehicle: VehicleParams) -> Risk:
+    """Risk of every candidate ``traj (N, T)`` against ``obstacles`` (aligned to T)."""
+    obstacles = align_obstacles(obstacles, traj.x.shape[-1])
+    sep = min_separation(trajectory_boxes(traj, vehicle), obstacles)
+    return risk_from_separation(sep, traj.t[0])
+
+
+collision_risk_jit = jax.jit(collision_risk)
