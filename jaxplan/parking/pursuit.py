@@ -1,0 +1,132 @@
+"""Pure-pursuit rollout of a kinematic bicycle along a reference curve (``lax.scan``)."""
+from __future__ import annotations
+
+from typing import Callable, NamedTuple
+
+import jax
+import jax.numpy as jnp
+from jax import lax
+
+from jaxplan.geometry import wrap_angle
+from jaxplan.parking.circles import Curve, _advance, curve_point
+from jaxplan.parking.config import ParkoutConfig
+from jaxplan.parking.grid import to_frame
+
+
+class Rollout(NamedTuple):
+    """One maneuver: ``T = config.steps`` points, valid ones first.
+
+    Attributes:
+        poses: ``(..., T, 3)`` rear-axle [x, y, heading] in the initial frame;
+            point 0 is the start pose. Points after the last valid one repeat it.
+        gear: ``(..., T)`` +1 forward, -1 backward.
+        steer: ``(..., T)`` front steering angle applied when leaving each point.
+        s: ``(..., T)`` signed arc length driven from point 0.
+        valid: ``(..., T)`` bool; the trajectory up to its end, cut before the
+            first pose whose footprint collides.
+        length: ``(...)`` unsigned length of the valid part.
+        complete: ``(...)`` the valid part reaches the curve's goal.
+        cut: ``(...)`` the trajectory was cut at a collision.
+    """
+
+    poses: jnp.ndarray
+    gear: jnp.ndarray
+    steer: jnp.ndarray
+    s: jnp.ndarray
+    valid: jnp.ndarray
+    length: jnp.ndarray
+    complete: jnp.ndarray
+    cut: jnp.ndarray
+
+    @property
+    def end_pose(self):
+        """``(..., 3)``: the last valid pose (the start pose if none is valid)."""
+        n = jnp.sum(self.valid, -1)
+        i = jnp.maximum(n - 1, 0)
+        return jnp.take_along_axis(self.poses, i[..., None, None], axis=-2)[..., 0, :]
+
+
+def pursuit_steer(pose, target, vehicle):
+    """Steering angle whose circle runs through the rear axle (tangent to the body) and ``target``.
+
+    The circle's curvature is ``2 v / (u^2 + v^2)`` for the target at ``(u, v)``
+    in the car frame, forward or backward alike; Ackermann gives
+    ``atan(wheelbase * curvature)``, clipped to the steering limit.
+    """
+    uv = to_frame(pose, target)
+    d2 = jnp.maximum(jnp.sum(uv * uv, -1), 1e-9)
+    k = 2.0 * uv[..., 1] / d2
+    return jnp.clip(jnp.arctan(vehicle.wheelbase * k), -vehicle.max_steer, vehicle.max_steer)
+
+
+def bicycle_step(pose, steer, ds, vehicle):
+    """Rear-axle pose ``(..., 3)`` after signed distance ``ds`` at a fixed steering angle."""
+    return _advance(pose, jnp.tan(steer) / vehicle.wheelbase, ds)
+
+
+def _project(samples, s_samples, p, s_min):
+    """Arc length of the point of a sampled curve nearest to ``p``, at least ``s_min - 0.3``."""
+    d2 = jnp.sum((samples[:, :2] - p) ** 2, -1)
+    d2 = jnp.where(s_samples >= s_min - 0.3, d2, jnp.inf)
+    k = jnp.argmin(d2)
+    t = jnp.stack([jnp.cos(samples[k, 2]), jnp.sin(samples[k, 2])])
+    step = s_samples[1] - s_samples[0]
+    return s_samples[k] + jnp.clip(jnp.dot(p - samples[k, :2], t), -step, step)
+
+
+def rollout(pose, curve: Curve, hits: Callable, vehicle, config: ParkoutConfig, stop_y=None,
+            stop_heading=0.0) -> Rollout:
+    """Drive one curve by pure pursuit and cut it at the first collision.
+
+    Each step projects the rear axle onto the curve, aims at the point
+    ``look_ahead`` further along it, moves the steering towards that by at
+    most ``steer_rate`` (the first step may steer in place), and advances
+    ``dl`` in the curve's gear. The move is done once the projection passes
+    ``curve.end``; with ``stop_y`` (the forward move to the stop line) it is done
+    once ``y >= stop_y`` and either the projection has passed the end or the
+    heading is within ``config.out_tol / 2`` of ``stop_heading``. After that the
+    pose stays.
+
+    Args:
+        pose: ``(3,)`` start pose (one instance; ``vmap`` for batches).
+        curve: one reference curve.
+        hits: ``poses (T, 3) -> (T,) bool`` footprint collision check.
+        stop_y: if given and finite, the goal is this ``y`` (see above);
+            stop_heading: its heading.
+
+    Returns:
+        ``Rollout`` with ``T = config.steps`` points.
+    """
+    dtype = pose.dtype
+    n = config.ref_samples
+    s_samp = jnp.linspace(-0.5, curve.end + config.look_ahead + 0.5, n).astype(dtype)
+    samples = curve_point(curve, s_samp)
+    gear = curve.gear.astype(dtype)
+    line = jnp.isfinite(jnp.inf if stop_y is None else stop_y)
+    stop_y = jnp.inf if stop_y is None else stop_y
+
+    def step(state, i):
+        p, steer, s_prev, finished = state
+        s_p = _project(samples, s_samp, p[:2], s_prev)
+        level = jnp.abs(wrap_angle(p[2] - stop_heading)) < 0.5 * config.out_tol
+        done = jnp.where(line, (p[1] >= stop_y) & (level | (s_p >= curve.end)), s_p >= curve.end)
+        target = curve_point(curve, s_p + config.look_ahead)[:2]
+        want = pursuit_steer(p, target, vehicle)
+        free = (i == 0) & config.steer_in_place
+        new_steer = jnp.where(free, want, steer + jnp.clip(want - steer, -config.steer_rate, config.steer_rate))
+        stop = finished | done
+        nxt = jnp.where(stop, p, bicycle_step(p, new_steer, gear * config.dl, vehicle))
+        out = (p, ~finished, done & ~finished, new_steer)
+        return (nxt, jnp.where(stop, steer, new_steer), jnp.maximum(s_prev, s_p), stop), out
+
+    init = (pose, jnp.zeros((), dtype), jnp.asarray(-1e6, dtype), jnp.zeros((), bool))
+    _, (poses, exists, goal, steer) = lax.scan(step, init, jnp.arange(config.steps))
+    collide = hits(poses)
+    clear = jnp.cumprod(~collide) > 0
+    valid = exists & clear
+    nv = jnp.sum(valid)
+    k = jnp.arange(config.steps)
+    s = gear * config.dl * jnp.minimum(k, jnp.maximum(nv - 1, 0)).astype(dtype)
+    return Rollout(poses=poses, gear=jnp.broadcast_to(gear, (config.steps,)), steer=steer, s=s,
+                   valid=valid, length=config.dl * jnp.maximum(nv - 1, 0).astype(dtype),
+                   complete=jnp.any(goal & valid), cut=jnp.any(exists & ~clear))
