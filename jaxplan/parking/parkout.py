@@ -156,7 +156,9 @@ def _park_out_one(scene: Scene, key, config: ParkoutConfig, vehicle, model: str)
                        jnp.where(go, tr.length, 0.0))
 
     init = (start, jnp.zeros((), bool), jnp.zeros((), bool), jnp.zeros((), bool))
-    keys = jax.random.split(key, config.max_moves)
+    k = jnp.asarray(key, jnp.uint32).reshape(-1)
+    m = jnp.arange(config.max_moves, dtype=jnp.uint32)
+    keys = jnp.stack([k[0] ^ (m * jnp.uint32(0x85EBCA6B)), jnp.broadcast_to(k[-1], m.shape)], -1)
     (pose, done, success, stuck), (poses, valid, gear, length) = lax.scan(move, init, keys)
     return ParkoutResult(poses, valid, gear, success, stuck, jnp.sum(gear != 0), jnp.sum(length), pose)
 
@@ -168,7 +170,8 @@ def _park_out_jit(scene, key, config, vehicle, model):
         return _park_out_one(scene, key, config, vehicle, model)
     n = math.prod(lead)
     flat = jax.tree_util.tree_map(lambda x: x.reshape((n,) + x.shape[len(lead):]), scene)
-    keys = jax.random.split(key, n)
+    keys = jnp.stack([jnp.broadcast_to(jnp.asarray(key, jnp.uint32).reshape(-1)[-1], (n,)) + jnp.uint32(7919),
+                      jnp.arange(n, dtype=jnp.uint32)], -1)
     out = jax.vmap(lambda s, k: _park_out_one(s, k, config, vehicle, model))(flat, keys)
     return jax.tree_util.tree_map(lambda x: x.reshape(lead + x.shape[1:]), out)
 
@@ -183,7 +186,7 @@ def park_out(scene: Scene, key=None, config: ParkoutConfig = ParkoutConfig(),
 
     Args:
         scene: ``Scene`` in the initial world frame (the car starts at the origin).
-        key: PRNG key for the grid noise.
+        key: legacy PRNG key (uint32 ``(2,)``) or a uint32 seed for the grid noise.
         model: ``"grid"`` (the occupancy grid) or ``"two_corner"`` (the baseline
             that keeps the two nearest corners of each obstacle and no grid).
     """

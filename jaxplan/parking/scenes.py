@@ -41,23 +41,48 @@ def box_gap(boxes, xy):
     return jnp.maximum(jnp.abs(uv[..., 0]) - 0.5 * boxes[..., 2], jnp.abs(uv[..., 1]) - 0.5 * boxes[..., 3])
 
 
+def _mix(x):
+    """A 32-bit integer hash (xor-shift-multiply), elementwise on uint32."""
+    x = x ^ (x >> 16)
+    x = x * jnp.uint32(0x7FEB352D)
+    x = x ^ (x >> 15)
+    x = x * jnp.uint32(0x846CA68B)
+    return x ^ (x >> 16)
+
+
+def hash_uniform(seed, shape, stream: int = 0, dtype=jnp.float32):
+    """Uniform [0, 1) numbers from a counter hash of ``seed`` (uint32 ``(2,)`` key data or scalar).
+
+    Much cheaper to compile than ``jax.random`` inside a batched loop; good
+    enough for sensor noise, not for statistics that need a strong generator.
+    """
+    seed = jnp.asarray(seed).astype(jnp.uint32).reshape(-1)
+    s = _mix(seed[0] ^ _mix(seed[-1] + jnp.uint32(0x9E3779B9 * (stream + 1) & 0xFFFFFFFF)))
+    n = 1
+    for k in shape:
+        n *= k
+    x = _mix(jnp.arange(n, dtype=jnp.uint32) * jnp.uint32(0x9E3779B9) ^ s)
+    return ((x >> 8).astype(dtype) * (1.0 / (1 << 24))).reshape(shape)
+
+
 def render_grid(scene: Scene, pose, key, config: ParkoutConfig, vehicle: VehicleParams) -> Grid:
     """The surround-view grid of one scene read at ``pose (3,)``.
 
     A cell is occupied when its centre lies inside an obstacle box grown by its
     edge noise, or by salt noise; cells under the car itself read free (the
-    sensors do not see there).
+    sensors do not see there). ``key``: a legacy PRNG key (uint32 ``(2,)``) or
+    any uint32 seed; the noise comes from ``hash_uniform``.
     """
     pts = from_frame(pose, cell_centres(config, pose.dtype))  # (rows, cols, 2)
-    k1, k2 = jax.random.split(key)
-    jitter = scene.edge_noise * jax.random.uniform(k1, pts.shape[:-1], pose.dtype, -1.0, 1.0)
+    shape = pts.shape[:-1]
+    jitter = scene.edge_noise * (2.0 * hash_uniform(key, shape, 0, pose.dtype) - 1.0)
 
     def one(occ, kb):
         box, ok = kb
         return occ | (ok & (box_gap(box, pts) <= jitter)), None
 
     occ, _ = jax.lax.scan(one, jnp.zeros(pts.shape[:-1], bool), (scene.boxes, scene.valid))
-    occ = occ | (jax.random.uniform(k2, pts.shape[:-1], pose.dtype) < scene.salt)
+    occ = occ | (hash_uniform(key, shape, 1, pose.dtype) < scene.salt)
     own = cell_centres(config, pose.dtype)
     off = vehicle.center_offset
     under = (jnp.abs(own[..., 0] - off) <= 0.5 * vehicle.length) & (jnp.abs(own[..., 1]) <= 0.5 * vehicle.width)
