@@ -151,6 +151,8 @@ class StepLog(NamedTuple):
     necessary: Any
     x: Any
     y: Any
+    heading: Any
+    collided: Any
     done: Any
 
 
@@ -375,7 +377,8 @@ def step_post(pre: _Pre, new_plan: Plan, sc: Scenario, cfg: SimConfig):
                      collided=st.collided | (hit & ~st.done))
     log = StepLog(t=st.t, v=v, queue_size=queue_size(st.queue),
                   brake_dist=jnp.where(st.brake.active, st.brake.s - s_car, jnp.nan), replan=replan,
-                  reason=pre.reason, necessary=pre.necessary, x=pose[0], y=pose[1], done=st.done)
+                  reason=pre.reason, necessary=pre.necessary, x=pose[0], y=pose[1], heading=pose[2],
+                  collided=st.collided, done=st.done)
     return st, log
 
 
