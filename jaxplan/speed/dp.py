@@ -188,16 +188,8 @@ def build_scene(profile: PathProfile, obstacles: Obstacles, vehicle: VehiclePara
     return SpeedScene(c, lo, hi, hit, v_limit, off + 0.5 * vehicle.length, off - 0.5 * vehicle.length)
 
 
-def obstacle_cost(x, v, f, scene: SpeedScene, config: SpeedConfig, w: CostWeights):
-    """Per-second obstacle cost rate of the car at relative station ``x`` with speed ``v``
-    at fine time index ``f`` (``big`` for a collision, not scaled by time).
-
-    Args:
-        x, v: ``(...)`` broadcastable; f: int scalar.
-
-    Returns:
-        (rate ``(...)``, collision ``(...)`` bool).
-    """
+def _obstacle_terms(x, f, scene: SpeedScene, config: SpeedConfig, w: CostWeights):
+    """(rate without keep-clear ``(...)``, collision ``(...)``, inside a keep-clear region ``(...)``)."""
     c = scene.classified
     ds = config.ds
     x = x[..., None]
@@ -215,9 +207,22 @@ def obstacle_cost(x, v, f, scene: SpeedScene, config: SpeedConfig, w: CostWeight
     nb = jnp.where(hit & c.no_bypass, jnp.maximum(front - lo, 0.0) ** 2, 0.0)
     zone = hit & c.blind_zone & (front > lo - config.blind_back) & (rear < lo + config.blind_front)
     rate = rate + jnp.sum(mult * (w.w_no_bypass * nb + w.w_blind * zone), -1)
-    kc = scene.kc_hit & (x > scene.kc_lower - ds) & (x < scene.kc_upper + ds) & (v[..., None] < config.keep_clear_v)
-    rate = rate + w.w_keep_clear * jnp.sum(kc, -1)
-    return rate, collision
+    kc = jnp.any(scene.kc_hit & (x > scene.kc_lower - ds) & (x < scene.kc_upper + ds), -1)
+    return rate, collision, kc
+
+
+def obstacle_cost(x, v, f, scene: SpeedScene, config: SpeedConfig, w: CostWeights):
+    """Per-second obstacle cost rate of the car at relative station ``x`` with speed ``v``
+    at fine time index ``f`` (``big`` for a collision, not scaled by time).
+
+    Args:
+        x, v: ``(...)`` broadcastable; f: int scalar.
+
+    Returns:
+        (rate ``(...)``, collision ``(...)`` bool).
+    """
+    rate, collision, kc = _obstacle_terms(x, f, scene, config, w)
+    return rate + w.w_keep_clear * (kc & (v < config.keep_clear_v)), collision
 
 
 def stage_costs(scene: SpeedScene, config: SpeedConfig, w: CostWeights, v0, a0):
@@ -239,11 +244,19 @@ def stage_costs(scene: SpeedScene, config: SpeedConfig, w: CostWeights, v0, a0):
     speed = w.w_speed * (v - w.v_cruise) ** 2 * dt  # (1, V)
     curve = jnp.where(v > scene.v_limit[:, None] + 1e-6, config.big, 0.0)  # (N, V)
 
+    # Obstacle terms on a table of fine times x fine stations (step ds / n_sub): the car
+    # moves at constant speed within a step, so every sub-step lands on that grid.
+    F, X = config.n_t * ns + 1, (N - 1) * ns + 1
+    xs = jnp.arange(X, dtype=dtype) * (config.ds / ns)
+    rate, col, kc = jax.vmap(lambda f: _obstacle_terms(xs, f, scene, config, w))(jnp.arange(F))  # (F, X)
+    moving = rate * (dt / ns) + jnp.where(col, config.big, 0.0)
+    table = jnp.stack([moving, moving + w.w_keep_clear * kc * (dt / ns)])  # (2, F, X): [moving, slow]
+    slow = (v < config.keep_clear_v).astype(jnp.int32)  # (1, V)
+    u = jnp.clip((i - j) * ns, 0, X - 1)  # (N, V) fine station at the segment start
+
     def one_step(k):
         def sub(q):
-            x = ((i - j) + q * j / ns).astype(dtype) * config.ds
-            r, col = obstacle_cost(x, jnp.broadcast_to(v, x.shape), k * ns + q, scene, config, w)
-            return r * (dt / ns) + jnp.where(col, config.big, 0.0)
+            return table[slow, k * ns + q, jnp.clip(u + q * j, 0, X - 1)]
 
         return jnp.sum(jax.vmap(sub)(jnp.arange(1, ns + 1)), 0)
 
@@ -394,7 +407,8 @@ def plan_speed(path: ReferenceLine, obstacles: Obstacles, config: SpeedConfig = 
     Args:
         path: ``ReferenceLine`` with leading batch dims ``(..., P, 2)`` on its fields.
         obstacles: boxes ``(..., K, T, 5)``, valid ``(..., K, T)``, times ``(..., T)`` from now.
-        config: grid and limits (static); weights: ``CostWeights`` (shared by the batch).
+        config: grid and limits (static); weights: ``CostWeights``, each leaf a scalar
+            (shared by the batch) or ``(...)`` (one per scene).
         v0, a0, s0: ``(...)`` current speed, acceleration and station on the path.
         keep_clear: optional ``(vertices (..., R, P, 2), valid (..., R, P), active (..., R))``.
 
@@ -412,7 +426,9 @@ def _plan_impl(path, obstacles, v0, a0, s0, keep_clear, vehicle, weights, config
     nb = path.xy.ndim - 2
     shape = path.xy.shape[:nb]
     v0, a0, s0 = (jnp.broadcast_to(jnp.asarray(x, dtype), shape) for x in (v0, a0, s0))
-    return _batched(_plan_one, nb, (path, obstacles, v0, a0, s0, keep_clear), (vehicle, config, weights))
+    weights = jax.tree_util.tree_map(lambda w: jnp.broadcast_to(jnp.asarray(w, dtype), shape), weights)
+    return _batched(lambda *a: _plan_one(*a[:6], vehicle, config, a[6]), nb,
+                    (path, obstacles, v0, a0, s0, keep_clear, weights), ())
 
 
 _plan_jit = jax.jit(_plan_impl, static_argnames=("config",))
@@ -423,8 +439,9 @@ def _expected_impl(path, obstacles, v0, a0, s0, keep_clear, vehicle, weights, te
     nb = path.xy.ndim - 2
     shape = path.xy.shape[:nb]
     v0, a0, s0 = (jnp.broadcast_to(jnp.asarray(x, dtype), shape) for x in (v0, a0, s0))
-    return _batched(_expected_one, nb, (path, obstacles, v0, a0, s0, keep_clear),
-                    (vehicle, config, weights, temperature))
+    weights = jax.tree_util.tree_map(lambda w: jnp.broadcast_to(jnp.asarray(w, dtype), shape), weights)
+    return _batched(lambda *a: _expected_one(*a[:6], vehicle, config, a[6], temperature), nb,
+                    (path, obstacles, v0, a0, s0, keep_clear, weights), ())
 
 
 _expected_jit = jax.jit(_expected_impl, static_argnames=("config",))
