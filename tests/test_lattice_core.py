@@ -346,3 +346,19 @@ def test_batched_plan_matches_single_and_does_not_recompile():
         assert int(b.chosen[i]) == int(r.chosen)
         np.testing.assert_allclose(np.asarray(b.cost[i]), np.asarray(r.cost), rtol=1e-5, atol=1e-5)
         np.testing.assert_array_equal(np.asarray(b.collided[i]), np.asarray(r.collided))
+
+
+def test_fast_atan2_and_box_separation_axes(rng):
+    from jaxplan.geometry import box_separation
+    from jaxplan.geometry.boxes import box_separation_axes
+    from jaxplan.lattice.candidates import atan2
+    y, x = rng.normal(size=5000), rng.normal(size=5000)
+    x[:10] = 0.0
+    np.testing.assert_allclose(np.asarray(atan2(jnp.asarray(y, jnp.float32), jnp.asarray(x, jnp.float32))),
+                               np.arctan2(y, x), atol=1e-6)
+    a = np.column_stack([rng.uniform(-5, 5, (2000, 2)), rng.uniform(0.5, 5, (2000, 2)), rng.uniform(-4, 4, 2000)])
+    b = np.column_stack([rng.uniform(-5, 5, (2000, 2)), rng.uniform(0.5, 5, (2000, 2)), rng.uniform(-4, 4, 2000)])
+    a, b = jnp.asarray(a, jnp.float32), jnp.asarray(b, jnp.float32)
+    ax = lambda q: jnp.stack([jnp.cos(q[:, 4]), jnp.sin(q[:, 4])], -1)
+    got = box_separation_axes(a[:, :2], ax(a), 0.5 * a[:, 2:4], b[:, :2], ax(b), 0.5 * b[:, 2:4])
+    np.testing.assert_allclose(np.asarray(got), np.asarray(box_separation(a, b)), atol=1e-5)

@@ -6,10 +6,11 @@ escalation: level ``e`` uses the speed deltas scaled by ``escalation[e]``.
 
 Each speed profile gives the distance ``s(t)`` along the reference line; the lateral
 path ``l(s)`` is a quintic reaching its offset after ``S = max(s(t_end), s_min)``.
-Positions, headings and curvatures come from ``frenet_to_cartesian_state``; the
-reference line is evaluated once per (level, speed, time) and shared by every
-lateral offset. The Cartesian speed is ``ds/dt * sqrt((1 - kappa_r l)^2 + l'^2)``;
-the acceleration is its central difference in time.
+Positions, headings (unwrapped) and curvatures follow ``frenet_to_cartesian_state``'s
+formulas; the reference line is evaluated once per (level, speed, time) and shared
+by every lateral offset. The Cartesian speed is ``ds/dt * sqrt((1 - kappa_r l)^2 + l'^2)``
+and the acceleration its exact time derivative; ``s`` of the trajectory is the
+running sum of chord lengths.
 """
 from __future__ import annotations
 
@@ -18,9 +19,10 @@ from typing import Any
 
 import jax
 import jax.numpy as jnp
+from jax import lax
 import numpy as np
 
-from jaxplan.geometry.frenet import ReferenceLine, frenet_to_cartesian_state, ref_state
+from jaxplan.geometry.frenet import ReferenceLine, ref_state
 from jaxplan.lattice.profiles import accel_profile, jerk_profile
 from jaxplan.lattice.quintic import cartesian_to_frenet_state, quintic_coeffs, quintic_eval
 from jaxplan.types import Trajectory, VehicleParams, _pytree, check_finite
@@ -142,12 +144,13 @@ class PlanState:
         return self
 
 
-@_pytree(data_fields=("traj", "s", "l", "dl", "v_end", "offset", "level", "speed_index", "lane", "l_target"))
+@_pytree(data_fields=("traj", "axis", "s", "l", "dl", "v_end", "offset", "level", "speed_index", "lane", "l_target"))
 class Candidates:
     """Every candidate of the lattice, flattened to ``N`` (see the module docstring).
 
     Attributes:
         traj: ``Trajectory`` with fields ``(..., N, T)`` (reference point of the car).
+        axis: ``(..., N, T, 2)`` heading unit vectors ``(cos theta, sin theta)``.
         s, l, dl: ``(..., N, T)`` Frenet arc length (absolute), offset and dl/ds.
         v_end, offset: ``(..., N)`` target end speed (m/s) and lateral offset (m).
         level, speed_index, lane: ``(..., N)`` int grid indices.
@@ -155,6 +158,7 @@ class Candidates:
     """
 
     traj: Any
+    axis: Any
     s: Any
     l: Any
     dl: Any
@@ -164,6 +168,26 @@ class Candidates:
     speed_index: Any
     lane: Any
     l_target: Any
+
+
+# Minimax odd polynomial for atan on [0, 1] (max error about 1e-7 rad in float32 arithmetic).
+_ATAN = (0.99999934, -0.33329856, 0.19946536, -0.13908534, 0.09642004, -0.05590988, 0.02186122, -0.00405404)
+
+
+def atan2(y, x):
+    """``arctan2`` from multiplies and one division (XLA's CPU arctan2 is ~30x slower
+    than arithmetic); agrees with ``jnp.arctan2`` to about 1e-6 rad."""
+    ax, ay = jnp.abs(x), jnp.abs(y)
+    big = jnp.maximum(ax, ay)
+    z = jnp.minimum(ax, ay) / jnp.where(big > 0, big, 1.0)
+    z2 = z * z
+    p = _ATAN[-1]
+    for c in _ATAN[-2::-1]:
+        p = p * z2 + c
+    r = p * z
+    r = jnp.where(ay > ax, 0.5 * np.pi - r, r)
+    r = jnp.where(x < 0, np.pi - r, r)
+    return jnp.where(y < 0, -r, r)
 
 
 def _grid_values(config: LatticeConfig, v0, dtype):
@@ -202,33 +226,50 @@ def generate(state: PlanState, ref: ReferenceLine, config: LatticeConfig) -> Can
     a0 = jnp.asarray(state.a, dtype) * to_sdot
     v_end, offsets = _grid_values(config, v0, dtype)
     if config.profile == "jerk":
-        s_rel, sd, _ = jerk_profile(sdot0, a0, v_end, t, config.jerk, config.a_min, config.a_max)
+        s_rel, sd, sdd = jerk_profile(sdot0, a0, v_end, t, config.jerk, config.a_min, config.a_max)
     else:
-        s_rel, sd, _ = accel_profile(sdot0, v_end, t, config.a_min, config.a_max)
+        s_rel, sd, sdd = accel_profile(sdot0, v_end, t, config.a_min, config.a_max)
     # s_rel, sd: (E, V, T)
     S = jnp.maximum(s_rel[..., -1], config.s_min)  # (E, V)
     coeffs = quintic_coeffs(l0, dl0, ddl0, offsets[None, None], S[..., None, None])  # (E, V, Ln, O, 6)
     sg = s_rel[:, :, None, None, :]
     l, dl, ddl = quintic_eval(coeffs, jnp.broadcast_to(S[..., None, None], coeffs.shape[:-1]), sg)
     s_abs = s0 + sg  # (E, V, 1, 1, T): the reference line is evaluated once per speed profile
-    xy, theta, kappa = frenet_to_cartesian_state(ref, s_abs, l, dl, ddl)
-    _, _, kr, _ = ref_state(ref, s_abs)
-    speed = sd[:, :, None, None, :] * jnp.sqrt((1.0 - kr * l) ** 2 + dl ** 2)
+    pos, theta_r, kr, dkr = ref_state(ref, s_abs)
+    cr, sr = jnp.cos(theta_r), jnp.sin(theta_r)
+    # barriers: evaluate shared (per speed profile) and per-candidate intermediates once,
+    # instead of XLA re-fusing them (with their trigonometry) into every output
+    pos, theta_r, cr, sr, kr, dkr = lax.optimization_barrier((pos, theta_r, cr, sr, kr, dkr))
+    l, dl, ddl = lax.optimization_barrier((l, dl, ddl))
+    # Frenet -> Cartesian (as frenet_to_cartesian_state, without trigonometry per candidate)
+    one = 1.0 - kr * l
+    q = jnp.sqrt(one ** 2 + dl ** 2)
+    one, q = lax.optimization_barrier((one, q))
+    cos_d, sin_d, tan_d = one / q, dl / q, dl / one
+    kappa = ((ddl + (dkr * l + kr * dl) * tan_d) * cos_d ** 2 / one + kr) * cos_d / one
+    theta = theta_r + atan2(dl, one)
+    x = pos[..., 0] - l * sr
+    y = pos[..., 1] + l * cr
+    ux, uy = cr * cos_d - sr * sin_d, sr * cos_d + cr * sin_d  # heading unit vector
+    sd, sdd = sd[:, :, None, None, :], sdd[:, :, None, None, :]
+    speed = sd * q
+    # d(speed)/dt = s'' q + s'^2 dq/ds, with dq/ds = (one * d(one)/ds + l' l'') / q
+    acc = sdd * q + sd ** 2 * (one * -(dkr * l + kr * dl) + dl * ddl) / q
     shape = (E, V, Ln, O, T)
     N = E * V * Ln * O
 
     def flat(x):
         return jnp.broadcast_to(x, shape).reshape(N, T)
 
-    x, y, theta, kappa, speed = (flat(z) for z in (xy[..., 0], xy[..., 1], theta, kappa, speed))
-    acc = jnp.gradient(speed, config.dt, axis=-1) if T > 2 else jnp.zeros_like(speed)
-    seg = jnp.hypot(jnp.diff(x, axis=-1), jnp.diff(y, axis=-1))
-    arc = jnp.concatenate([jnp.zeros((N, 1), dtype), jnp.cumsum(seg, axis=-1)], axis=-1)
+    x, y, theta, kappa, speed, acc, ux, uy = (flat(z) for z in (x, y, theta, kappa, speed, acc, ux, uy))
+    seg = jnp.hypot(jnp.diff(x, axis=-1), jnp.diff(y, axis=-1))  # (N, T-1) chord lengths
+    upper = jnp.asarray(np.triu(np.ones((T - 1, T)), 1), dtype)  # running sum as one matmul (fast on CPU)
+    arc = seg @ upper
     traj = Trajectory(x, y, theta, kappa, speed, acc, jnp.broadcast_to(t, (N, T)), arc,
                       jnp.ones((N, T), dtype))
     idx = np.indices((E, V, Ln, O)).reshape(4, N)
     lane_ids = np.asarray(config.lanes)[idx[2]]
-    return Candidates(traj, flat(s_abs), flat(l), flat(dl),
+    return Candidates(traj, jnp.stack([ux, uy], -1), flat(s_abs), flat(l), flat(dl),
                       jnp.broadcast_to(v_end[:, :, None, None], (E, V, Ln, O)).reshape(N),
                       jnp.broadcast_to(offsets, (E, V, Ln, O)).reshape(N),
                       jnp.asarray(idx[0]), jnp.asarray(idx[1]), jnp.asarray(lane_ids),

@@ -11,7 +11,7 @@ from jaxplan.geometry.frenet import ReferenceLine
 from jaxplan.lattice.candidates import Candidates, LatticeConfig, PlanState, generate
 from jaxplan.lattice.cost import CostWeights, cost_features, costs, select
 from jaxplan.lattice.crossroad import with_stop_target
-from jaxplan.lattice.risk import align_obstacles, min_separation, risk_from_separation, trajectory_boxes
+from jaxplan.lattice.risk import align_obstacles, car_parts, min_separation_axes, risk_from_separation
 from jaxplan.types import Obstacles, _pytree, is_concrete
 
 
@@ -54,7 +54,8 @@ def _plan(state: PlanState, ref: ReferenceLine, obstacles: Obstacles, config: La
     cand: Candidates = generate(state, ref, config)
     obs = align_obstacles(obstacles, config.n_steps)
     obs = with_stop_target(obs, ref, jnp.stack([state.x, state.y]), state.d_crossroad, config)
-    sep = min_separation(trajectory_boxes(cand.traj, config.vehicle), obs)
+    center, half = car_parts(jnp.stack([cand.traj.x, cand.traj.y], -1), cand.axis, config.vehicle)
+    sep = min_separation_axes(center, cand.axis, half, obs)
     risk = risk_from_separation(sep, cand.traj.t[0])
     feats = cost_features(cand.l, cand.traj.kappa, cand.l_target, risk.ttc, cand.v_end, state.v_set, sep,
                           cand.level, config.ttc_min, config.sep_eps)

@@ -15,11 +15,13 @@ from typing import Any
 
 import jax
 import jax.numpy as jnp
+from jax import lax
 
-from jaxplan.geometry.boxes import box_separation, poses_to_boxes
+from jaxplan.geometry.boxes import box_separation_axes, poses_to_boxes
 from jaxplan.types import Obstacles, Trajectory, VehicleParams, _pytree
 
-BIG = 1e6  # separation given to invalid (padding / unknown) obstacle entries
+BIG = 1e6  # separation reported when there is no obstacle
+FAR = 1e6  # invalid obstacle entries are moved this far away (they then block nothing)
 
 
 @_pytree(data_fields=("min_sep", "collided", "first_t", "ttc"))
@@ -51,6 +53,21 @@ def align_obstacles(obstacles: Obstacles, n_steps: int) -> Obstacles:
     return Obstacles(b, v, t)
 
 
+def _obstacle_parts(obstacles: Obstacles):
+    """Centres ``(K, T, 2)`` (invalid entries moved far away), unit axes, half sizes."""
+    b = obstacles.boxes
+    far = jnp.asarray(FAR, b.dtype)
+    c = jnp.where(obstacles.valid[..., None], b[..., :2], far)
+    u = jnp.stack([jnp.cos(b[..., 4]), jnp.sin(b[..., 4])], -1)
+    return lax.optimization_barrier((c, u, 0.5 * b[..., 2:4]))
+
+
+def car_parts(xy, axis, vehicle: VehicleParams):
+    """The car's box centres ``(..., 2)`` and half sizes ``(2,)`` from reference points and unit headings."""
+    c = xy + jnp.asarray(vehicle.center_offset, xy.dtype) * axis
+    return c, 0.5 * jnp.asarray([vehicle.length, vehicle.width], xy.dtype)
+
+
 def min_separation(car_boxes, obstacles: Obstacles):
     """Minimum signed separation over obstacles at every step.
 
@@ -59,13 +76,21 @@ def min_separation(car_boxes, obstacles: Obstacles):
         obstacles: boxes ``(K, T, 5)``, valid ``(K, T)``, same T.
 
     Returns:
-        ``(N, T)``; ``BIG`` where no obstacle is valid.
+        ``(N, T)``; about ``FAR`` where no obstacle is valid.
     """
+    u = jnp.stack([jnp.cos(car_boxes[..., 4]), jnp.sin(car_boxes[..., 4])], -1)
+    return min_separation_axes(car_boxes[..., :2], u, 0.5 * car_boxes[..., 2:4], obstacles)
+
+
+def min_separation_axes(center, axis, half, obstacles: Obstacles):
+    """``min_separation`` for car boxes given as centres ``(N, T, 2)``, unit headings
+    ``(N, T, 2)`` and half sizes ``(2,)`` or ``(N, T, 2)`` (no trigonometry per pair)."""
     K = obstacles.boxes.shape[-3]
     if K == 0:
-        return jnp.full(car_boxes.shape[:-1], BIG, car_boxes.dtype)
-    sep = box_separation(car_boxes[:, None], obstacles.boxes[None])  # (N, K, T)
-    sep = jnp.where(obstacles.valid[None], sep, BIG)
+        return jnp.full(center.shape[:-1], BIG, center.dtype)
+    oc, ou, oh = _obstacle_parts(obstacles)
+    center, axis = lax.optimization_barrier((center, axis))
+    sep = box_separation_axes(center[:, None], axis[:, None], half, oc[None], ou[None], oh[None])  # (N, K, T)
     return jnp.min(sep, axis=-2)
 
 
