@@ -253,3 +253,29 @@ def test_plan_parkout_api():
         pk.plan_parkout(jnp.zeros((2, 3)), grids, pk.ParkoutConfig(scan_rows=40), CAR)
     with pytest.raises(ValueError):
         pk.ParkoutConfig(dl=0.0)
+
+
+def test_two_corner_model(rng):
+    boxes = np.concatenate([rng.uniform(-6, 6, (5, 2)), rng.uniform(0.3, 4, (5, 2)), rng.uniform(-3, 3, (5, 1))], -1)
+    ref = np.array([1.45, 0.0])
+    pts, ok = pk.two_corner_points(jnp.asarray(boxes, jnp.float32), jnp.ones(5, bool), jnp.asarray(ref, jnp.float32))
+    corners = np.asarray(box_corners(jnp.asarray(boxes)))
+    for k in range(5):
+        near = corners[k][np.argsort(np.linalg.norm(corners[k] - ref, axis=-1))[:2]]
+        assert np.allclose(np.asarray(pts)[2 * k: 2 * k + 2], near, atol=1e-5)
+    poses = jnp.asarray(_random_poses(rng, 40, (5, 4, 3)))
+    hit = np.asarray(pk.footprint_hits_points(pts, ok, poses, CAR, 0.1))
+    polys = shapely.polygons(np.asarray(box_corners(pk.footprint_boxes(poses, CAR, 0.1))))
+    ref_hit = np.array([shapely.contains_xy(p, np.asarray(pts)[:, 0], np.asarray(pts)[:, 1]).any() for p in polys])
+    assert np.array_equal(hit, ref_hit) and 0 < hit.sum() < 40
+
+
+def test_margin_shrinks_next_to_the_curb():
+    cells = np.zeros((2, CFG.rows, CFG.cols), bool)  # the same shapes as above: no new compile
+    cells[:, : CFG.rows // 2 - 20] = True  # occupied cell centres up to y = -1.025, 0.075 m from the car
+    grids = pk.Grid(jnp.asarray(cells), jnp.zeros((2, 3)))
+    plan = pk.plan_parkout(jnp.zeros((2, 3)), grids, CFG, CAR)
+    assert np.isclose(float(plan.margin[0]), CFG.margin / 2)
+    # turning out swings the rear-right corner ~9 cm towards the curb: forward is cut at once, backward runs
+    assert bool(plan.forward.cut[0]) and float(plan.forward.length[0]) < 0.2
+    assert not bool(plan.use_forward[0]) and float(plan.backward.length[0]) > 1.9

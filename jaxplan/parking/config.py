@@ -30,6 +30,10 @@ class ParkoutConfig:
             the rollout crosses it instead of approaching it asymptotically.
         margin: the footprint is inflated by this much on every side in the
             collision check.
+        shrink_margin: if the current pose is already within ``margin`` of an
+            occupied cell (a car parked close to the curb), plan with the largest
+            of ``margin * (1, 1/2, 1/4, 0)`` that is clear at the current pose; the
+            exact footprint never covers an occupied cell either way.
         scan_rows: grid rows scanned per pose in the footprint check; must cover
             the inflated footprint's diagonal (``hypot(L + 2m, W + 2m) / cell + 2``).
         max_moves: drive / re-plan cycles before ``park_out`` gives up.
@@ -54,6 +58,7 @@ class ParkoutConfig:
     out_tol_deg: float = 10.0
     overshoot: float = 0.03
     margin: float = 0.1
+    shrink_margin: bool = True
     scan_rows: int = 112
     max_moves: int = 8
     min_progress: float = 0.05

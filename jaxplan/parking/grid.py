@@ -185,8 +185,8 @@ def polygon_covers_occupied(prefix, grid_pose, poly, config: ParkoutConfig):
     return jnp.any(occ, axis=-1)
 
 
-def footprint_hits_grid(prefix, grid_pose, poses, vehicle, config: ParkoutConfig):
-    """Whether the footprint inflated by ``config.margin`` covers an occupied cell centre.
+def footprint_hits_grid(prefix, grid_pose, poses, vehicle, config: ParkoutConfig, margin=None):
+    """Whether the footprint inflated by ``margin`` (default ``config.margin``) covers an occupied cell centre.
 
     Args:
         prefix: ``(rows, cols + 1)`` row prefix counts of one grid (``row_prefix``).
@@ -196,5 +196,6 @@ def footprint_hits_grid(prefix, grid_pose, poses, vehicle, config: ParkoutConfig
     Returns:
         ``(...)`` bool.
     """
-    poly = box_corners(footprint_boxes(poses, vehicle, config.margin))
+    margin = config.margin if margin is None else margin
+    poly = box_corners(footprint_boxes(poses, vehicle, margin))
     return polygon_covers_occupied(prefix, grid_pose, poly, config)

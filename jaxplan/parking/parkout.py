@@ -37,6 +37,7 @@ class Plan(NamedTuple):
         forward, backward: both candidates.
         use_forward: ``(...)`` bool, which one was chosen.
         out: ``(...)`` the chosen move ends fully out.
+        margin: ``(...)`` the footprint margin the collision check used.
     """
 
     trajectory: Rollout
@@ -44,9 +45,23 @@ class Plan(NamedTuple):
     backward: Rollout
     use_forward: jnp.ndarray
     out: jnp.ndarray
+    margin: jnp.ndarray
 
 
-def _plan(pose, hits, vehicle, config: ParkoutConfig) -> Plan:
+def _usable_margin(check, pose, config: ParkoutConfig):
+    """``config.margin``, or with ``shrink_margin`` the largest of margin * (1, 1/2, 1/4, 0) clear at ``pose``."""
+    m = jnp.asarray(config.margin, pose.dtype)
+    if not config.shrink_margin:
+        return m
+    cands = m * jnp.asarray([1.0, 0.5, 0.25, 0.0], pose.dtype)
+    clear = ~jax.vmap(lambda mm: check(pose, margin=mm))(cands)
+    return jnp.where(jnp.any(clear), cands[jnp.argmax(clear)], 0.0)
+
+
+def _plan(pose, check, vehicle, config: ParkoutConfig) -> Plan:
+    """One planning cycle; ``check(poses, margin=...) -> bool`` is the collision model."""
+    margin = _usable_margin(check, pose, config)
+    hits = functools.partial(check, margin=margin)
     R = turning_radius(vehicle)
     d = stop_line(vehicle, config.c)
     curves = jax.tree_util.tree_map(lambda a, b: jnp.stack([a, b]), forward_curve(pose, R, d + config.overshoot),
@@ -56,7 +71,7 @@ def _plan(pose, hits, vehicle, config: ParkoutConfig) -> Plan:
     f, b = (jax.tree_util.tree_map(lambda x: x[i], both) for i in (0, 1))
     use = select_forward(f, b, d, config)
     chosen = jax.tree_util.tree_map(lambda x, y: jnp.where(use, x, y), f, b)
-    return Plan(chosen, f, b, use, is_out(chosen.end_pose, d, config))
+    return Plan(chosen, f, b, use, is_out(chosen.end_pose, d, config), margin)
 
 
 def _grid_hits(grid: Grid, vehicle, config):
@@ -139,27 +154,36 @@ def _park_out_one(scene: Scene, key, config: ParkoutConfig, vehicle, model: str)
         ref = jnp.stack([jnp.asarray(vehicle.center_offset, dtype), jnp.zeros((), dtype)])
         pts, ok = two_corner_points(scene.boxes, scene.valid, ref)
 
-    def move(state, k):
-        pose, done, success, stuck = state
+    M, T = config.max_moves, config.steps
+    kd = jnp.asarray(key, jnp.uint32).reshape(-1)
+
+    def cond(state):
+        return (state[0] < M) & ~state[2]
+
+    def move(state):
+        k, pose, done, success, stuck, poses, valid, gear, length = state
+        seed = jnp.stack([kd[0] ^ (k.astype(jnp.uint32) * jnp.uint32(0x85EBCA6B)), kd[-1]])
         if model == "grid":
-            hits = _grid_hits(render_grid(scene, pose, k, config, vehicle), vehicle, config)
+            hits = _grid_hits(render_grid(scene, pose, seed, config, vehicle), vehicle, config)
         else:
-            hits = functools.partial(footprint_hits_points, pts, ok, vehicle=vehicle, margin=config.margin)
+            hits = functools.partial(footprint_hits_points, pts, ok, vehicle=vehicle)
         plan = _plan(pose, hits, vehicle, config)
         tr = plan.trajectory
         go = ~done & (tr.length >= config.min_progress)
         now_stuck = ~done & ~go
-        new_pose = jnp.where(go, tr.end_pose, pose)
         out = go & plan.out
-        state = (new_pose, done | now_stuck | out, success | out, stuck | now_stuck)
-        return state, (tr.poses, tr.valid & go, jnp.where(go, tr.gear[0], 0).astype(jnp.int32),
-                       jnp.where(go, tr.length, 0.0))
+        poses = poses.at[k].set(tr.poses)
+        valid = valid.at[k].set(tr.valid & go)
+        gear = gear.at[k].set(jnp.where(go, tr.gear[0], 0).astype(jnp.int32))
+        length = length.at[k].set(jnp.where(go, tr.length, 0.0))
+        return (k + 1, jnp.where(go, tr.end_pose, pose), done | now_stuck | out, success | out, stuck | now_stuck,
+                poses, valid, gear, length)
 
-    init = (start, jnp.zeros((), bool), jnp.zeros((), bool), jnp.zeros((), bool))
-    k = jnp.asarray(key, jnp.uint32).reshape(-1)
-    m = jnp.arange(config.max_moves, dtype=jnp.uint32)
-    keys = jnp.stack([k[0] ^ (m * jnp.uint32(0x85EBCA6B)), jnp.broadcast_to(k[-1], m.shape)], -1)
-    (pose, done, success, stuck), (poses, valid, gear, length) = lax.scan(move, init, keys)
+    f = jnp.zeros((), bool)
+    init = (jnp.zeros((), jnp.int32), start, f, f, f, jnp.zeros((M, T, 3), dtype), jnp.zeros((M, T), bool),
+            jnp.zeros((M,), jnp.int32), jnp.zeros((M,), dtype))
+    _, pose, done, success, stuck, poses, valid, gear, length = lax.while_loop(cond, move, init)
+    poses = jnp.where(valid.any(-1)[:, None, None], poses, pose)
     return ParkoutResult(poses, valid, gear, success, stuck, jnp.sum(gear != 0), jnp.sum(length), pose)
 
 
