@@ -35,7 +35,7 @@ from jaxplan.eval.registry import SuiteArgs, register
 from jaxplan.geometry.boxes import box_corners, box_has_overlap, poses_to_boxes
 from jaxplan.geometry.frenet import ReferenceLine, ref_state, reference_line, to_frenet
 from jaxplan.geometry.polygons import has_overlap
-from jaxplan.speed import CostWeights, SpeedConfig, compose_plan, make_scene, plan_speed
+from jaxplan.speed import CostWeights, SpeedConfig, compose_plan, plan_speed
 from jaxplan.speed.nonblocking import obstacle_speed
 from jaxplan.types import Obstacles, VehicleParams
 
@@ -192,13 +192,6 @@ def _compose_batch(cfg: SpeedConfig, n_out: int):
     return jax.jit(jax.vmap(one))
 
 
-def _classify_batch(cfg: SpeedConfig):
-    def one(ref, obs, s0):
-        return make_scene(ref, obs, cfg, CAR, s0)[1].classified
-
-    return jax.jit(jax.vmap(one))
-
-
 def simulate(sc: Scenes, cfg: SpeedConfig, with_nb: bool):
     """Closed loop. Returns driven s, v, a ``(B, S)`` at DT_OBS, no-bypass flags ``(B, K)``,
     the first plans and the first scenes' classification."""
@@ -209,7 +202,6 @@ def simulate(sc: Scenes, cfg: SpeedConfig, with_nb: bool):
     per = int(round(cfg.dt / DT_OBS))
     n_pred = int(round(cfg.horizon / DT_OBS)) + 1
     compose = _compose_batch(cfg, per + 1)
-    classify_b = _classify_batch(cfg)
     s = jnp.asarray(sc.s0, jnp.float32)
     v = jnp.asarray(sc.v0, jnp.float32)
     a = jnp.zeros(B, jnp.float32)
@@ -223,10 +215,9 @@ def simulate(sc: Scenes, cfg: SpeedConfig, with_nb: bool):
         obs = Obstacles(jnp.asarray(sc.boxes[:, :, g:g + n_pred], jnp.float32),
                         jnp.asarray(sc.valid[:, :, g:g + n_pred]), jnp.broadcast_to(tp, (B, n_pred)))
         plan = plan_speed(refs, obs, cfg, w, v0=v, a0=a, s0=s, keep_clear=kc, vehicle=CAR)
-        c = classify_b(refs, obs, s)
-        no_bypass |= np.asarray(c.no_bypass)
+        no_bypass |= np.asarray(plan.scene.classified.no_bypass)
         if first is None:
-            first = (plan, c)
+            first = plan
         tr = compose(refs, s, plan, v)
         S.append(np.asarray(s)[:, None] + np.asarray(tr.s)[:, 1:])
         V.append(np.asarray(tr.v)[:, 1:])
@@ -290,7 +281,7 @@ def measure(sc: Scenes, s, v, a, no_bypass, cfg: SpeedConfig) -> dict:
     jerk = np.abs(np.diff(a, axis=1)) / DT_OBS
     return {"collision": col.any(-1), "blind_s": blind.sum(-1) * DT_OBS, "keep_clear_s": kc_stop.sum(-1) * DT_OBS,
             "forbidden_overtakes": overtook.sum(-1), "max_jerk": jerk.max(-1), "t_goal": t_goal,
-            "progress": travelled[:, -1]}
+            "progress": travelled[:, -1], "t_sim": (n - 1) * DT_OBS}
 
 
 def _summary(prefix, mw, mo, kinds) -> dict:
@@ -306,6 +297,10 @@ def _summary(prefix, mw, mo, kinds) -> dict:
     out[f"{prefix}reached_goal_both"] = int(both.sum())
     out[f"{prefix}reached_goal_with"] = int((~np.isnan(mw["t_goal"])).sum())
     out[f"{prefix}reached_goal_without"] = int((~np.isnan(mo["t_goal"])).sum())
+    # censored: a scene that does not reach the goal counts t_sim (a lower bound of its time)
+    tw_all = np.where(np.isnan(mw["t_goal"]), mw["t_sim"], mw["t_goal"]).mean()
+    to_all = np.where(np.isnan(mo["t_goal"]), mo["t_sim"], mo["t_goal"]).mean()
+    out[f"{prefix}travel_time_ratio_all_censored"] = round(float(tw_all / to_all), 4)
     if both.any():
         tw, to = float(mw["t_goal"][both].mean()), float(mo["t_goal"][both].mean())
         out[f"{prefix}with.time_to_goal_s"] = round(tw, 3)
@@ -338,8 +333,9 @@ def _plot_st(sc: Scenes, first_with, first_without, cfg: SpeedConfig, out: str, 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    plan_w, c = first_with
-    plan_o, _ = first_without
+    plan_w, plan_o = first_with, first_without
+    c = plan_w.scene.classified
+    kc = plan_w.scene
     tf = cfg.fine_times()
     front = CAR.center_offset + 0.5 * CAR.length
     rear = CAR.center_offset - 0.5 * CAR.length
@@ -359,6 +355,10 @@ def _plot_st(sc: Scenes, first_with, first_without, cfg: SpeedConfig, out: str, 
                 ax.fill_between(tf, np.where(hit, lo - cfg.blind_back - front, np.nan),
                                 np.where(hit, lo + cfg.blind_front - rear, np.nan), color="tab:cyan", alpha=0.3,
                                 hatch="//", label="blind zone")
+        for r in range(kc.kc_hit.shape[1]):
+            if bool(kc.kc_hit[b, r]):
+                ax.axhspan(float(kc.kc_lower[b, r]), float(kc.kc_upper[b, r]), color="tab:green", alpha=0.25,
+                           label="keep-clear region")
         ax.plot(np.asarray(plan_w.t[b]), np.asarray(plan_w.s[b]), "k-o", ms=3, label="plan with non-blocking")
         ax.plot(np.asarray(plan_o.t[b]), np.asarray(plan_o.s[b]), "--", color="tab:orange", marker="s", ms=3,
                 label="plan without")

@@ -152,7 +152,8 @@ class SpeedScene:
 @dataclasses.dataclass(frozen=True)
 class SpeedPlan:
     """DP result: ``t``, ``s`` (relative to s0) ``(..., n_t + 1)``; segment speed ``v``
-    and acceleration ``a`` ``(..., n_t)``; total ``cost`` and ``feasible`` ``(...)``."""
+    and acceleration ``a`` ``(..., n_t)``; total ``cost`` and ``feasible`` ``(...)``;
+    ``scene``: the ``SpeedScene`` planned against (ST boundaries, decisions), or None."""
 
     t: Any
     s: Any
@@ -160,6 +161,7 @@ class SpeedPlan:
     a: Any
     cost: Any
     feasible: Any
+    scene: Any = None
 
 
 def build_scene(profile: PathProfile, obstacles: Obstacles, vehicle: VehicleParams, config: SpeedConfig,
@@ -365,7 +367,7 @@ def _plan_one(path, obstacles, v0, a0, s0, keep_clear, vehicle, config, weights)
     s = jnp.concatenate([jnp.zeros((1,), dtype), ii.astype(dtype) * config.ds])
     t = jnp.arange(config.n_t + 1, dtype=dtype) * config.dt
     return SpeedPlan(t, s, jj.astype(dtype) * config.dv, aa.astype(dtype) * config.da, cost,
-                     cost < 0.5 * config.big)
+                     cost < 0.5 * config.big, scene)
 
 
 def _expected_one(path, obstacles, v0, a0, s0, keep_clear, vehicle, config, weights, temperature):
@@ -381,7 +383,7 @@ def _expected_one(path, obstacles, v0, a0, s0, keep_clear, vehicle, config, weig
     t = jnp.arange(config.n_t + 1, dtype=dtype) * config.dt
     s = jnp.concatenate([jnp.zeros((1,), dtype), es])
     a = jnp.diff(jnp.concatenate([jnp.reshape(v0, (1,)).astype(dtype), ev])) / config.dt
-    return SpeedPlan(t, s, ev, a, value, value < 0.5 * config.big)
+    return SpeedPlan(t, s, ev, a, value, value < 0.5 * config.big, scene)
 
 
 def _batched(fn, batch_ndim, args, static):
