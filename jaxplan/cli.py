@@ -16,6 +16,13 @@ def main(argv=None) -> int:
     e.add_argument("--n", type=int, help="number of scenes / cases")
     e.add_argument("--seed", type=int, default=0)
     e.add_argument("--quick", action="store_true", help="small sizes, for a demo or a smoke test")
+    e.add_argument("--weights", help="cost weights JSON written by `jaxplan tune` (suites that use them)")
+    t = sub.add_parser("tune", help="learn cost weights from demonstrations and write them as JSON")
+    t.add_argument("planner", choices=("lattice", "speed"))
+    t.add_argument("--scenarios", help="directory of recorded scenarios (default: synthetic demonstrations)")
+    t.add_argument("--out", default="weights.json", help="weights file to write (default: weights.json)")
+    t.add_argument("--steps", type=int, help="optimiser steps (default: 200 lattice, 40 speed)")
+    t.add_argument("--seed", type=int, default=0)
     r = sub.add_parser("report", help="write RESULTS_DIR/report.md from its metrics and plots")
     r.add_argument("results_dir")
     args = p.parse_args(argv)
@@ -28,17 +35,39 @@ def main(argv=None) -> int:
             print(f"jaxplan: error: {err}", file=sys.stderr)
             return 2
         return 0
+    if args.cmd == "tune":
+        return _tune(args)
     if args.cmd == "eval":
         from jaxplan.eval.registry import SuiteArgs, run_suite
 
         try:
             m = run_suite(args.suite, SuiteArgs(out=args.out, n=args.n, seed=args.seed,
-                                                quick=args.quick, scenarios=args.scenarios))
+                                                quick=args.quick, scenarios=args.scenarios,
+                                                weights=args.weights))
         except ValueError as err:
             print(f"jaxplan: error: {err}", file=sys.stderr)
             return 2
         json.dump(m, sys.stdout, indent=1, sort_keys=True)
         print(f"\nwrote {args.out}/metrics.json")
+    return 0
+
+
+def _tune(args) -> int:
+    from jaxplan.tuning.run import demonstrations, tune_lattice, tune_speed
+    from jaxplan.tuning.train import save_weights
+
+    try:
+        train, val, source = demonstrations(args.scenarios, seed=args.seed)
+    except ValueError as err:
+        print(f"jaxplan: error: {err}", file=sys.stderr)
+        return 2
+    if args.planner == "lattice":
+        res = tune_lattice(train, val, steps=args.steps or 200, seed=args.seed)
+    else:
+        res = tune_speed(train, val, steps=args.steps or 40, seed=args.seed)
+    save_weights(args.out, res.weights, meta={"planner": args.planner, "source": source, **res.metrics})
+    json.dump(res.metrics, sys.stdout, indent=1, sort_keys=True)
+    print(f"\nwrote {args.out}")
     return 0
 
 

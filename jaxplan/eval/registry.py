@@ -19,6 +19,7 @@ class SuiteArgs:
     seed: int = 0
     quick: bool = False
     scenarios: str | None = None
+    weights: str | None = None
 
 
 def register(name: str):
