@@ -275,7 +275,7 @@ def test_margin_shrinks_next_to_the_curb():
     cells[:, : CFG.rows // 2 - 20] = True  # occupied cell centres up to y = -1.025, 0.075 m from the car
     grids = pk.Grid(jnp.asarray(cells), jnp.zeros((2, 3)))
     plan = pk.plan_parkout(jnp.zeros((2, 3)), grids, CFG, CAR)
-    assert np.isclose(float(plan.margin[0]), CFG.margin / 2)
+    assert np.isclose(float(plan.margin[0]), CFG.margin - 2 * (CFG.margin - CFG.min_margin) / 3)
     # turning out swings the rear-right corner ~9 cm towards the curb: forward is cut at once, backward runs
     assert bool(plan.forward.cut[0]) and float(plan.forward.length[0]) < 0.2
     assert not bool(plan.use_forward[0]) and float(plan.backward.length[0]) > 1.9

@@ -32,8 +32,11 @@ class ParkoutConfig:
             collision check.
         shrink_margin: if the current pose is already within ``margin`` of an
             occupied cell (a car parked close to the curb), plan with the largest
-            of ``margin * (1, 1/2, 1/4, 0)`` that is clear at the current pose; the
-            exact footprint never covers an occupied cell either way.
+            of four margins from ``margin`` down to ``min_margin`` that is clear at
+            the current pose (else ``min_margin``, which then stops the car).
+        min_margin: the floor; it should cover the grid's error (half a cell
+            diagonal plus the sensor's edge noise) or the exact footprint may
+            touch a true obstacle by that much.
         scan_rows: grid rows scanned per pose in the footprint check; must cover
             the inflated footprint's diagonal (``hypot(L + 2m, W + 2m) / cell + 2``).
         max_moves: drive / re-plan cycles before ``park_out`` gives up.
@@ -59,6 +62,7 @@ class ParkoutConfig:
     overshoot: float = 0.03
     margin: float = 0.1
     shrink_margin: bool = True
+    min_margin: float = 0.05
     scan_rows: int = 112
     max_moves: int = 8
     min_progress: float = 0.05
@@ -73,8 +77,8 @@ class ParkoutConfig:
             v = getattr(self, f)
             if not (math.isfinite(v) and v > 0):
                 raise ValueError(f"ParkoutConfig.{f} must be positive, got {v}")
-        if self.margin < 0 or self.c < 0:
-            raise ValueError("ParkoutConfig.margin and c must be >= 0")
+        if self.margin < 0 or self.c < 0 or not 0 <= self.min_margin <= self.margin:
+            raise ValueError("ParkoutConfig: need margin >= min_margin >= 0 and c >= 0")
         if self.scan_rows < 2:
             raise ValueError("ParkoutConfig.scan_rows must be >= 2")
 

@@ -49,13 +49,13 @@ class Plan(NamedTuple):
 
 
 def _usable_margin(check, pose, config: ParkoutConfig):
-    """``config.margin``, or with ``shrink_margin`` the largest of margin * (1, 1/2, 1/4, 0) clear at ``pose``."""
-    m = jnp.asarray(config.margin, pose.dtype)
+    """``config.margin``, or with ``shrink_margin`` the largest of four margins from
+    ``margin`` down to ``min_margin`` that is clear at ``pose`` (else ``min_margin``)."""
     if not config.shrink_margin:
-        return m
-    cands = m * jnp.asarray([1.0, 0.5, 0.25, 0.0], pose.dtype)
+        return jnp.asarray(config.margin, pose.dtype)
+    cands = jnp.linspace(config.margin, config.min_margin, 4).astype(pose.dtype)
     clear = ~jax.vmap(lambda mm: check(pose, margin=mm))(cands)
-    return jnp.where(jnp.any(clear), cands[jnp.argmax(clear)], 0.0)
+    return jnp.where(jnp.any(clear), cands[jnp.argmax(clear)], cands[-1])
 
 
 def _plan(pose, check, vehicle, config: ParkoutConfig) -> Plan:
