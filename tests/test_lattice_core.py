@@ -362,3 +362,21 @@ def test_fast_atan2_and_box_separation_axes(rng):
     ax = lambda q: jnp.stack([jnp.cos(q[:, 4]), jnp.sin(q[:, 4])], -1)
     got = box_separation_axes(a[:, :2], ax(a), 0.5 * a[:, 2:4], b[:, :2], ax(b), 0.5 * b[:, 2:4])
     np.testing.assert_allclose(np.asarray(got), np.asarray(box_separation(a, b)), atol=1e-5)
+
+
+def test_broad_phase_matches_dense(rng):
+    from jaxplan.lattice.risk import car_parts, min_separation_axes, min_separation_broad
+    c = generate_jit(PlanState.make(0.0, 0.2, 0.0, 12.0), straight_ref(), CFG)
+    center, half = car_parts(jnp.stack([c.traj.x, c.traj.y], -1), c.axis, CFG.vehicle)
+    boxes = [moving(rng.uniform(5, 60), rng.uniform(-3, 3), rng.uniform(-5, 10), rng.uniform(-1, 1),
+                    heading=rng.uniform(-1, 1)) for _ in range(K)]
+    o = obstacles(boxes)
+    dense = np.asarray(min_separation_axes(center, c.axis, half, o))
+    G, P = CFG.grid[0] * CFG.grid[1], CFG.grid[2] * CFG.grid[3]
+    for budget in (1, G * K * T):  # 1: too small, falls back to the dense check
+        got = np.asarray(min_separation_broad(center, c.axis, half, o, P, budget, 1.0))
+        assert ((got < 0) == (dense < 0)).all()
+        close = dense < 1.0
+        assert close.any()
+        np.testing.assert_allclose(got[close], dense[close], atol=1e-5)
+        assert (got[~close] > 1.0 - 1e-5).all()

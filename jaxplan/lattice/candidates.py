@@ -28,6 +28,7 @@ from jaxplan.lattice.quintic import cartesian_to_frenet_state, quintic_coeffs, q
 from jaxplan.types import Trajectory, VehicleParams, _pytree, check_finite
 
 KMH = 1.0 / 3.6
+CHUNK_POINTS = 1 << 15  # candidate points per chunk of the generator
 
 
 @dataclasses.dataclass(frozen=True)
@@ -53,6 +54,10 @@ class LatticeConfig:
         vehicle: the car (static floats).
         ttc_min: TTC floor (s) in the risk ``1 / max(TTC, ttc_min)``.
         sep_eps: softness (m) of the smooth collision feature ``sigmoid(-min_sep / eps)``.
+        near_budget: broad phase of the collision check: at most this fraction of the
+            (speed profile, obstacle, step) triples get the exact per-candidate test
+            (more near triples: the dense test runs); 0 = always dense.
+        broad_margin: distance (m) between bounding circles below which a triple is near.
         d_threshold, d_margin, stop_length, stop_width: crossroad virtual target: when
             the distance to the crossroad is below ``d_threshold`` a stopped box of
             ``stop_length x stop_width`` starts ``d_margin`` beyond it on the reference line.
@@ -76,6 +81,8 @@ class LatticeConfig:
     vehicle: VehicleParams = VehicleParams()
     ttc_min: float = 0.1
     sep_eps: float = 0.05
+    near_budget: float = 0.25
+    broad_margin: float = 1.0
     d_threshold: float = 50.0
     d_margin: float = 0.0
     stop_length: float = 1.0
@@ -229,49 +236,49 @@ def generate(state: PlanState, ref: ReferenceLine, config: LatticeConfig) -> Can
         s_rel, sd, sdd = jerk_profile(sdot0, a0, v_end, t, config.jerk, config.a_min, config.a_max)
     else:
         s_rel, sd, sdd = accel_profile(sdot0, v_end, t, config.a_min, config.a_max)
-    # s_rel, sd: (E, V, T)
-    S = jnp.maximum(s_rel[..., -1], config.s_min)  # (E, V)
-    coeffs = quintic_coeffs(l0, dl0, ddl0, offsets[None, None], S[..., None, None])  # (E, V, Ln, O, 6)
-    sg = s_rel[:, :, None, None, :]
-    l, dl, ddl = quintic_eval(coeffs, jnp.broadcast_to(S[..., None, None], coeffs.shape[:-1]), sg)
-    s_abs = s0 + sg  # (E, V, 1, 1, T): the reference line is evaluated once per speed profile
+    # s_rel, sd, sdd: (E, V, T)
+    G, P = E * V, Ln * O
+    S = jnp.maximum(s_rel[..., -1], config.s_min).reshape(G)
+    s_abs = (s0 + s_rel).reshape(G, T)  # the reference line is evaluated once per speed profile
     pos, theta_r, kr, dkr = ref_state(ref, s_abs)
-    cr, sr = jnp.cos(theta_r), jnp.sin(theta_r)
-    # barriers: evaluate shared (per speed profile) and per-candidate intermediates once,
-    # instead of XLA re-fusing them (with their trigonometry) into every output
-    pos, theta_r, cr, sr, kr, dkr = lax.optimization_barrier((pos, theta_r, cr, sr, kr, dkr))
-    l, dl, ddl = lax.optimization_barrier((l, dl, ddl))
-    # Frenet -> Cartesian (as frenet_to_cartesian_state, without trigonometry per candidate)
-    one = 1.0 - kr * l
-    q = jnp.sqrt(one ** 2 + dl ** 2)
-    one, q = lax.optimization_barrier((one, q))
-    cos_d, sin_d, tan_d = one / q, dl / q, dl / one
-    kappa = ((ddl + (dkr * l + kr * dl) * tan_d) * cos_d ** 2 / one + kr) * cos_d / one
-    theta = theta_r + atan2(dl, one)
-    x = pos[..., 0] - l * sr
-    y = pos[..., 1] + l * cr
-    ux, uy = cr * cos_d - sr * sin_d, sr * cos_d + cr * sin_d  # heading unit vector
-    sd, sdd = sd[:, :, None, None, :], sdd[:, :, None, None, :]
-    speed = sd * q
-    # d(speed)/dt = s'' q + s'^2 dq/ds, with dq/ds = (one * d(one)/ds + l' l'') / q
-    acc = sdd * q + sd ** 2 * (one * -(dkr * l + kr * dl) + dl * ddl) / q
-    shape = (E, V, Ln, O, T)
-    N = E * V * Ln * O
+    per_group = (s_rel.reshape(G, T), sd.reshape(G, T), sdd.reshape(G, T), S, pos, jnp.cos(theta_r),
+                 jnp.sin(theta_r), theta_r, kr, dkr)
+    offsets = offsets.reshape(P)
 
-    def flat(x):
-        return jnp.broadcast_to(x, shape).reshape(N, T)
+    def lateral(g):
+        """Every offset of one speed profile: fields ``(P, T)``."""
+        s_g, sd_g, sdd_g, S_g, pos_g, cr, sr, th_r, kr_g, dkr_g = g
+        coeffs = quintic_coeffs(l0, dl0, ddl0, offsets, S_g)  # (P, 6)
+        l, dl, ddl = quintic_eval(coeffs, jnp.broadcast_to(S_g, (P,)), jnp.broadcast_to(s_g, (P, T)))
+        # Frenet -> Cartesian (frenet_to_cartesian_state's formulas, no trigonometry per candidate)
+        one = 1.0 - kr_g * l
+        q = jnp.sqrt(one ** 2 + dl ** 2)
+        cos_d, sin_d, tan_d = one / q, dl / q, dl / one
+        kappa = ((ddl + (dkr_g * l + kr_g * dl) * tan_d) * cos_d ** 2 / one + kr_g) * cos_d / one
+        theta = th_r + atan2(dl, one)
+        x = pos_g[:, 0] - l * sr
+        y = pos_g[:, 1] + l * cr
+        ux, uy = cr * cos_d - sr * sin_d, sr * cos_d + cr * sin_d  # heading unit vector
+        speed = sd_g * q
+        # d(speed)/dt = s'' q + s'^2 dq/ds, with dq/ds = (one * d(one)/ds + l' l'') / q
+        acc = sdd_g * q + sd_g ** 2 * (one * -(dkr_g * l + kr_g * dl) + dl * ddl) / q
+        seg = jnp.sqrt(jnp.diff(x, axis=-1) ** 2 + jnp.diff(y, axis=-1) ** 2)  # chord lengths
+        arc = jnp.concatenate([jnp.zeros((P, 1), dtype), jnp.cumsum(seg, axis=-1)], axis=-1)
+        return x, y, theta, kappa, speed, acc, arc, ux, uy, l, dl
 
-    x, y, theta, kappa, speed, acc, ux, uy = (flat(z) for z in (x, y, theta, kappa, speed, acc, ux, uy))
-    seg = jnp.hypot(jnp.diff(x, axis=-1), jnp.diff(y, axis=-1))  # (N, T-1) chord lengths
-    upper = jnp.asarray(np.triu(np.ones((T - 1, T)), 1), dtype)  # running sum as one matmul (fast on CPU)
-    arc = seg @ upper
+    # chunks of speed profiles small enough for the cache (XLA would otherwise materialise
+    # every intermediate of all N x T points in memory)
+    chunk = max(1, min(G, CHUNK_POINTS // (P * T)))
+    out = lax.map(lateral, per_group, batch_size=chunk) if chunk < G else jax.vmap(lateral)(per_group)
+    N = G * P
+    x, y, theta, kappa, speed, acc, arc, ux, uy, l, dl = (o.reshape(N, T) for o in out)
     traj = Trajectory(x, y, theta, kappa, speed, acc, jnp.broadcast_to(t, (N, T)), arc,
                       jnp.ones((N, T), dtype))
     idx = np.indices((E, V, Ln, O)).reshape(4, N)
     lane_ids = np.asarray(config.lanes)[idx[2]]
-    return Candidates(traj, jnp.stack([ux, uy], -1), flat(s_abs), flat(l), flat(dl),
-                      jnp.broadcast_to(v_end[:, :, None, None], (E, V, Ln, O)).reshape(N),
-                      jnp.broadcast_to(offsets, (E, V, Ln, O)).reshape(N),
+    return Candidates(traj, jnp.stack([ux, uy], -1), jnp.broadcast_to(s_abs[:, None], (G, P, T)).reshape(N, T),
+                      l, dl, jnp.broadcast_to(v_end.reshape(G, 1), (G, P)).reshape(N),
+                      jnp.broadcast_to(offsets, (G, P)).reshape(N),
                       jnp.asarray(idx[0]), jnp.asarray(idx[1]), jnp.asarray(lane_ids),
                       jnp.asarray(config.target_lane * config.lane_width, dtype))
 

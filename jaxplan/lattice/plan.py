@@ -6,12 +6,14 @@ from typing import Any
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from jaxplan.geometry.frenet import ReferenceLine
 from jaxplan.lattice.candidates import Candidates, LatticeConfig, PlanState, generate
 from jaxplan.lattice.cost import CostWeights, cost_features, costs, select
 from jaxplan.lattice.crossroad import with_stop_target
-from jaxplan.lattice.risk import align_obstacles, car_parts, min_separation_axes, risk_from_separation
+from jaxplan.lattice.risk import (align_obstacles, car_parts, min_separation_axes, min_separation_broad,
+                                  risk_from_separation)
 from jaxplan.types import Obstacles, _pytree, is_concrete
 
 
@@ -55,7 +57,13 @@ def _plan(state: PlanState, ref: ReferenceLine, obstacles: Obstacles, config: La
     obs = align_obstacles(obstacles, config.n_steps)
     obs = with_stop_target(obs, ref, jnp.stack([state.x, state.y]), state.d_crossroad, config)
     center, half = car_parts(jnp.stack([cand.traj.x, cand.traj.y], -1), cand.axis, config.vehicle)
-    sep = min_separation_axes(center, cand.axis, half, obs)
+    if config.near_budget > 0:
+        E, V, Ln, O = config.grid
+        G, K = E * V, obs.boxes.shape[-3]
+        budget = max(1, int(np.ceil(config.near_budget * G * K * config.n_steps)))
+        sep = min_separation_broad(center, cand.axis, half, obs, Ln * O, budget, config.broad_margin)
+    else:
+        sep = min_separation_axes(center, cand.axis, half, obs)
     risk = risk_from_separation(sep, cand.traj.t[0])
     feats = cost_features(cand.l, cand.traj.kappa, cand.l_target, risk.ttc, cand.v_end, state.v_set, sep,
                           cand.level, config.ttc_min, config.sep_eps)

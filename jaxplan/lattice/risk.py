@@ -94,6 +94,59 @@ def min_separation_axes(center, axis, half, obstacles: Obstacles):
     return jnp.min(sep, axis=-2)
 
 
+def min_separation_broad(center, axis, half, obstacles: Obstacles, group_size: int, budget: int,
+                         margin: float = 1.0):
+    """``min_separation_axes`` with a broad phase over groups of candidates.
+
+    Candidates come in groups of ``group_size`` (for the lattice: the lateral offsets
+    of one speed profile, which stay close together). Per group and step, a circle
+    bounds every car box of the group; only (group, obstacle, step) triples whose
+    circles come within ``margin`` get the exact SAT test, for every candidate of the
+    group. Up to ``budget`` triples are checked that way; with more near triples the
+    dense check runs instead, so the result never depends on the budget.
+
+    Returns:
+        ``(N, T)``: the exact SAT separation wherever some obstacle is within the
+        margin; elsewhere a positive stand-in above ``margin`` (centre distance minus
+        bounding radii), so collision flags and the smooth collision feature
+        (``sep_eps << margin``) are unaffected.
+    """
+    N, T = center.shape[:2]
+    K = obstacles.boxes.shape[-3]
+    if K == 0:
+        return jnp.full((N, T), BIG, center.dtype)
+    P = group_size
+    G = N // P
+    oc, ou, oh = _obstacle_parts(obstacles)
+    center, axis = lax.optimization_barrier((center, axis))
+    cg, ug = center.reshape(G, P, T, 2), axis.reshape(G, P, T, 2)
+    lo, hi = jnp.min(cg, axis=1), jnp.max(cg, axis=1)  # (G, T, 2)
+    mid = 0.5 * (lo + hi)
+    r_car = jnp.sqrt(jnp.sum(jnp.asarray(half) ** 2, -1)) if jnp.ndim(half) == 1 else \
+        jnp.max(jnp.sqrt(jnp.sum(half ** 2, -1)))
+    r_grp = 0.5 * jnp.linalg.norm(hi - lo, axis=-1) + r_car  # (G, T)
+    r_obs = jnp.linalg.norm(oh, axis=-1)  # (K, T)
+    d = jnp.linalg.norm(mid[:, None] - oc[None], axis=-1) - r_grp[:, None] - r_obs[None]  # (G, K, T)
+    valid = obstacles.valid[None]
+    near = valid & (d <= margin)
+    stand_in = jnp.min(jnp.where(valid & ~near, d, BIG), axis=1)  # (G, T)
+    count = jnp.sum(near)
+
+    def sparse(_):
+        g, k, t = jnp.nonzero(near, size=budget, fill_value=0)
+        ok = jnp.arange(budget) < count
+        sep = box_separation_axes(cg[g, :, t], ug[g, :, t], half, oc[k, t][:, None], ou[k, t][:, None],
+                                  oh[k, t][:, None])  # (M, P)
+        sep = jnp.where(ok[:, None], sep, BIG)
+        ms = jnp.broadcast_to(stand_in[:, None, :], (G, P, T))
+        return ms.at[g, :, t].min(sep).reshape(N, T)
+
+    def dense(_):
+        return min_separation_axes(center, axis, half, obstacles)
+
+    return lax.cond(count <= budget, sparse, dense, None)
+
+
 def risk_from_separation(min_sep, t) -> Risk:
     """Collision flags, first collision time and TTC from ``min_sep (..., N, T)`` and ``t (T,)``."""
     hit = min_sep < 0
