@@ -30,13 +30,15 @@ def _figures(m: dict, sel) -> dict:
             "replans_while_moving_per_run": float(m["replans_moving"][sel].mean())}
 
 
-def run_strategies(n: int, seed: int, cfg: SimConfig = SimConfig()):
+def run_strategies(n: int, seed: int, cfg: SimConfig = SimConfig(), **scenario_kw):
     """``n`` parking approaches and ``n`` short drives, each driven by the three strategies.
+
+    ``scenario_kw`` go to ``sample_scenarios`` (obstacle probabilities, bias, noise).
 
     Returns (scenarios, kinds ``(2n,)`` str, {strategy: (summary dict, logs)}).
     """
-    park = sample_scenarios(seed, n, "park")
-    drive = sample_scenarios(seed + 1, n, "drive")
+    park = sample_scenarios(seed, n, "park", **scenario_kw)
+    drive = sample_scenarios(seed + 1, n, "drive", **scenario_kw)
     sc = jax.tree.map(lambda a, b: jnp.concatenate([a, b]), park, drive)
     kinds = np.array(["park"] * n + ["drive"] * n)
     out = {}

@@ -84,7 +84,8 @@ class SimplePlanner:
     """Candidate-set planner for parking approaches and short drives (static config, hashable).
 
     The pre-pose of a parking approach is the goal moved by ``pre_pose`` =
-    (along the goal heading, to its left) and turned by ``pre_turn``.
+    (along the goal heading, to its left) and turned by ``pre_turn``. Candidates
+    must keep ``margin`` metres from every perceived obstacle.
     """
 
     vehicle: VehicleParams = VehicleParams()
@@ -100,6 +101,7 @@ class SimplePlanner:
     v_rev: float = 1.5
     accel: float = 1.0
     back_up_cost: float = 4.0
+    margin: float = 0.2
 
     @property
     def n_points(self) -> int:
@@ -152,6 +154,7 @@ class SimplePlanner:
         theta = theta[0] + jnp.concatenate([jnp.zeros(1), jnp.cumsum(jnp.arctan2(jnp.sin(jnp.diff(theta)),
                                                                                   jnp.cos(jnp.diff(theta))))])
         boxes = poses_to_boxes(xy, theta, self.vehicle)
+        boxes = boxes.at[:, 2:4].add(2 * self.margin)  # keep ``margin`` clear (tracking noise, point spacing)
         hit = box_has_overlap(boxes[:, None, :], r.obstacles[None, :, :]) & r.obstacles_valid[None, :] & valid[:, None]
         collides = jnp.any(hit)
         cost = jnp.abs(offset) + self.back_up_cost * (back_len > 0) + 1e3 * collides
