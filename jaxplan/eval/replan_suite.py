@@ -76,6 +76,34 @@ def replan_suite(args: SuiteArgs) -> dict:
                                                     "claim.lazy_no_more_collisions", "claim.lazy_no_lower_success")))
     _plot_timeline(out, kinds, args.out)
     _plot_summary(res, args.out)
+    if not args.quick:  # the park-out planner (issue 6) driven by the same supervisor
+        res.update(parkout_figures(n=max(4, n // 16), seed=args.seed))
+    return res
+
+
+def parkout_figures(n: int, seed: int) -> dict:
+    """Park-out runs (``jaxplan.parking.plan_parkout`` through ``ParkoutPlanner``), host loop."""
+    from jaxplan.parking import is_out, stop_line
+    from jaxplan.replan import simulate_host
+    from jaxplan.replan.parkout_adapter import ParkoutPlanner, parkout_scenarios
+
+    pp = ParkoutPlanner()
+    sc, _ = parkout_scenarios(seed, n, pp)
+    cfg = SimConfig(planner=pp, sensor_range=30.0, lat_sigma=0.0, steps=300)
+    d = stop_line(pp.vehicle, pp.config.c)
+    res: dict[str, float] = {"parkout.runs_per_strategy": n}
+    for s in (LAZY, PERIODIC, IMMEDIATE):
+        rows = []
+        for i in range(n):
+            fin, _ = simulate_host(jax.tree.map(lambda a: a[i], sc), s, cfg)
+            rows.append((int(fin.n_replan), bool(fin.collided), bool(fin.done) and bool(is_out(fin.pose, d, pp.config)),
+                         float(fin.t_done), int(fin.n_replan_moving)))
+        r, c, o, t, mv = (np.array(x) for x in zip(*rows))
+        name = STRATEGY_NAMES[s]
+        res.update({f"parkout.{name}.replans_per_run": float(r.mean()), f"parkout.{name}.collision_rate": float(c.mean()),
+                    f"parkout.{name}.out_rate": float(o.mean()),
+                    f"parkout.{name}.time_to_out_s": float(t[o].mean()) if o.any() else float("nan"),
+                    f"parkout.{name}.replans_while_moving_per_run": float(mv.mean())})
     return res
 
 

@@ -432,6 +432,15 @@ def simulate(scenarios: Scenario, strategy, cfg: SimConfig = SimConfig(), sequen
     return (_simulate_map if sequential else _simulate)(scenarios, strategy, cfg)
 
 
+_PLANNERS: dict = {}
+
+
+def _jit_planner(planner):
+    if planner not in _PLANNERS:
+        _PLANNERS[planner] = jax.jit(planner)
+    return _PLANNERS[planner]
+
+
 _pre_jit = jax.jit(step_pre, static_argnums=3)
 _post_jit = jax.jit(step_post, static_argnums=3)
 
@@ -444,6 +453,12 @@ def simulate_host(sc: Scenario, strategy, cfg: SimConfig = SimConfig(), planner:
     """
     planner = cfg.planner if planner is None else planner
     state = init_state(sc, cfg, planner)
+    if not isinstance(planner, jax.stages.Wrapped):
+        try:
+            hash(planner)
+            planner = _jit_planner(planner)
+        except TypeError:  # unhashable: call it as it is
+            pass
     logs = []
     strategy = jnp.asarray(strategy, jnp.int32)
     for _ in range(cfg.steps):

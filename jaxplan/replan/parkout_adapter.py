@@ -1,0 +1,106 @@
+"""Planner callback around the park-out planner (``jaxplan.parking.plan_parkout``).
+
+The supervisor asks for a plan from the car's current pose; this adapter renders
+the occupancy grid of the perceived obstacle boxes at that pose, asks the
+park-out planner for one move, drives it virtually to its end and repeats
+(``lax.scan`` over ``config.max_moves``) until the car is out or stuck. The
+moves are joined into one plan whose move ends are gear-shift points, so the
+supervisor's intermediate destinations are the park-out planner's own re-plan
+points. Poses are in the scene's initial frame (the parked car's start pose is
+the origin), as the park-out planner expects.
+"""
+from __future__ import annotations
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+
+from jaxplan.parking.config import ParkoutConfig
+from jaxplan.parking.parkout import plan_parkout
+from jaxplan.parking.scenes import Scene, render_grid
+from jaxplan.replan.planner import Plan, PlanRequest, finish_plan
+from jaxplan.types import VehicleParams
+
+
+@dataclasses.dataclass(frozen=True)
+class ParkoutPlanner:
+    """``PlanRequest -> Plan`` with ``config.max_moves * config.steps`` points (static, hashable)."""
+
+    config: ParkoutConfig = ParkoutConfig()
+    vehicle: VehicleParams = VehicleParams()
+    v_fwd: float = 1.0
+    v_rev: float = 1.0
+    accel: float = 0.5
+
+    def __call__(self, r: PlanRequest) -> Plan:
+        cfg, veh = self.config, self.vehicle
+        dtype = r.obstacles.dtype
+        scene = Scene(boxes=r.obstacles, valid=r.obstacles_valid, edge_noise=jnp.zeros((), dtype),
+                      salt=jnp.zeros((), dtype))
+        seed = jnp.zeros((2,), jnp.uint32)
+
+        def move(carry, _):
+            pose, done = carry
+            p = plan_parkout(pose, render_grid(scene, pose, seed, cfg, veh), cfg, veh)
+            tr = p.trajectory
+            go = ~done & (tr.length >= cfg.min_progress)
+            return (jnp.where(go, tr.end_pose, pose), done | ~go | p.out), (tr.poses, tr.gear, tr.valid & go)
+
+        _, (poses, gear, valid) = jax.lax.scan(move, (jnp.asarray(r.start, dtype), jnp.zeros((), bool)), None,
+                                               length=cfg.max_moves)
+        poses, gear, valid = poses.reshape(-1, 3), gear.reshape(-1).astype(jnp.int32), valid.reshape(-1)
+        order = jnp.argsort(~valid, stable=True)  # driven points first, in order
+        poses, gear, valid = poses[order], gear[order], valid[order]
+        ok = jnp.any(valid)
+        valid = valid.at[0].set(True)
+        last = jnp.maximum(jnp.sum(valid) - 1, 0)
+        poses = jnp.where(valid[:, None], poses, poses[last])
+        poses = jnp.where(ok, poses, jnp.asarray(r.start, dtype))
+        gear = jnp.where(valid, gear, gear[last])
+        return finish_plan(poses[:, :2], poses[:, 2], gear, valid, r.speed, self.v_fwd, self.v_rev, self.accel, ok)
+
+
+def parkout_scenarios(seed: int, n: int, planner: ParkoutPlanner = ParkoutPlanner(), phantom: bool = True,
+                      **scene_kw):
+    """``n`` park-out runs for the closed loop (host side): ``jaxplan.parking.make_scenes``
+    slots, the parked cars and clutter as real obstacles, and (``phantom``) a false
+    positive on the nominal way out that shows for 0.6 s when the car comes within 3 m.
+    The goal is the end pose of the nominal park-out (the adapter ignores the goal; the
+    simulator's success then means "ended where the undisturbed park-out ends").
+
+    Returns:
+        (``Scenario`` batch, nominal ``Plan`` batch).
+    """
+    import numpy as np
+
+    from jaxplan.parking.scenes import make_scenes
+    from jaxplan.replan.simulator import Scenario
+
+    rng = np.random.default_rng(seed)
+    kw = dict(front_gap=rng.uniform(0.7, 1.2, n), rear_gap=rng.uniform(0.7, 1.2, n))
+    kw.update(scene_kw)
+    scene, _ = make_scenes(rng, n, planner.vehicle, **kw)
+    boxes = jnp.asarray(scene.boxes, jnp.float32)
+    valid = jnp.asarray(scene.valid)
+    z3 = jnp.zeros((n, 3))
+    req = PlanRequest(z3, jnp.zeros(n), jnp.ones(n, jnp.int32), z3, boxes, valid, jnp.zeros(n, bool))
+    nominal = jax.jit(jax.vmap(planner))(req)
+    last = jnp.sum(nominal.valid, -1) - 1
+    take = lambda a: jnp.take_along_axis(a, last[:, None], -1)[:, 0]  # noqa: E731
+    goal = jnp.stack([take(nominal.traj.x), take(nominal.traj.y), take(nominal.traj.theta)], -1)
+    # The phantom sits on the nominal path two thirds of the way along it.
+    j = (2 * last) // 3
+    pick = lambda a: jnp.take_along_axis(a, j[:, None], -1)[:, 0]  # noqa: E731
+    ph = jnp.stack([pick(nominal.traj.x) + 2.0 * jnp.cos(pick(nominal.traj.theta)),
+                    pick(nominal.traj.y) + 2.0 * jnp.sin(pick(nominal.traj.theta)),
+                    jnp.full(n, 0.6), jnp.full(n, 0.6), jnp.zeros(n)], -1)[:, None]
+    keys = jax.random.split(jax.random.PRNGKey(seed), n)
+    sc = Scenario(start=z3, goal=goal, park=jnp.zeros(n, bool), goal_bias=z3, goal_sigma=jnp.zeros(n),
+                  yaw_sigma=jnp.zeros(n), real=boxes, real_valid=valid, phantom=ph,
+                  phantom_valid=jnp.full((n, 1), phantom), phantom_range=jnp.full((n, 1), 3.0),
+                  phantom_dur=jnp.full((n, 1), 0.6), dyn_point=jnp.zeros((n, 1, 2)),
+                  dyn_dir=jnp.tile(jnp.array([[[1.0, 0.0]]]), (n, 1, 1)), dyn_speed=jnp.ones((n, 1)),
+                  dyn_size=jnp.ones((n, 1, 2)), dyn_range=jnp.zeros((n, 1)), dyn_valid=jnp.zeros((n, 1), bool),
+                  key=jnp.asarray(keys))
+    return sc, nominal
