@@ -40,12 +40,14 @@ def scene_mesh(devices=None) -> Mesh:
     return Mesh(np.asarray(devices), ("scenes",))
 
 
-def sharded_map(fn: Callable, batch, mesh: Mesh | None = None):
+def sharded_map(fn: Callable, batch, mesh: Mesh | None = None, pad_to: int | None = None):
     """Apply a jitted batched ``fn`` to ``batch`` split over the mesh's devices.
 
     Args:
         fn: jitted function of a pytree whose leaves have a leading scene axis.
         batch: pytree of arrays ``(B, ...)``.
+        pad_to: pad the scene axis to at least this size (one compiled shape for
+            every chunk, the last one included).
 
     Returns:
         ``fn(batch)`` as numpy arrays ``(B, ...)``; the leading axis is padded to
@@ -55,7 +57,8 @@ def sharded_map(fn: Callable, batch, mesh: Mesh | None = None):
     n_dev = mesh.devices.size
     leaves = jax.tree_util.tree_leaves(batch)
     B = leaves[0].shape[0]
-    pad = (-B) % n_dev
+    size = max(B, pad_to or 0)
+    pad = size - B + (-size) % n_dev
 
     def place(x):
         x = np.asarray(x)
@@ -102,7 +105,7 @@ def run_chunked(fn: Callable, make_chunk: Callable[[int, int], object], n_scenes
     t0, done = time.perf_counter(), 0
     for i in todo:
         start, stop = i * chunk_size, min(n_scenes, (i + 1) * chunk_size)
-        res = sharded_map(fn, make_chunk(start, stop), mesh)
+        res = sharded_map(fn, make_chunk(start, stop), mesh, pad_to=chunk_size)
         path = _chunk_path(out_dir, i)
         tmp = path + ".tmp.npz"
         np.savez(tmp, _start=np.int64(start), **{k: np.asarray(v) for k, v in res.items()})

@@ -169,46 +169,14 @@ def load_demos(scenarios, cfg: DemoConfig = DemoConfig()) -> tuple[Demo | None, 
 
 
 def synthetic_demos(n: int, seed: int = 0, cfg: DemoConfig = DemoConfig()) -> Demo:
-    """``n`` synthetic demonstrations on straight and curved three-lane roads.
+    """``n`` demonstrations from ``jaxplan.scenarios.synthetic.road_scenes``.
 
-    The ego starts on the middle lane at the origin; up to ``K`` other cars drive on
-    the three lanes at their own constant speeds. The "human" future keeps the
-    start speed on the lane centre (replace it, for example with
-    ``lattice_tuning.synthetic_choices``, to generate choices with known weights).
+    The "human" future keeps the start speed on the lane centre (replace it, for
+    example with a lattice driver's choice, to generate choices with known weights).
     """
-    rng = np.random.default_rng(seed)
-    n_t = int(round(cfg.horizon / 0.1)) + 1
-    t = np.arange(n_t) * 0.1
-    s_ref = np.linspace(-cfg.ref_back, cfg.ref_ahead, cfg.ref_points)
-    out = []
-    for _ in range(n):
-        kappa = rng.choice([0.0, 1.0]) * rng.uniform(-1 / 150, 1 / 150)
-        th0 = rng.uniform(-np.pi, np.pi)
-        th = th0 + kappa * s_ref
-        # Closed-form arc (or line) through the origin with heading th0 at s = 0.
-        if abs(kappa) < 1e-9:
-            ref = np.column_stack([s_ref * np.cos(th0), s_ref * np.sin(th0)])
-        else:
-            ref = np.column_stack([(np.sin(th) - np.sin(th0)) / kappa, (np.cos(th0) - np.cos(th)) / kappa])
-        nrm = np.column_stack([-np.sin(th), np.cos(th)])
+    from jaxplan.scenarios.synthetic import road_scenes
 
-        def on_road(s, l):
-            xy = np.column_stack([np.interp(s, s_ref, ref[:, 0]), np.interp(s, s_ref, ref[:, 1])])
-            return xy + l[:, None] * np.column_stack([np.interp(s, s_ref, nrm[:, 0]), np.interp(s, s_ref, nrm[:, 1])])
-
-        v0 = rng.uniform(5.0, 25.0)
-        K = cfg.n_obstacles
-        obs = np.zeros((K, n_t, 5))
-        obs[..., 2:4] = 1.0
-        ok = np.zeros((K, n_t), bool)
-        for k in range(rng.integers(0, min(K, 5) + 1)):
-            lane = rng.integers(-1, 2)
-            s0, vk = rng.uniform(8.0, 70.0), max(0.0, v0 + rng.uniform(-8.0, 4.0))
-            s = s0 + vk * t
-            xy = on_road(s, np.full(n_t, 3.5 * lane))
-            hd = np.interp(s, s_ref, th)
-            obs[k] = np.column_stack([xy, np.full(n_t, 4.6), np.full(n_t, 1.9), hd])
-            ok[k] = s < cfg.ref_ahead
-        human = on_road(v0 * t, np.zeros(n_t))
-        out.append(Demo(np.array([0.0, 0.0, th0, v0, 0.0]), ref, obs, ok, human, np.full(n_t, v0), t))
-    return stack(out)
+    sc = road_scenes(n, seed, cfg.n_obstacles, cfg.horizon, 0.1, cfg.ref_points, cfg.ref_back, cfg.ref_ahead)
+    v = np.repeat(sc.ego[:, 3:4], sc.t.shape[1], axis=1)
+    return jax.tree_util.tree_map(lambda x: jnp.asarray(x, jnp.float32) if np.asarray(x).dtype.kind == "f"
+                                  else jnp.asarray(x), Demo(sc.ego, sc.ref_xy, sc.boxes, sc.valid, sc.cruise, v, sc.t))
