@@ -181,3 +181,33 @@ def test_bad_input_is_refused():
     bad = Obstacles(obs.boxes.at[0, 0, 0].set(jnp.nan), obs.valid, obs.t)
     with pytest.raises(ValueError):
         plan_speed(REF, bad, CFG, W, v0=1.0)
+
+
+def test_smoothing_qp_matches_scipy_and_reduces_jerk():
+    from scipy.optimize import minimize
+
+    from jaxplan.speed.compose import speed_profile_at
+    from jaxplan.speed.smooth import TRUST, SmoothWeights, corridor, smooth_plan_jit, smoothing_qp
+
+    obs = _moving([[25.0, 0.0, 4.5, 1.8, 0.0]], [4.0])
+    p = _plan(obs, 10.0)
+    t, s, v, a, ok = smooth_plan_jit(p, 10.0, CFG)
+    assert bool(ok)
+    h = CFG.dt / CFG.n_sub
+    s_ref, v_ref, a_ref = speed_profile_at(p.t, p.s, 10.0, t)
+    lo, up = corridor(p, CFG, s_ref)
+    assert float(up.min()) < 1e3  # the lead vehicle bounds the corridor
+    assert np.all(np.asarray(s) <= np.asarray(up) + 1e-2)
+    lo = np.maximum(np.asarray(lo), np.asarray(s_ref) - TRUST)
+    up = np.maximum(np.minimum(np.asarray(up), np.asarray(s_ref) + TRUST), lo)
+    Q, q, A, b, G, g = (np.asarray(m, np.float64) for m in smoothing_qp(
+        s_ref, v_ref, 10.0, jnp.asarray(lo), jnp.asarray(up), CFG, h, SmoothWeights()))
+    res = minimize(lambda x: 0.5 * x @ Q @ x + q @ x, np.asarray(s_ref, np.float64), jac=lambda x: Q @ x + q,
+                   method="SLSQP", constraints=[{"type": "eq", "fun": lambda x: A @ x - b, "jac": lambda x: A},
+                                                {"type": "ineq", "fun": lambda x: g - G @ x, "jac": lambda x: -G}],
+                   options={"maxiter": 500, "ftol": 1e-12})
+    assert res.success
+    assert np.allclose(np.asarray(s), res.x, atol=0.03)
+    jerk_dp = np.abs(np.diff(np.asarray(a_ref))).max() / h
+    jerk_qp = np.abs(np.diff(np.asarray(a))).max() / h
+    assert jerk_qp < 0.5 * jerk_dp
