@@ -192,7 +192,17 @@ def _compose_batch(cfg: SpeedConfig, n_out: int):
     return jax.jit(jax.vmap(one))
 
 
-def simulate(sc: Scenes, cfg: SpeedConfig, with_nb: bool):
+def _smooth_batch(cfg: SpeedConfig):
+    from jaxplan.speed.smooth import smooth_plan
+
+    def one(plan, v0):
+        t, s, _, _, ok = smooth_plan(plan, v0, cfg)
+        return t, s, ok
+
+    return jax.jit(jax.vmap(one))
+
+
+def simulate(sc: Scenes, cfg: SpeedConfig, with_nb: bool, smooth: bool = False):
     """Closed loop. Returns driven s, v, a ``(B, S)`` at DT_OBS, no-bypass flags ``(B, K)``,
     the first plans and the first scenes' classification."""
     B = len(sc.kind)
@@ -202,6 +212,7 @@ def simulate(sc: Scenes, cfg: SpeedConfig, with_nb: bool):
     per = int(round(cfg.dt / DT_OBS))
     n_pred = int(round(cfg.horizon / DT_OBS)) + 1
     compose = _compose_batch(cfg, per + 1)
+    smoother = _smooth_batch(cfg) if smooth else None
     s = jnp.asarray(sc.s0, jnp.float32)
     v = jnp.asarray(sc.v0, jnp.float32)
     a = jnp.zeros(B, jnp.float32)
@@ -218,7 +229,14 @@ def simulate(sc: Scenes, cfg: SpeedConfig, with_nb: bool):
         no_bypass |= np.asarray(plan.scene.classified.no_bypass)
         if first is None:
             first = plan
-        tr = compose(refs, s, plan, v)
+        if smooth:  # execute the smoothing QP's profile (where it is feasible)
+            ts, ss, ok = smoother(plan, v)
+            qp_plan = dataclasses.replace(plan, t=ts, s=ss, scene=None)
+            tr_qp = compose(refs, s, qp_plan, v)
+            tr_dp = compose(refs, s, plan, v)
+            tr = jax.tree_util.tree_map(lambda x, y: jnp.where(ok[:, None], x, y), tr_qp, tr_dp)
+        else:
+            tr = compose(refs, s, plan, v)
         S.append(np.asarray(s)[:, None] + np.asarray(tr.s)[:, 1:])
         V.append(np.asarray(tr.v)[:, 1:])
         A.append(np.asarray(tr.a)[:, 1:])
@@ -393,7 +411,7 @@ def _plot_profiles(sc, res_w, res_o, out):
     plt.close(fig)
 
 
-def _run(sc: Scenes, cfg: SpeedConfig, prefix: str):
+def _run(sc: Scenes, cfg: SpeedConfig, prefix: str, smooth: bool = False):
     res_w = simulate(sc, cfg, True)
     res_o = simulate(sc, cfg, False)
     mw = measure(sc, *res_w[:4], cfg)
@@ -401,6 +419,15 @@ def _run(sc: Scenes, cfg: SpeedConfig, prefix: str):
     m = _summary(prefix, mw, mo, sc.kind)
     m.update(_claim(prefix, m))
     m[f"{prefix}scenes"] = len(sc.kind)
+    if smooth:  # the same "with" planner executing the smoothing QP's profile
+        res_s = simulate(sc, cfg, True, smooth=True)
+        ms = measure(sc, *res_s[:4], cfg)
+        m[f"{prefix}with_smooth.collisions"] = int(ms["collision"].sum())
+        m[f"{prefix}with_smooth.blind_zone_s"] = round(float(ms["blind_s"].sum()), 2)
+        m[f"{prefix}with_smooth.forbidden_overtakes"] = int(ms["forbidden_overtakes"].sum())
+        m[f"{prefix}with_smooth.keep_clear_s"] = round(float(ms["keep_clear_s"].sum()), 2)
+        m[f"{prefix}with_smooth.max_jerk_mean"] = round(float(ms["max_jerk"].mean()), 2)
+        m[f"{prefix}with_smooth.progress_mean_m"] = round(float(ms["progress"].mean()), 2)
     return m, res_w, res_o
 
 
@@ -411,7 +438,7 @@ def speed_suite(args: SuiteArgs) -> dict:
     n_per = args.n or (3 if args.quick else 16)
     t_sim = 16.0 if args.quick else 20.0
     sc = synthetic_scenes(rng, n_per, t_sim, cfg.horizon)
-    m, res_w, res_o = _run(sc, cfg, "")
+    m, res_w, res_o = _run(sc, cfg, "", smooth=not args.quick)
     idxs = [sc.kind.index(k) for k in ("neighbour_alongside", "blind_zone", "keep_clear", "crossing_pedestrian")]
     _plot_st(sc, res_w[4], res_o[4], cfg, args.out, idxs)
     _plot_profiles(sc, res_w, res_o, args.out)
