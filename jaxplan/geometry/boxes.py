@@ -109,19 +109,9 @@ def box_separation(boxes_a, boxes_b):
         ``(...)``, positive apart, negative = minus the penetration depth.
     """
     a, b = jnp.asarray(boxes_a), jnp.asarray(boxes_b)
-    dx, dy = b[..., 0] - a[..., 0], b[..., 1] - a[..., 1]
-    ca, sa = jnp.cos(a[..., 4]), jnp.sin(a[..., 4])
-    cb, sb = jnp.cos(b[..., 4]), jnp.sin(b[..., 4])
-    c = jnp.abs(ca * cb + sa * sb)  # |cos(hb - ha)|
-    s = jnp.abs(sa * cb - ca * sb)  # |sin(hb - ha)|
-    la, wa, lb, wb = 0.5 * a[..., 2], 0.5 * a[..., 3], 0.5 * b[..., 2], 0.5 * b[..., 3]
-    gaps = (
-        jnp.abs(dx * ca + dy * sa) - (la + lb * c + wb * s),  # A's length axis
-        jnp.abs(-dx * sa + dy * ca) - (wa + lb * s + wb * c),  # A's width axis
-        jnp.abs(dx * cb + dy * sb) - (lb + la * c + wa * s),  # B's length axis
-        jnp.abs(-dx * sb + dy * cb) - (wb + la * s + wa * c),  # B's width axis
-    )
-    return jnp.maximum(jnp.maximum(gaps[0], gaps[1]), jnp.maximum(gaps[2], gaps[3]))
+    unit = lambda h: jnp.stack([jnp.cos(h), jnp.sin(h)], axis=-1)
+    return box_separation_axes(a[..., :2], unit(a[..., 4]), 0.5 * a[..., 2:4],
+                               b[..., :2], unit(b[..., 4]), 0.5 * b[..., 2:4])
 
 
 def box_has_overlap(boxes_a, boxes_b):
