@@ -247,6 +247,10 @@ def test_plan_parkout_api():
     assert np.asarray(plan.use_forward).tolist() == [True, False] and np.asarray(plan.out).tolist() == [True, False]
     assert np.all(np.asarray(tr.gear[0]) == 1) and np.all(np.asarray(tr.gear[1]) == -1)
     assert bool(plan.forward.cut[1]) and float(plan.backward.length[1]) > float(plan.forward.length[1])
+    traj = tr.to_trajectory(CAR)
+    traj.validate()
+    n = int(tr.valid[0].sum())
+    assert np.allclose(np.asarray(traj.x[0, :n]), np.asarray(tr.poses[0, :n, 0])) and float(traj.t[0, -1]) > 7.0
     with pytest.raises(ValueError, match="Grid.cells"):
         pk.plan_parkout(jnp.zeros(3), pk.Grid(jnp.zeros((10, 10), bool), jnp.zeros(3)), CFG, CAR)
     with pytest.raises(ValueError, match="scan_rows"):

@@ -38,6 +38,19 @@ class Rollout(NamedTuple):
     complete: jnp.ndarray
     cut: jnp.ndarray
 
+    def to_trajectory(self, vehicle, speed=1.0):
+        """As a ``jaxplan.types.Trajectory`` at constant ``speed`` (invalid points keep the end pose).
+
+        ``kappa = tan(steer) / wheelbase``, ``v = gear * speed``, ``t = |s| / speed``.
+        """
+        from jaxplan.types import Trajectory
+
+        p = jnp.where(self.valid[..., None], self.poses, self.end_pose[..., None, :])
+        kappa = jnp.tan(self.steer) / vehicle.wheelbase
+        z = jnp.zeros_like(self.s)
+        return Trajectory(x=p[..., 0], y=p[..., 1], theta=p[..., 2], kappa=kappa, v=self.gear * speed, a=z,
+                          t=jnp.abs(self.s) / speed, s=self.s, gear=self.gear)
+
     @property
     def end_pose(self):
         """``(..., 3)``: the last valid pose (the start pose if none is valid)."""
