@@ -242,12 +242,19 @@ def test_first_collision_point_and_contact_against_shapely(rng):
     assert nf > 10
 
 
-def _ref_decision(strategy, stopped, at_gs, at_bs, moved, new_col, lost_stopped, since, done, cfg):
+def _ref_decision(strategy, stopped, at_gs, at_bs, moved, new_col, lost_stopped, since, done, cfg, blocked_end):
     """Straight from the issue text, written independently of the implementation."""
     if done:
         return NO_REPLAN
     if lost_stopped:
         return LOST
+    r = _ref_strategy(strategy, stopped, at_gs, at_bs, moved, new_col, since, cfg)
+    if r == NO_REPLAN and blocked_end and stopped and since >= cfg.retry_s:
+        return OBSTACLE  # stopped at the end of a plan that does not reach the goal
+    return r
+
+
+def _ref_strategy(strategy, stopped, at_gs, at_bs, moved, new_col, since, cfg):
     if strategy == LAZY:
         if not stopped:
             return NO_REPLAN
@@ -266,18 +273,18 @@ def _ref_decision(strategy, stopped, at_gs, at_bs, moved, new_col, lost_stopped,
 def test_replan_decision_truth_table():
     cfg = SupervisorConfig()
     rows = [(s, *flags, since) for s in (LAZY, PERIODIC, IMMEDIATE)
-            for flags in itertools.product([False, True], repeat=7) for since in (0.3, 1.0, 2.5)]
+            for flags in itertools.product([False, True], repeat=8) for since in (0.3, 1.0, 2.5)]
     cols = list(zip(*rows))
     strategy = np.array(cols[0])
-    f = [np.array(c) for c in cols[1:8]]
-    since = np.array(cols[8], np.float32)
+    f = [np.array(c) for c in cols[1:9]]
+    since = np.array(cols[9], np.float32)
     replan, reason = jax.jit(lambda *a: replan_decision(a[0], cfg, stopped=a[1], at_gear_shift=a[2],
                                                         at_brake_stop=a[3], goal_moved=a[4], new_collision=a[5],
-                                                        lost_stopped=a[6], since_replan=a[8], done=a[7]))(
-        strategy, *f, since)
+                                                        lost_stopped=a[6], since_replan=a[9], done=a[7],
+                                                        at_blocked_end=a[8]))(strategy, *f, since)
     for i, r in enumerate(rows):
-        s, stopped, at_gs, at_bs, moved, new_col, lost, done, sn = r
-        ref = _ref_decision(s, stopped, at_gs, at_bs, moved, new_col, lost, sn, done, cfg)
+        s, stopped, at_gs, at_bs, moved, new_col, lost, done, blocked_end, sn = r
+        ref = _ref_decision(s, stopped, at_gs, at_bs, moved, new_col, lost, sn, done, cfg, blocked_end)
         assert int(reason[i]) == ref, r
         assert bool(replan[i]) == (ref != NO_REPLAN)
         if s == LAZY and not stopped and not lost:

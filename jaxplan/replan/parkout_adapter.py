@@ -41,14 +41,16 @@ class ParkoutPlanner:
         seed = jnp.zeros((2,), jnp.uint32)
 
         def move(carry, _):
-            pose, done = carry
+            pose, done, out = carry
             p = plan_parkout(pose, render_grid(scene, pose, seed, cfg, veh), cfg, veh)
             tr = p.trajectory
             go = ~done & (tr.length >= cfg.min_progress)
-            return (jnp.where(go, tr.end_pose, pose), done | ~go | p.out), (tr.poses, tr.gear, tr.valid & go)
+            return ((jnp.where(go, tr.end_pose, pose), done | ~go | p.out, out | (go & p.out)),
+                    (tr.poses, tr.gear, tr.valid & go))
 
-        _, (poses, gear, valid) = jax.lax.scan(move, (jnp.asarray(r.start, dtype), jnp.zeros((), bool)), None,
-                                               length=cfg.max_moves)
+        f = jnp.zeros((), bool)
+        (_, _, out), (poses, gear, valid) = jax.lax.scan(move, (jnp.asarray(r.start, dtype), f, f), None,
+                                                         length=cfg.max_moves)
         poses, gear, valid = poses.reshape(-1, 3), gear.reshape(-1).astype(jnp.int32), valid.reshape(-1)
         order = jnp.argsort(~valid, stable=True)  # driven points first, in order
         poses, gear, valid = poses[order], gear[order], valid[order]
@@ -58,7 +60,9 @@ class ParkoutPlanner:
         poses = jnp.where(valid[:, None], poses, poses[last])
         poses = jnp.where(ok, poses, jnp.asarray(r.start, dtype))
         gear = jnp.where(valid, gear, gear[last])
-        return finish_plan(poses[:, :2], poses[:, 2], gear, valid, r.speed, self.v_fwd, self.v_rev, self.accel, ok)
+        # ``ok``: the joined moves end fully out (else the car stops at the end and re-plans).
+        return finish_plan(poses[:, :2], poses[:, 2], gear, valid, r.speed, self.v_fwd, self.v_rev, self.accel,
+                           ok & out)
 
 
 def parkout_scenarios(seed: int, n: int, planner: ParkoutPlanner = ParkoutPlanner(), phantom: bool = True,

@@ -53,7 +53,8 @@ class PlanRequest(NamedTuple):
 
 class Plan(NamedTuple):
     """A planned trajectory ``(N,)`` with its prefix mask ``valid (N,)``, unsigned arc
-    length ``s_abs (N,)`` and ``ok ()`` (False: no collision-free candidate was found)."""
+    length ``s_abs (N,)`` and ``ok ()``: False when the plan does not reach the goal
+    collision-free (the car then stops at its end, or at a brake-stop point, and re-plans)."""
 
     traj: Trajectory
     valid: jnp.ndarray

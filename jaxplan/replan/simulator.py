@@ -292,7 +292,7 @@ def step_pre(state: SimState, sc: Scenario, strategy, cfg: SimConfig) -> _Pre:
     moved = goal_moved(goal_est, state.plan_goal, sup)
     lost_stopped = (lost_t >= sup.lost_time) & stopped
 
-    now_done = ~state.done & ~state.first & at_final & stopped & ~at_brake
+    now_done = ~state.done & ~state.first & at_final & stopped & ~at_brake & plan.ok
     pos_err = jnp.linalg.norm(state.pose[:2] - sc.goal[:2])
     yaw_err = jnp.abs(jnp.arctan2(jnp.sin(state.pose[2] - sc.goal[2]), jnp.cos(state.pose[2] - sc.goal[2])))
     good = (pos_err <= cfg.success_pos) & (yaw_err <= cfg.success_yaw) & ~state.collided
@@ -302,7 +302,8 @@ def step_pre(state: SimState, sc: Scenario, strategy, cfg: SimConfig) -> _Pre:
 
     replan, reason = replan_decision(strategy, sup, stopped=stopped, at_gear_shift=at_gear_shift,
                                      at_brake_stop=at_brake, goal_moved=moved, new_collision=new_collision,
-                                     lost_stopped=lost_stopped, since_replan=t - state.last_replan_t, done=done)
+                                     lost_stopped=lost_stopped, since_replan=t - state.last_replan_t, done=done,
+                                     at_blocked_end=at_final & ~plan.ok & ~state.first)
     # Was the re-plan needed? The rest of the plan hits a real obstacle now, or its end
     # misses the true goal, or the car is lost.
     tb, tv = _true_obstacles(sc, cfg, t, dyn_t0)

@@ -11,7 +11,9 @@ Strategies (int codes, traced, so one compiled simulator serves all three):
   (``OBSTACLE``) or the observed goal moved more than the threshold (``GOAL``).
 
 All strategies re-plan when the tracking point has been lost for ``lost_time``
-and the car has stopped (``LOST``), and none re-plans once the run is done.
+and the car has stopped (``LOST``), and when the car stands at the end of a plan
+that the planner flagged as not reaching the goal (``OBSTACLE``, once per
+``retry_s``); none re-plans once the run is done.
 """
 from __future__ import annotations
 
@@ -59,7 +61,7 @@ def goal_moved(goal_est, plan_goal, cfg: SupervisorConfig):
 
 
 def replan_decision(strategy, cfg: SupervisorConfig, *, stopped, at_gear_shift, at_brake_stop, goal_moved,
-                    new_collision, lost_stopped, since_replan, done):
+                    new_collision, lost_stopped, since_replan, done, at_blocked_end=False):
     """Whether to re-plan now and why.
 
     Args (all ``(...)`` arrays): strategy (int code); stopped (speed below
@@ -78,6 +80,8 @@ def replan_decision(strategy, cfg: SupervisorConfig, *, stopped, at_gear_shift, 
     immediate_reason = jnp.where(new_collision, OBSTACLE, jnp.where(goal_moved, GOAL, NO_REPLAN))
     reason = jnp.where(strategy == LAZY, lazy_reason, jnp.where(strategy == PERIODIC, periodic_reason,
                                                                   immediate_reason))
+    blocked_end = stopped & at_blocked_end & (since_replan >= cfg.retry_s - 1e-6)
+    reason = jnp.where(blocked_end & (reason == NO_REPLAN), OBSTACLE, reason)
     reason = jnp.where(lost_stopped, LOST, reason)
     reason = jnp.where(done, NO_REPLAN, reason)
     return reason != NO_REPLAN, reason.astype(jnp.int32)
