@@ -290,7 +290,7 @@ def test_select_all_collide_uses_risk():
                obstacles([moving(12 + 3.85 + 0.5, 0, 0, 0, 1.0, 20.0)]), CFG)
     assert np.asarray(res.collided).all() and int(res.mode) == RISK
     ttc = np.asarray(res.ttc)
-    want = _lam(res) + 1.0 / np.maximum(ttc, CFG.ttc_min)
+    want = _lam(res) + float(CostWeights().gamma) / np.maximum(ttc, CFG.ttc_min)
     assert int(res.chosen) == int(np.argmin(want))
 
 

@@ -46,7 +46,7 @@ class CostWeights:
 
     alpha: Any = 1.0
     beta: Any = 10.0
-    gamma: Any = 1.0
+    gamma: Any = 10.0
     delta: Any = 0.1
     collision: Any = 1e4
     level: Any = 1e3

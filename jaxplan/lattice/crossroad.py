@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import jax.numpy as jnp
 
-from jaxplan.geometry.frenet import ReferenceLine, ref_state, to_frenet
+from jaxplan.geometry.frenet import ReferenceLine, ref_state
 from jaxplan.types import Obstacles
 
 
@@ -34,9 +34,10 @@ def stop_box(ref: ReferenceLine, s_car, d_crossroad, config):
     return box, active
 
 
-def with_stop_target(obstacles: Obstacles, ref: ReferenceLine, xy_car, d_crossroad, config) -> Obstacles:
-    """``obstacles (K, T)`` plus the virtual stop box as obstacle ``K`` (valid only when active)."""
-    s_car, _ = to_frenet(ref, jnp.asarray(xy_car, ref.xy.dtype))
+def with_stop_target(obstacles: Obstacles, ref: ReferenceLine, s_car, d_crossroad, config) -> Obstacles:
+    """``obstacles (K, T)`` plus the virtual stop box as obstacle ``K`` (valid only when active).
+
+    ``s_car`` is the car's arc length on ``ref`` (``to_frenet``)."""
     box, active = stop_box(ref, s_car, d_crossroad, config)
     T = obstacles.boxes.shape[-2]
     b = jnp.concatenate([obstacles.boxes, jnp.broadcast_to(box, (1, T, 5)).astype(obstacles.boxes.dtype)], axis=-3)

@@ -55,7 +55,7 @@ def _plan(state: PlanState, ref: ReferenceLine, obstacles: Obstacles, config: La
           weights: CostWeights) -> LatticeResult:
     cand: Candidates = generate(state, ref, config)
     obs = align_obstacles(obstacles, config.n_steps)
-    obs = with_stop_target(obs, ref, jnp.stack([state.x, state.y]), state.d_crossroad, config)
+    obs = with_stop_target(obs, ref, cand.s[0, 0], state.d_crossroad, config)
     center, half = car_parts(jnp.stack([cand.traj.x, cand.traj.y], -1), cand.axis, config.vehicle)
     if config.near_budget > 0:
         E, V, Ln, O = config.grid
