@@ -26,6 +26,14 @@ def _rollout_grid(poses, curves, cells):
 
 
 EMPTY = jnp.zeros((CFG.rows, CFG.cols), bool)
+
+
+@jax.jit
+def _box_vs_poly(cells, gp, poses):
+    pre = pk.row_prefix(cells)
+    boxes = pk.footprint_boxes(poses, CAR, CFG.margin)
+    return (pk.box_covers_occupied(pre, gp, boxes, CFG),
+            pk.polygon_covers_occupied(pre, gp, box_corners(boxes), CFG))
 _forward = jax.jit(jax.vmap(lambda p: pk.forward_curve(p, R, D)))
 _points = jax.jit(jax.vmap(pk.curve_point))
 _circles = jax.jit(lambda p: pk.reference_circles(p, R, D))
@@ -141,6 +149,16 @@ def test_footprint_check_matches_shapely(rng):
             bad += np.sum((ours != strict) & (ours != loose))
             hits += ours.sum()
     assert bad == 0 and 0 < hits < 8 * 64
+
+
+def test_box_and_polygon_scan_agree(rng):
+    """The slab fast path for boxes equals the general convex-polygon scan, axis-aligned boxes included."""
+    cells = rng.random((CFG.rows, CFG.cols)) < 2e-3
+    gp = jnp.asarray([0.3, -0.2, 0.4], jnp.float32)
+    poses = _random_poses(rng, 256, (7, 4, 3.2))
+    poses[:6, 2] = 0.4 + np.array([0, np.pi / 2, np.pi, -np.pi / 2, 1e-8, 0.3])
+    a, b = _box_vs_poly(jnp.asarray(cells), gp, jnp.asarray(poses))
+    assert np.array_equal(np.asarray(a), np.asarray(b)) and 0 < int(np.sum(a)) < 256
 
 
 def test_pursuit_follows_circle_and_line():

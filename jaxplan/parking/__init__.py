@@ -15,6 +15,7 @@ from jaxplan.parking.circles import (
 from jaxplan.parking.config import ParkoutConfig
 from jaxplan.parking.grid import (
     Grid,
+    box_covers_occupied,
     cell_centres,
     cell_to_world,
     compose,

@@ -185,6 +185,49 @@ def polygon_covers_occupied(prefix, grid_pose, poly, config: ParkoutConfig):
     return jnp.any(occ, axis=-1)
 
 
+def box_covers_occupied(prefix, grid_pose, boxes, config: ParkoutConfig):
+    """``polygon_covers_occupied`` for oriented boxes ``(..., 5)``, by slabs (about 4x fewer flops).
+
+    Each scanned row's centre line meets the box where both slab conditions
+    ``|u| <= length/2`` and ``|v| <= width/2`` (box frame) hold; that interval is
+    looked up in the row prefix counts. Exact like the polygon version.
+    """
+    h = config.cell
+    c = world_to_cell(grid_pose, boxes[..., :2], config) - 0.5  # (..., 2) centre in cell-centre units
+    cy, cx = c[..., 0], c[..., 1]
+    phi = boxes[..., 4] - grid_pose[2]
+    cs, sn = jnp.cos(phi), jnp.sin(phi)
+    tiny = 1e-9
+    ic = 1.0 / jnp.where(jnp.abs(cs) < tiny, tiny, cs)
+    is_ = 1.0 / jnp.where(jnp.abs(sn) < tiny, tiny, sn)
+    hl, hw = 0.5 * boxes[..., 2] / h, 0.5 * boxes[..., 3] / h
+    half_rows = 0.5 * (jnp.abs(boxes[..., 2] * sn) + jnp.abs(boxes[..., 3] * cs)) / h
+    k = jnp.arange(config.scan_rows) - config.scan_rows // 2
+    r = jnp.floor(cy)[..., None].astype(jnp.int32) + k  # (..., R)
+    dy = r.astype(cy.dtype) - cy[..., None]
+    # u = (x - cx) cs + dy sn ;  v = -(x - cx) sn + dy cs
+    ku = dy * sn[..., None]
+    kv = dy * cs[..., None]
+    u1, u2 = (-hl[..., None] - ku) * ic[..., None], (hl[..., None] - ku) * ic[..., None]
+    v1, v2 = (kv - hw[..., None]) * is_[..., None], (kv + hw[..., None]) * is_[..., None]
+    lo = cx[..., None] + jnp.maximum(jnp.minimum(u1, u2), jnp.minimum(v1, v2))
+    hi = cx[..., None] + jnp.minimum(jnp.maximum(u1, u2), jnp.maximum(v1, v2))
+    hit_row = (hi >= lo) & (jnp.abs(dy) <= half_rows[..., None] + 1e-3)
+    c_lo = jnp.ceil(jnp.clip(lo, -1.0, config.cols + 1.0))
+    c_hi = jnp.floor(jnp.clip(hi, -2.0, config.cols + 1.0))
+    in_rows = (r >= 0) & (r < config.rows)
+    a = jnp.clip(c_lo, 0, config.cols).astype(jnp.int32)
+    b = jnp.clip(c_hi + 1, 0, config.cols).astype(jnp.int32)
+    rr = jnp.clip(r, 0, config.rows - 1)
+    flat = prefix.reshape(-1)
+    w = config.cols + 1
+    count = flat[rr * w + jnp.maximum(b, a)] - flat[rr * w + a]
+    occ = hit_row & in_rows & (count > 0)
+    if config.outside_occupied:
+        occ = occ | (hit_row & (~in_rows | (c_lo < 0) | (c_hi > config.cols - 1)) & (c_hi >= c_lo))
+    return jnp.any(occ, axis=-1)
+
+
 def footprint_hits_grid(prefix, grid_pose, poses, vehicle, config: ParkoutConfig, margin=None):
     """Whether the footprint inflated by ``margin`` (default ``config.margin``) covers an occupied cell centre.
 
@@ -197,5 +240,4 @@ def footprint_hits_grid(prefix, grid_pose, poses, vehicle, config: ParkoutConfig
         ``(...)`` bool.
     """
     margin = config.margin if margin is None else margin
-    poly = box_corners(footprint_boxes(poses, vehicle, margin))
-    return polygon_covers_occupied(prefix, grid_pose, poly, config)
+    return box_covers_occupied(prefix, grid_pose, footprint_boxes(poses, vehicle, margin), config)
