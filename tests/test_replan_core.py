@@ -289,3 +289,17 @@ def test_replan_decision_truth_table():
         assert bool(replan[i]) == (ref != NO_REPLAN)
         if s == LAZY and not stopped and not lost:
             assert not bool(replan[i])  # never while moving
+
+
+def test_bad_input_gets_a_clear_error():
+    from jaxplan.replan import SimConfig, simulate
+
+    with pytest.raises(ValueError, match="dt"):
+        SupervisorConfig(dt=0.0)
+    with pytest.raises(ValueError, match="queue_size"):
+        SupervisorConfig(queue_size=0)
+    with pytest.raises(ValueError, match="strategy"):
+        simulate(None, 3, SimConfig())
+    from jaxplan.replan import sample_scenarios
+    with pytest.raises(ValueError, match="kind"):
+        sample_scenarios(0, 1, "valet")

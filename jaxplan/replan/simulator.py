@@ -40,9 +40,10 @@ from jaxplan.geometry.boxes import box_has_overlap, poses_to_boxes
 from jaxplan.replan.planner import Plan, PlanRequest, SimplePlanner
 from jaxplan.replan.queue import (BrakeStop, CollisionQueue, brake_init, collision_arc_length, queue_clear,
                                   queue_expire, queue_init, queue_push, queue_size, update_brake_stop)
-from jaxplan.replan.supervisor import (LAZY, NO_REPLAN, SupervisorConfig, goal_moved, replan_decision)
+from jaxplan.replan.supervisor import SupervisorConfig, goal_moved, replan_decision
 from jaxplan.replan.tracking import find_tracking_point_directional
 from jaxplan.replan.trajectory import interpolate_pose, last_valid_index, sub_trajectories
+from jaxplan.types import is_concrete
 
 
 class Scenario(NamedTuple):
@@ -428,9 +429,17 @@ def simulate(scenarios: Scenario, strategy, cfg: SimConfig = SimConfig(), sequen
     ``strategy``: ``()`` or ``(S,)`` int codes, traced (one compilation serves all
     three strategies and both scenario kinds). Returns (final states, logs ``(S, T)``).
     """
+    _check_strategy(strategy)
     n = jax.tree.leaves(scenarios)[0].shape[0]
     strategy = jnp.broadcast_to(jnp.asarray(strategy, jnp.int32), (n,))
     return (_simulate_map if sequential else _simulate)(scenarios, strategy, cfg)
+
+
+def _check_strategy(strategy):
+    if is_concrete(strategy):
+        a = np.asarray(strategy)
+        if not np.issubdtype(a.dtype, np.integer) or np.any((a < 0) | (a > 2)):
+            raise ValueError(f"strategy must be LAZY (0), PERIODIC (1) or IMMEDIATE (2), got {strategy!r}")
 
 
 _PLANNERS: dict = {}
@@ -452,6 +461,7 @@ def simulate_host(sc: Scenario, strategy, cfg: SimConfig = SimConfig(), planner:
 
     Returns (final state, list of :class:`StepLog`).
     """
+    _check_strategy(strategy)
     planner = cfg.planner if planner is None else planner
     state = init_state(sc, cfg, planner)
     if not isinstance(planner, jax.stages.Wrapped):

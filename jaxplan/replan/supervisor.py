@@ -47,6 +47,17 @@ class SupervisorConfig:
     retry_s: float = 1.0
     max_sub: int = 8
 
+    def __post_init__(self):
+        for f in ("dt", "collision_hz", "periodic_hz", "v_stopped", "at_point_tol", "track_max_dist"):
+            if not float(getattr(self, f)) > 0:
+                raise ValueError(f"SupervisorConfig.{f} must be positive, got {getattr(self, f)}")
+        for f in ("window_s", "brake_safety", "goal_pos_thresh", "goal_yaw_thresh", "lost_time", "retry_s"):
+            if not float(getattr(self, f)) >= 0:
+                raise ValueError(f"SupervisorConfig.{f} must be >= 0, got {getattr(self, f)}")
+        for f in ("queue_size", "track_window", "max_sub"):
+            if int(getattr(self, f)) < 1:
+                raise ValueError(f"SupervisorConfig.{f} must be >= 1, got {getattr(self, f)}")
+
     @property
     def collision_every(self) -> int:
         """Collision check every this many simulation steps."""
