@@ -28,7 +28,7 @@ from jaxplan.lattice.quintic import cartesian_to_frenet_state, quintic_coeffs, q
 from jaxplan.types import Trajectory, VehicleParams, _pytree, check_finite
 
 KMH = 1.0 / 3.6
-CHUNK_POINTS = 1 << 15  # candidate points per chunk of the generator
+CHUNK_POINTS = 1 << 12  # candidate points per chunk of the generator (at least one speed profile)
 
 
 @dataclasses.dataclass(frozen=True)
