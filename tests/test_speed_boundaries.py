@@ -18,6 +18,8 @@ N, DS = 40, 0.75
 _blocking = jax.jit(blocking_boundaries)
 _classify = jax.jit(classify)
 _profile = jax.jit(path_profile, static_argnums=(2, 3))
+_compose = jax.jit(compose_plan, static_argnums=(4, 5))
+_kc = jax.jit(keep_clear_intervals)
 
 
 def _np_box(b):
@@ -154,11 +156,11 @@ def test_keep_clear_region_projection():
     ref = ReferenceLine.from_polyline(np.array([[0.0, 0.0], [100.0, 0.0]]))
     prof = _profile(ref, 0.0, 60, 1.0)
     box = np.array([[[30.0, -3], [36, -3], [36, 3], [30, 3]], [[30.0, 5], [36, 5], [36, 9], [30, 9]]])
-    lo, hi, hit = keep_clear_intervals(prof, CAR, box)
+    lo, hi, hit = _kc(prof, CAR, box, jnp.ones((2, 4), bool), jnp.array([True, True]))
     assert list(np.asarray(hit)) == [True, False]
     # car [s - 0.95, s + 3.85] overlaps [30, 36]: s in (26.15, 36.95)
     assert float(lo[0]) == 27.0 and float(hi[0]) == 36.0
-    lo, hi, hit = keep_clear_intervals(prof, CAR, box, active=jnp.array([False, True]))
+    lo, hi, hit = _kc(prof, CAR, box, jnp.ones((2, 4), bool), jnp.array([False, True]))
     assert not bool(hit.any())
 
 
@@ -180,7 +182,7 @@ def test_composed_trajectory_consistent(rng):
         t = np.arange(8, dtype=np.float32)
         plan = SpeedPlan(jnp.asarray(t), jnp.asarray(s), jnp.asarray(seg), jnp.zeros(7), 0.0, True)
         v0 = float(seg[0]) + 0.3
-        tr = compose_plan(ref, 2.0, plan, v0, 0.01, 701)
+        tr = _compose(ref, 2.0, plan, v0, 0.01, 701)
         ts, vs = np.asarray(tr.t, float), np.asarray(tr.v, float)
         integ = np.concatenate([[0.0], np.cumsum(0.5 * (vs[1:] + vs[:-1]) * np.diff(ts))])
         assert np.allclose(integ, np.asarray(tr.s), atol=2e-3)          # s = integral of v

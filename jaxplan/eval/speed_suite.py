@@ -153,7 +153,7 @@ def recorded_scenes(directory: str, t_max: float, horizon: float, k_max: int = 2
         b = np.asarray(ob.boxes, float)
         ok = np.asarray(ob.valid)
         T = min(b.shape[1], G)
-        dist = np.where(ok[:, :1], np.linalg.norm(b[:, 0, :2], axis=-1), 1e9)
+        dist = np.where(ok[:, 0], np.linalg.norm(b[:, 0, :2], axis=-1), 1e9)
         keep = np.argsort(dist)[:k_max]
         bb = np.zeros((k_max, G, 5))
         bb[..., 2:4] = 1.0
