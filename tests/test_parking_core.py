@@ -269,16 +269,22 @@ def test_plan_parkout_api():
         pk.ParkoutConfig(dl=0.0)
 
 
+@jax.jit
+def _two_corner(boxes, ref, poses):
+    pts, ok = pk.two_corner_points(boxes, jnp.ones(boxes.shape[0], bool), ref)
+    return pts, ok, pk.footprint_hits_points(pts, ok, poses, CAR, 0.1)
+
+
 def test_two_corner_model(rng):
     boxes = np.concatenate([rng.uniform(-6, 6, (5, 2)), rng.uniform(0.3, 4, (5, 2)), rng.uniform(-3, 3, (5, 1))], -1)
     ref = np.array([1.45, 0.0])
-    pts, ok = pk.two_corner_points(jnp.asarray(boxes, jnp.float32), jnp.ones(5, bool), jnp.asarray(ref, jnp.float32))
+    poses = jnp.asarray(_random_poses(rng, 40, (5, 4, 3)))
+    pts, ok, hit = _two_corner(jnp.asarray(boxes, jnp.float32), jnp.asarray(ref, jnp.float32), poses)
     corners = np.asarray(box_corners(jnp.asarray(boxes)))
     for k in range(5):
         near = corners[k][np.argsort(np.linalg.norm(corners[k] - ref, axis=-1))[:2]]
         assert np.allclose(np.asarray(pts)[2 * k: 2 * k + 2], near, atol=1e-5)
-    poses = jnp.asarray(_random_poses(rng, 40, (5, 4, 3)))
-    hit = np.asarray(pk.footprint_hits_points(pts, ok, poses, CAR, 0.1))
+    hit = np.asarray(hit)
     polys = shapely.polygons(np.asarray(box_corners(pk.footprint_boxes(poses, CAR, 0.1))))
     ref_hit = np.array([shapely.contains_xy(p, np.asarray(pts)[:, 0], np.asarray(pts)[:, 1]).any() for p in polys])
     assert np.array_equal(hit, ref_hit) and 0 < hit.sum() < 40
