@@ -1,33 +1,48 @@
 """Peer comparison: jaxplan's lattice planner vs the CommonRoad reactive planner, closed loop.
 
 Both planners drive the same CommonRoad scenarios in closed loop: every cycle
-(``--replan`` steps of 0.1 s, default every step) each plans from the state it
-has reached, and the car follows the first step(s) of the chosen trajectory
-exactly (perfect tracking, as in the reactive planner's own examples). Every
-driven trajectory is then judged by one independent referee in this process:
+(``--replan`` steps of 0.1 s, default 3 = 0.3 s, the peer's shipped replanning
+frequency) each plans from the state it has reached, and the car follows the
+first step(s) of the chosen trajectory exactly (perfect tracking, as in the
+reactive planner's own examples). Every driven trajectory is then judged by one
+referee that is neither planner:
 
 * collisions: ``commonroad_dc`` (commonroad-drivability-checker) collision
-  checker built from the scenario, against the ego's time-variant box
-  (BMW 320i, 4.508 m x 1.61 m, centred on the driven centre positions);
-* off road: the same checker against ``create_road_boundary_obstacle``;
+  checker built from the scenario, against the ego's box (BMW 320i,
+  4.508 m x 1.61 m, centred on the driven centre positions) at every step, and
+  against one time-variant collision object of the whole drive;
+* off road: the same box against ``create_road_boundary_obstacle`` (OBB rectangles);
 * goal reached: ``PlanningProblem.goal.is_reached`` of commonroad-io on every
   driven state (time step, centre position, orientation, velocity).
 
-Neither planner's own collision check counts for the verdict.
+Neither planner's own collision check counts for the verdict. jaxplan's drive is
+judged up to the step its goal is first reached (the peer stops there).
 
 Scenarios: the four CommonRoad 2020a XML files of ``../shared/data/commonroad2020a``
 and ``--recorded N`` recorded-traffic files of ``../shared/data/commonroad2018a``
-(JSON; converted here to CommonRoad XML with commonroad-io, into a temporary folder).
+(JSON, every ``46 // N``-th file; converted to CommonRoad XML with commonroad-io
+into a temporary folder). A scenario is simulated to the end of its goal time
+interval (at most ``--max-steps``).
 
 Both planners follow the same route: the reference path that
-``commonroad_route_planner`` (used by the reactive planner) plans from the start
-to the goal; jaxplan's lattice uses it as its reference line (resampled to a
-fixed number of points so it compiles once). Without the peer, ``--route lane``
-uses jaxplan's own ``lane_polyline`` (start lane, first successors).
+``commonroad_route_planner`` (the reactive planner's route planner) plans from the
+start to the goal, extended 10 m straight backwards (the peer plans from the rear
+axle, which can lie behind the route's first point). jaxplan's lattice uses it
+as its reference line, resampled to 256 points (one compiled shape). Its lanes
+(``--lanes auto``): the start lane and the lanes beside it in either direction
+(the peer's lateral samples reach them too), at the start lane's width, with
+lateral offsets that keep the car inside a lane (the lattice knows no road edge).
 
-Setup (the peer pins other versions of commonroad-io than jaxplan, so it lives in
-its own virtual environment and runs in a child process; trajectories come back
-as JSON)::
+The peer is configured as its shipped scenario configurations: 2 s horizon
+(``--peer-horizon-steps 20``), shortest sampled duration ``--peer-t-min 1.0``,
+BMW 320i, sampling levels as shipped, single process (``--peer-workers N`` turns
+on its multiprocessing kinematic check). jaxplan's horizon is ``--jaxplan-horizon``
+(default 5 s, its default; 2 s matches the peer).
+
+Setup: the peer pins commonroad-io 2024.x while jaxplan's venv has 2026.1 (a
+different API), so the peer lives in its own virtual environment and this script
+runs itself there as child processes (``--worker``): the XML conversion, the peer
+and the referee; jaxplan runs in this process; trajectories go through JSON::
 
     python3 -m venv /tmp/peer-venv
     /tmp/peer-venv/bin/pip install commonroad-reactive-planner==2025.1
@@ -37,12 +52,15 @@ Run (from the repository root)::
     .venv/bin/python experiments/compare_reactive_planner.py \
         --peer-python /tmp/peer-venv/bin/python --recorded 4 --out /tmp/compare_reactive_planner.json
 
-``--no-peer`` runs jaxplan alone (with ``--route lane``). Timings: wall time of
-one planning call (jaxplan: ``plan`` + fetching the chosen trajectory, after a
-warm-up call per scenario so compile time is excluded; the peer: its ``plan()``),
-on whatever CPU this runs on; the machine may be shared, so they are noisy.
-The peer runs single-process by default (``--peer-workers N`` turns its
-multiprocessing kinematic check on with N workers).
+``--no-peer`` skips the peer's planning (jaxplan then follows ``lane_polyline``,
+its start lane and first successors); the referee still needs the peer's venv.
+
+Timings per planning cycle: wall time and process CPU time of one planning call
+(jaxplan: ``plan`` + fetching the chosen trajectory, after a warm-up call per
+scenario so compile time is excluded; the peer: its ``plan()``). Candidates per
+cycle: jaxplan evaluates its whole lattice every cycle; the peer's count is the
+sum of the trajectory bundles it sampled over the levels it tried that cycle. On
+a shared machine the timings are noisy.
 """
 from __future__ import annotations
 
@@ -257,6 +275,14 @@ def json_to_xml(path: str, out_dir: str) -> str:
                                 successor=[int(i) for i in ln.get("successors", [])], **kw))
     sc.add_objects(LaneletNetwork.create_from_lanelet_list(lanelets))
     types = {t.value: t for t in ObstacleType}
+    used = {int(ln["id"]) for ln in d["lanelets"]}
+    fresh = iter(range(max(used | {0}) + 1000, 10 ** 9))
+
+    def unique(i: int) -> int:  # CommonRoad needs ids unique over lanelets, obstacles and problems
+        i = next(fresh) if i in used else i
+        used.add(i)
+        return i
+
     for o in d["obstacles"]:
         st = [s for s in o.get("states") or [] if s[0] >= 0]
         if len(st) < 2:
@@ -268,7 +294,7 @@ def json_to_xml(path: str, out_dir: str) -> str:
         init = InitialState(time_step=k[0], position=states[0].position, orientation=states[0].orientation,
                             velocity=states[0].velocity, acceleration=0.0, yaw_rate=0.0, slip_angle=0.0)
         pred = TrajectoryPrediction(Trajectory(k[1], states[1:]), shape)
-        sc.add_objects(DynamicObstacle(int(o["id"]), types.get(o.get("type"), ObstacleType.CAR), shape, init, pred))
+        sc.add_objects(DynamicObstacle(unique(int(o["id"])), types.get(o.get("type"), ObstacleType.CAR), shape, init, pred))
     pps = []
     for p in d["planning_problems"]:
         s0 = p["initial_state"]
@@ -293,7 +319,7 @@ def json_to_xml(path: str, out_dir: str) -> str:
             gs["orientation"] = AngleInterval(*map(float, g["orientation"]))
         if "velocity" in g:
             gs["velocity"] = Interval(*map(float, g["velocity"]))
-        pps.append(PlanningProblem(int(p["id"]), init, GoalRegion([CustomState(**gs)], lanelets_of_goal)))
+        pps.append(PlanningProblem(unique(int(p["id"])), init, GoalRegion([CustomState(**gs)], lanelets_of_goal)))
     os.makedirs(out_dir, exist_ok=True)
     xml = os.path.join(out_dir, d["id"] + ".xml")
     with warnings.catch_warnings():
@@ -422,8 +448,13 @@ def jaxplan_run(xml: str, ref_world: np.ndarray | None, max_steps: int, replan: 
     sc = load_commonroad(xml)
     config = jaxplan_config(sc, lanes, side_lanes, horizon)
     o = np.asarray(sc.origin, float)
+    route = "peer route" if ref_world is not None else "lane_polyline"
     ref = (np.asarray(ref_world, float) - o) if ref_world is not None else lane_polyline(sc, max_length=600.0)
-    ref_line = ReferenceLine.from_polyline(_resample(ref, N_REF).astype(np.float32))
+    try:
+        ref_line = ReferenceLine.from_polyline(_resample(ref, N_REF).astype(np.float32))
+    except ValueError as e:  # e.g. the route turns back on itself: follow the start lane instead
+        route = f"lane_polyline (route rejected: {e})"
+        ref_line = ReferenceLine.from_polyline(_resample(lane_polyline(sc, max_length=600.0), N_REF).astype(np.float32))
     boxes = np.asarray(sc.obstacles.boxes, np.float32)
     valid = np.asarray(sc.obstacles.valid, bool)
     if boxes.shape[0] == 0:
@@ -461,7 +492,7 @@ def jaxplan_run(xml: str, ref_world: np.ndarray | None, max_steps: int, replan: 
     world = [[s[0], s[1] + o[0], s[2] + o[1], s[3], s[4], s[5]] for s in states]
     return {"scenario": os.path.basename(xml), "status": "ok", "cycles": cycles, "states": world,
             "lanes": list(config.lanes), "lane_width": config.lane_width, "offset_span": config.offset_span,
-            "horizon": config.horizon}
+            "horizon": config.horizon, "route": route}
 
 
 # ----------------------------------------------------------------------------- driver
@@ -487,13 +518,13 @@ def main(argv=None) -> dict:
     ap.add_argument("--xml", nargs="*", default=None, help="CommonRoad XML files (default: commonroad2020a)")
     ap.add_argument("--recorded", type=int, default=4, help="recorded-traffic JSON files to convert and add")
     ap.add_argument("--peer-python", default="/tmp/peer-venv/bin/python")
-    ap.add_argument("--no-peer", action="store_true")
+    ap.add_argument("--no-peer", action="store_true", help="jaxplan only (the referee still runs in --peer-python)")
     ap.add_argument("--peer-workers", type=int, default=0, help="peer multiprocessing workers (0 = off)")
     ap.add_argument("--peer-horizon-steps", type=int, default=20,
                     help="peer horizon in 0.1 s steps (20 as in the peer's shipped scenario configs)")
     ap.add_argument("--peer-t-min", type=float, default=1.0, help="peer shortest sampled duration (s)")
     ap.add_argument("--route", choices=("peer", "lane"), default="peer")
-    ap.add_argument("--replan", type=int, default=1, help="re-plan every this many 0.1 s steps")
+    ap.add_argument("--replan", type=int, default=3, help="re-plan every this many 0.1 s steps")
     ap.add_argument("--max-steps", type=int, default=150)
     ap.add_argument("--jaxplan-horizon", type=float, default=5.0, help="lattice horizon (s); jaxplan's default 5")
     ap.add_argument("--lanes", default="auto", help="jaxplan lattice lanes, e.g. -1,0,1 (auto: those that exist)")
@@ -562,7 +593,7 @@ def main(argv=None) -> dict:
                               "driven_steps": len(truncate_at_goal(j["states"], v)) - 1,
                               "own_check_collided_cycles": int(sum(c["own_check_collided"] for c in cyc)),
                               "modes": [c["mode"] for c in cyc], "trajectory": j["states"],
-                              **{k: j[k] for k in ("lanes", "lane_width", "offset_span", "horizon")}}
+                              **{k: j[k] for k in ("lanes", "lane_width", "offset_span", "horizon", "route")}}
         except Exception as e:
             row["jaxplan"] = {"status": f"failed: {type(e).__name__}: {e}"}
         rows.append(row)
