@@ -16,7 +16,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxplan.geometry import box_corners, poses_to_boxes
+from jaxplan.geometry import poses_to_boxes
 from jaxplan.parking.config import ParkoutConfig
 
 
