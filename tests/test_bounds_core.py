@@ -189,7 +189,7 @@ def test_contour_distance_random_cases():
 def test_contour_batched_matches_single_and_jit():
     rng = np.random.default_rng(5)
     A, B, U = _random_pairs(rng, 6)
-    A[:] = np.asarray(CAR)  # the batch-of-one helper uses CAR
+    A = np.broadcast_to(np.asarray(CAR), A.shape)  # the batch-of-one helper uses CAR
     batched = np.asarray(construct(A.reshape(2, 3, 4, 2), B.reshape(2, 3, 4, 2), U.reshape(2, 3, 2)).distance)
     single = [float(_one(B[i], U[i]).distance) for i in range(6)]
     np.testing.assert_allclose(batched.ravel(), single, atol=1e-6)

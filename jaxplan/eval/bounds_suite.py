@@ -207,7 +207,8 @@ def _plot_frame(refs, S, L, OBS, res, out, radius_index=1):
 
     i = radius_index
     ov = res["exact"]["overlap"][i]
-    f = int(np.argmax(ov.sum(axis=(1, 2))))  # the frame with the most overlaps
+    score = ov.sum(axis=(1, 2)) + 1000 * res["contour"]["qp_ok"][i]
+    f = int(np.argmax(score))  # the frame with the most overlaps, preferring a planned one
     ref = reference_line(jnp.asarray(refs[i]))
     s = jnp.asarray(S[i, f])
     _, th, _, _ = ref_state(ref, s)
