@@ -211,3 +211,13 @@ def test_smoothing_qp_matches_scipy_and_reduces_jerk():
     jerk_dp = np.abs(np.diff(np.asarray(a_ref))).max() / h
     jerk_qp = np.abs(np.diff(np.asarray(a))).max() / h
     assert jerk_qp < 0.5 * jerk_dp
+
+
+def test_hopeless_scene_still_gives_a_valid_profile():
+    # a car appears right in front: every profile collides; the least-bad one must still be kinematically valid
+    obs = _static([[12.0, 0.0, 4.5, 1.8, 0.0]])
+    p = _plan(obs, 12.0)
+    assert not bool(p.feasible)
+    s, v, a = np.asarray(p.s), np.asarray(p.v), np.asarray(p.a)
+    assert np.all(np.diff(s) >= 0) and np.all(v >= 0) and np.all(v <= CFG.v_max)
+    assert np.allclose(np.diff(s), v * CFG.dt) and np.all(a >= CFG.a_min) and np.all(a <= CFG.a_max)

@@ -301,20 +301,22 @@ def _predecessors(V, config: SpeedConfig):
 def _dp(node, accel, jerk, terminal, j0, m0, config: SpeedConfig, temperature=None):
     """Forward pass. Returns (final values ``(N, V, M)``, argmins ``(n_t, N, V, M)``)."""
     N, V, M = config.n_s, config.n_v, len(config.accel_offsets)
-    big = config.big
+    # Unreachable states cost far more than any sum of collisions (``big`` per sub-step), so
+    # the argmin never backtracks through an impossible predecessor, even in hopeless scenes.
+    unreach = 1e3 * config.big
     ip, jp, ok = _predecessors(V, config)
-    init = jnp.full((N, V, M), big, node.dtype).at[0, j0, m0].set(0.0)
+    init = jnp.full((N, V, M), unreach, node.dtype).at[0, j0, m0].set(0.0)
 
     def step(val, nk):
         pred = val[ip[:, :, None], jp[None, :, :]]  # (N, V, M', M)
-        pred = jnp.where(ok[..., None], pred, big) + jerk
+        pred = jnp.where(ok[..., None], pred, unreach) + jerk
         if temperature is None:
             best = jnp.min(pred, -1)
             arg = jnp.argmin(pred, -1).astype(jnp.int8)
         else:
             best = -temperature * jax.nn.logsumexp(-pred / temperature, -1)
             arg = jnp.zeros(pred.shape[:-1], jnp.int8)
-        new = jnp.minimum(best + nk[:, :, None] + accel, 4 * big)
+        new = jnp.minimum(best + nk[:, :, None] + accel, unreach)
         return new, arg
 
     final, args = lax.scan(step, init, node)
