@@ -23,15 +23,8 @@ from jaxplan.bounds.frenet_bounds import path_bounds
 from jaxplan.bounds.optimize import optimize_path
 from jaxplan.eval.bounds_suite import CAR, LANE, make_scenarios
 from jaxplan.geometry import reference_line
+from jaxplan.eval.timing import best_time
 
-
-def _best(fn, reps):
-    best = np.inf
-    for _ in range(reps):
-        t = time.perf_counter()
-        fn()
-        best = min(best, time.perf_counter() - t)
-    return best
 
 
 def main(argv=None):
@@ -62,7 +55,7 @@ def main(argv=None):
             jax.block_until_ready(fn(*xs))
             res[f"{method}_compile_s_batch{c}"] = round(time.perf_counter() - t, 3)
             chunks = -(-n // c)
-            dt = _best(lambda: [jax.block_until_ready(fn(*xs)) for _ in range(chunks)], args.reps)
+            dt = best_time(lambda: [jax.block_until_ready(fn(*xs)) for _ in range(chunks)], args.reps)
             res[f"{method}_frames_per_s_batch{n}"] = round(chunks * c / dt, 1)
             print(f"{method:10s} batch {n:6d}: {chunks * c / dt:10.1f} frames/s "
                   f"(compile {res[f'{method}_compile_s_batch{c}']:.1f} s)", flush=True)
@@ -76,7 +69,7 @@ def main(argv=None):
         t = time.perf_counter()
         r = jax.block_until_ready(qp(*xs))
         res[f"qp_compile_s_batch{n}"] = round(time.perf_counter() - t, 3)
-        dt = _best(lambda: jax.block_until_ready(qp(*xs)), args.reps)
+        dt = best_time(lambda: jax.block_until_ready(qp(*xs)), args.reps)
         res[f"qp_ms_per_frame_batch{n}"] = round(1e3 * dt / n, 4)
         res[f"qp_ok_share_batch{n}"] = float(np.mean(np.asarray(r.ok)))
         print(f"path QP    batch {n:6d}: {1e3 * dt / n:8.3f} ms/frame, ok {np.mean(np.asarray(r.ok)):.2f}", flush=True)

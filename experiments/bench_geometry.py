@@ -9,7 +9,6 @@ time is reported separately. Peers that are not installed are skipped
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import platform
 import time
@@ -21,22 +20,15 @@ import numpy as np
 from jaxplan.geometry import (box_corners, box_has_overlap, has_overlap, overlap_area,
                               overlap_polygon_tagged, polygon_area)
 from jaxplan.scenarios.shapes import random_boxes
+from jaxplan.eval.timing import best_time, write_figures
 
-
-def _time(fn, reps):
-    best = np.inf
-    for _ in range(reps):
-        t = time.perf_counter()
-        fn()
-        best = min(best, time.perf_counter() - t)
-    return best
 
 
 def _jax_rate(f, args, n, reps):
     t = time.perf_counter()
     jax.block_until_ready(f(*args))
     compile_s = time.perf_counter() - t
-    return n / _time(lambda: jax.block_until_ready(f(*args)), reps), compile_s
+    return n / best_time(lambda: jax.block_until_ready(f(*args)), reps), compile_s
 
 
 def main(argv=None):
@@ -69,8 +61,8 @@ def main(argv=None):
 
         A = shapely.polygons(np.asarray(ca, np.float64))
         B = shapely.polygons(np.asarray(cb, np.float64))
-        res["shapely_intersects_pairs_per_s"] = n / _time(lambda: shapely.intersects(A, B), args.reps)
-        res["shapely_intersection_area_pairs_per_s"] = n / _time(
+        res["shapely_intersects_pairs_per_s"] = n / best_time(lambda: shapely.intersects(A, B), args.reps)
+        res["shapely_intersection_area_pairs_per_s"] = n / best_time(
             lambda: shapely.area(shapely.intersection(A, B)), max(1, args.reps // 2))
     except ImportError:
         print("shapely not installed: skipped")
@@ -86,7 +78,7 @@ def main(argv=None):
             return g
 
         ga, gb = group(ba[:m]), group(bb[:m])
-        res["pycrcc_box_pairs_per_s"] = m * m / _time(lambda: ga.overlap(gb), args.reps)
+        res["pycrcc_box_pairs_per_s"] = m * m / best_time(lambda: ga.overlap(gb), args.reps)
         jall = jax.jit(lambda a, b: box_has_overlap(a[:, None], b[None, :]))
         rate, _ = _jax_rate(jall, (ja[:m], jb[:m]), m * m, args.reps)
         res["jaxplan_box_overlap_all_pairs_per_s"] = rate
@@ -108,12 +100,7 @@ def main(argv=None):
             "shapely_intersects_pairs_per_s"]
     if "pycrcc_box_pairs_per_s" in r:
         r["ratio_box_overlap_vs_pycrcc"] = r["jaxplan_box_overlap_all_pairs_per_s"] / r["pycrcc_box_pairs_per_s"]
-    for k, v in r.items():
-        print(f"{k:45s} {v:,.4g}" if isinstance(v, float) else f"{k:45s} {v}")
-    os.makedirs(os.path.dirname(os.path.abspath(args.out)), exist_ok=True)
-    with open(args.out, "w") as f:
-        json.dump(r, f, indent=1)
-    print(f"wrote {args.out}")
+    write_figures(r, args.out, 45)
     return r
 
 

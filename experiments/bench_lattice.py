@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import argparse
 import itertools
-import json
 import os
 import platform
 import time
@@ -28,6 +27,7 @@ from jaxplan.geometry import ReferenceLine
 from jaxplan.lattice import CostWeights, LatticeConfig, PlanState
 from jaxplan.lattice.plan import _plan_jit
 from jaxplan.types import Obstacles
+from jaxplan.eval.timing import best_time, write_figures
 
 HORIZON, DT, V0 = 3.0, 0.1, 15.0
 
@@ -46,14 +46,6 @@ def _obstacles(k, t):
     return np.stack([x, y, np.full(x.shape, 4.5), np.full(x.shape, 1.8), np.zeros(x.shape)], -1)
 
 
-def _best(fn, reps):
-    best = np.inf
-    for _ in range(reps):
-        t = time.perf_counter()
-        fn()
-        best = min(best, time.perf_counter() - t)
-    return best
-
 
 def jaxplan_rate(n, k, reps, near_budget=0.25):
     V, L = _grid(n)
@@ -69,7 +61,7 @@ def jaxplan_rate(n, k, reps, near_budget=0.25):
     t0 = time.perf_counter()
     res = run()
     compile_s = time.perf_counter() - t0
-    return cfg.n_candidates / _best(run, reps), compile_s, cfg.n_candidates, int(np.asarray(res.collided).sum())
+    return cfg.n_candidates / best_time(run, reps), compile_s, cfg.n_candidates, int(np.asarray(res.collided).sum())
 
 
 def frenetix_rate(n, k, reps):
@@ -109,7 +101,7 @@ def frenetix_rate(n, k, reps):
         h.evaluate_all_current_functions(True)
 
     run()
-    return len(M) / _best(run, reps), len(M)
+    return len(M) / best_time(run, reps), len(M)
 
 
 def main(argv=None):
@@ -143,12 +135,7 @@ def main(argv=None):
         if args.obstacles:  # the dense collision check (no broad phase), for reference
             rate, comp, _, _ = jaxplan_rate(n, args.obstacles, args.reps, near_budget=0.0)
             res[f"jaxplan_dense_obstacles{args.obstacles}_N{n}_traj_per_s"] = rate
-    for key, v in res.items():
-        print(f"{key:48s} {v:,.4g}" if isinstance(v, float) else f"{key:48s} {v}")
-    os.makedirs(os.path.dirname(os.path.abspath(args.out)), exist_ok=True)
-    with open(args.out, "w") as f:
-        json.dump(res, f, indent=1)
-    print(f"wrote {args.out}")
+    write_figures(res, args.out)
     return res
 
 

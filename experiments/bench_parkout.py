@@ -8,10 +8,8 @@ reported separately. Prints figures and writes JSON (``--out``).
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import platform
-import time
 
 import jax
 import jax.numpy as jnp
@@ -19,6 +17,7 @@ import numpy as np
 
 from jaxplan.parking import ParkoutConfig, make_scenes, park_out
 from jaxplan.types import VehicleParams
+from jaxplan.eval.timing import best_time, timed, write_figures
 
 
 def main(argv=None):
@@ -35,14 +34,9 @@ def main(argv=None):
         scene, _ = make_scenes(rng, n, car, front_gap=rng.uniform(0.5, 2.5, n), rear_gap=rng.uniform(0.5, 2.5, n),
                                heading_noise_deg=1.5, offset_noise=0.1, edge_noise=0.03, salt=1e-5)
         key = jnp.asarray([0, 1], jnp.uint32)
-        t = time.perf_counter()
-        out = jax.block_until_ready(park_out(scene, key, cfg, car))
-        first = time.perf_counter() - t
-        best = np.inf
-        for r in range(args.reps):
-            t = time.perf_counter()
-            out = jax.block_until_ready(park_out(scene, jnp.asarray([r + 2, 1], jnp.uint32), cfg, car))
-            best = min(best, time.perf_counter() - t)
+        out, first = timed(lambda: jax.block_until_ready(park_out(scene, key, cfg, car)))
+        best = best_time(lambda: jax.block_until_ready(park_out(scene, jnp.asarray([3, 1], jnp.uint32), cfg, car)),
+                         args.reps)
         res[f"batch_{n}_plans_per_s"] = n / best
         res[f"batch_{n}_seconds"] = best
         res[f"batch_{n}_compile_s"] = max(first - best, 0.0)
@@ -50,10 +44,7 @@ def main(argv=None):
         res[f"batch_{n}_moves_mean"] = float(np.mean(np.asarray(out.moves)))
         print(f"batch {n:5d}: {n / best:9.1f} complete plans/s ({best:.3f} s per call, compile {first - best:.1f} s, "
               f"success {res[f'batch_{n}_success_rate']:.2f}, moves {res[f'batch_{n}_moves_mean']:.2f})", flush=True)
-    os.makedirs(os.path.dirname(os.path.abspath(args.out)), exist_ok=True)
-    with open(args.out, "w") as f:
-        json.dump(res, f, indent=1)
-    print("wrote", args.out)
+    write_figures(res, args.out)
 
 
 if __name__ == "__main__":

@@ -14,7 +14,6 @@ import argparse
 import json
 import os
 import platform
-import time
 
 import jax
 import jax.numpy as jnp
@@ -23,6 +22,7 @@ import numpy as np
 from jaxplan.geometry.frenet import reference_line
 from jaxplan.speed import CostWeights, SpeedConfig, plan_speed
 from jaxplan.types import Obstacles
+from jaxplan.eval.timing import best_time, timed
 
 K = 20
 
@@ -53,14 +53,8 @@ def bench(cfg, B, reps, rng):
     w = CostWeights.default()
     kc = (jnp.zeros((B, 1, 4, 2)), jnp.ones((B, 1, 4), bool), jnp.zeros((B, 1), bool))
     run = lambda: jax.block_until_ready(plan_speed(refs, obs, cfg, w, v0=v0, s0=20.0, keep_clear=kc))
-    t = time.perf_counter()
-    p = run()
-    compile_s = time.perf_counter() - t
-    best = np.inf
-    for _ in range(reps):
-        t = time.perf_counter()
-        run()
-        best = min(best, time.perf_counter() - t)
+    p, compile_s = timed(run)
+    best = best_time(run, reps)
     return {"batch": B, "plans_per_s": B / best, "ms_per_call": 1e3 * best, "compile_s": compile_s,
             "feasible": float(np.mean(np.asarray(p.feasible)))}
 
@@ -92,9 +86,9 @@ def main(argv=None):
                   f"{r['plans_per_s']:9.1f} plans/s  ({r['ms_per_call']:.1f} ms/call, compile {r['compile_s']:.1f} s)",
                   flush=True)
         res["grids"][name] = info
-    os.makedirs(os.path.dirname(args.out) or ".", exist_ok=True)
+    os.makedirs(os.path.dirname(os.path.abspath(args.out)), exist_ok=True)
     with open(args.out, "w") as f:
-        json.dump(res, f, indent=1)
+        json.dump(res, f, indent=1)  # nested: printed above, run by run
     print(f"wrote {args.out}")
 
 

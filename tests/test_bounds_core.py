@@ -10,7 +10,7 @@ from jaxplan.bounds.corners import contour_construction_jit as construct
 from jaxplan.bounds.distance import exact_avoid_distance_jit as exact_jit
 from jaxplan.bounds.frenet_bounds import path_bounds_jit
 from jaxplan.bounds.optimize import PathQPConfig, PathWeights, optimize_path_jit, qp_matrices
-from jaxplan.geometry import ReferenceLine, box_corners, has_overlap, separation, to_cartesian
+from jaxplan.geometry import ReferenceLine, box_corners, has_overlap, to_cartesian
 from jaxplan.types import VehicleParams
 
 CAR = box_corners(jnp.array([0.0, 0.0, 4.0, 2.0, 0.0]))  # x in [-2, 2], y in [-1, 1]

@@ -1,8 +1,6 @@
 import json
 import os
 
-import pytest
-
 from jaxplan.cli import main
 
 

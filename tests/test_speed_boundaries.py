@@ -8,8 +8,7 @@ import shapely
 from jaxplan.geometry.frenet import ReferenceLine, ref_state
 from jaxplan.speed import (LEFT, RIGHT, blocking_boundaries, classify, compose_plan, first_trajectory,
                            keep_clear_intervals, path_profile, resample_obstacles, side_probes)
-from jaxplan.speed.compose import speed_profile_at
-from jaxplan.speed.dp import SpeedConfig, SpeedPlan
+from jaxplan.speed.dp import SpeedPlan
 from jaxplan.types import Obstacles, VehicleParams
 
 CAR = VehicleParams()

@@ -9,7 +9,7 @@ import pytest
 from jaxplan.geometry.frenet import ReferenceLine
 from jaxplan.speed import (CostWeights, SpeedConfig, dp_from_costs, expected_speed_profile, make_scene,
                            plan_speed, soft_value, stage_costs)
-from jaxplan.types import Obstacles, VehicleParams
+from jaxplan.types import Obstacles
 
 SMALL = SpeedConfig(dt=1.0, n_t=4, ds=1.0, v_max=4.0, a_min=-2.0, a_max=1.0, n_sub=2)
 CFG = SpeedConfig(dt=1.0, n_t=5, ds=1.0, v_max=12.0, a_min=-4.0, a_max=2.0, n_sub=4)

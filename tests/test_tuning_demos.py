@@ -14,7 +14,6 @@ def test_demos_from_recorded_traffic():
     cfg = DemoConfig(horizon=3.0, n_obstacles=8, ref_points=48)
     demos = scenario_demos(scs[0], cfg)
     assert len(demos) > 5
-    boxes, valid = np.asarray(scs[0].obstacles.boxes), np.asarray(scs[0].obstacles.valid)
     for d in demos:
         assert d.human_xy.shape == (31, 2) and d.obstacles.shape == (8, 31, 5) and d.ref_xy.shape == (48, 2)
         np.testing.assert_allclose(d.human_xy[0], 0.0, atol=1e-9)

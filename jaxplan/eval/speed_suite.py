@@ -33,7 +33,7 @@ import numpy as np
 
 from jaxplan.eval.registry import SuiteArgs, register
 from jaxplan.geometry.boxes import box_corners, box_has_overlap, poses_to_boxes
-from jaxplan.geometry.frenet import ReferenceLine, ref_state, reference_line, to_frenet
+from jaxplan.geometry.frenet import ref_state, reference_line, to_frenet
 from jaxplan.geometry.polygons import has_overlap
 from jaxplan.speed import CostWeights, SpeedConfig, compose_plan, plan_speed
 from jaxplan.speed.nonblocking import obstacle_speed

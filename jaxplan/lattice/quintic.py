@@ -16,7 +16,6 @@ from __future__ import annotations
 import jax.numpy as jnp
 
 from jaxplan.geometry.frenet import ReferenceLine, ref_state, to_frenet, wrap_angle
-from jaxplan.geometry.lines import cross2
 
 
 def quintic_coeffs(l0, dl0, ddl0, l1, S):

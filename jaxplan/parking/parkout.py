@@ -148,7 +148,6 @@ class ParkoutResult(NamedTuple):
 
 def _park_out_one(scene: Scene, key, config: ParkoutConfig, vehicle, model: str):
     dtype = scene.boxes.dtype
-    d = stop_line(vehicle, config.c)
     start = jnp.zeros(3, dtype)
     if model == "two_corner":
         ref = jnp.stack([jnp.asarray(vehicle.center_offset, dtype), jnp.zeros((), dtype)])

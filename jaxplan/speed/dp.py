@@ -34,7 +34,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax import lax
 
-from jaxplan.speed.nonblocking import Classified, classify, keep_clear_intervals
+from jaxplan.speed.nonblocking import classify, keep_clear_intervals
 from jaxplan.speed.path_profile import PathProfile, path_profile, resample_obstacles
 from jaxplan.geometry.frenet import ReferenceLine
 from jaxplan.types import Obstacles, VehicleParams, is_concrete

@@ -10,7 +10,6 @@ to fixed sizes, so a list of them stacks into one batched pytree.
 from __future__ import annotations
 
 import dataclasses
-import math
 import zlib
 
 import jax

@@ -10,7 +10,6 @@ import dataclasses
 
 import jax
 import jax.numpy as jnp
-import numpy as np
 
 from jaxplan.tuning.demos import Demo, DemoConfig, load_demos, synthetic_demos
 from jaxplan.tuning.lattice_tuning import (LEARNED, _chosen, default_weights, imitation_metrics, lattice_data,

@@ -1,0 +1,36 @@
+"""Timing and output helpers shared by the benchmark scripts (``experiments/bench_*.py``)."""
+from __future__ import annotations
+
+import json
+import os
+import time
+from typing import Callable
+
+import numpy as np
+
+
+def best_time(fn: Callable[[], object], reps: int) -> float:
+    """Best wall time (s) of ``reps`` calls of ``fn`` (which must block until done)."""
+    best = np.inf
+    for _ in range(max(1, reps)):
+        t = time.perf_counter()
+        fn()
+        best = min(best, time.perf_counter() - t)
+    return best
+
+
+def timed(fn: Callable[[], object]) -> tuple[object, float]:
+    """``(fn(), seconds)`` for one call, e.g. the first (compiling) call."""
+    t = time.perf_counter()
+    out = fn()
+    return out, time.perf_counter() - t
+
+
+def write_figures(figures: dict, out: str, width: int = 48) -> None:
+    """Print ``figures`` one per line and write them as JSON to ``out``."""
+    for k, v in figures.items():
+        print(f"{k:{width}s} {v:,.4g}" if isinstance(v, float) else f"{k:{width}s} {v}")
+    os.makedirs(os.path.dirname(os.path.abspath(out)), exist_ok=True)
+    with open(out, "w") as f:
+        json.dump(figures, f, indent=1)
+    print(f"wrote {out}")
