@@ -17,6 +17,8 @@ test: $(BIN)/jaxplan
 	$(BIN)/python -m pytest tests
 
 bench: $(BIN)/jaxplan
-	$(BIN)/python experiments/bench_geometry.py
+	$(BIN)/pip install -q -e ".[test,bench]"
+	for b in geometry bounds lattice speed parkout; do \
+	  $(BIN)/python experiments/bench_$$b.py --out results/bench_$$b.json || exit 1; done
 
 .PHONY: demo test bench
