@@ -28,3 +28,19 @@ def test_report_lists_figures_and_plots(tmp_path):
     assert "## geometry" in text and "overlap_agreement" in text and "![geometry.png](geometry.png)" in text
     assert "## other plots" in text and "![zz_extra.png](zz_extra.png)" in text
     assert main(["report", str(tmp_path / "missing")]) == 2
+
+
+def test_tune_writes_weights_that_eval_reads(tmp_path):
+    from jaxplan.eval.lattice_suite import imitation_figures
+    from jaxplan.eval.registry import SuiteArgs
+    from jaxplan.tuning.train import load_weights
+
+    path = str(tmp_path / "w.json")
+    assert main(["tune", "lattice", "--steps", "3", "--out", path]) == 0
+    w = load_weights(path)
+    assert set(w) >= {"alpha", "beta", "gamma", "delta"} and all(v > 0 for v in w.values())
+    meta = json.load(open(path))["meta"]
+    assert meta["planner"] == "lattice" and meta["source"] == "synthetic" and "after.ade3" in meta
+    m = imitation_figures(SuiteArgs(out=str(tmp_path), weights=path, n=24))
+    assert m["imitation.recorded"] == 0
+    assert 0 <= m["imitation.weights.top1"] <= 1 and m["imitation.default.ade3"] >= 0

@@ -236,7 +236,25 @@ def lattice_suite(args: SuiteArgs) -> dict:
             m.update(_figures(rec, "recorded_"))
             m["recorded_time_per_plan_ms_batched"] = 1e3 * float(np.median(extra[0]))
             _plot_recorded(extra[1], args.out)
+    if args.weights:
+        m.update(imitation_figures(args))
     return m
+
+
+def imitation_figures(args: SuiteArgs) -> dict:
+    """Imitation figures (``jaxplan.tuning``) of the weights in ``--weights`` and of the defaults on
+    the held-out demonstrations of ``--scenarios`` (synthetic demonstrations without it)."""
+    from jaxplan.eval.tune_suite import load_suite_weights
+    from jaxplan.tuning.lattice_tuning import default_weights, imitation_metrics, lattice_data
+    from jaxplan.tuning.run import demonstrations
+
+    _, val, source = demonstrations(args.scenarios, n_synthetic=args.n or 24, max_files=6 if args.quick else None,
+                                    seed=args.seed)
+    data = lattice_data(val)
+    out = {"imitation.recorded": int(source == "recorded")}
+    for name, w in (("default", default_weights()), ("weights", {**default_weights(), **load_suite_weights(args)})):
+        out.update({f"imitation.{name}.{k}": v for k, v in imitation_metrics(w, data).items()})
+    return out
 
 
 def _draw(ax, res, i, cfg, obs_boxes, obs_valid, title):
