@@ -138,6 +138,19 @@ def row_prefix(cells):
     return jnp.concatenate([z, jnp.cumsum(c, axis=-1)], axis=-1)
 
 
+def _rows_occupied(prefix, r, c_lo, c_hi, hit_row, config: ParkoutConfig):
+    """Whether scanned rows ``r`` ``(..., R)`` hold an occupied cell centre in columns
+    ``[c_lo, c_hi]`` (row prefix counts); also which rows lie inside the grid."""
+    in_rows = (r >= 0) & (r < config.rows)
+    a = jnp.clip(c_lo, 0, config.cols).astype(jnp.int32)
+    b = jnp.clip(c_hi + 1, 0, config.cols).astype(jnp.int32)
+    rr = jnp.clip(r, 0, config.rows - 1)
+    flat = prefix.reshape(-1)
+    w = config.cols + 1
+    count = flat[rr * w + jnp.maximum(b, a)] - flat[rr * w + a]
+    return hit_row & in_rows & (count > 0), in_rows
+
+
 def polygon_covers_occupied(prefix, grid_pose, poly, config: ParkoutConfig):
     """Whether a convex polygon contains the centre of an occupied cell.
 
@@ -171,14 +184,7 @@ def polygon_covers_occupied(prefix, grid_pose, poly, config: ParkoutConfig):
     hit_row = jnp.isfinite(lo) & (hi >= lo)
     c_lo = jnp.ceil(jnp.where(hit_row, lo, 0.0))
     c_hi = jnp.floor(jnp.where(hit_row, hi, -1.0))
-    in_rows = (r >= 0) & (r < config.rows)
-    a = jnp.clip(c_lo, 0, config.cols).astype(jnp.int32)
-    b = jnp.clip(c_hi + 1, 0, config.cols).astype(jnp.int32)
-    rr = jnp.clip(r, 0, config.rows - 1)
-    flat = prefix.reshape(-1)
-    w = config.cols + 1
-    count = flat[rr * w + jnp.maximum(b, a)] - flat[rr * w + a]
-    occ = hit_row & in_rows & (count > 0)
+    occ, in_rows = _rows_occupied(prefix, r, c_lo, c_hi, hit_row, config)
     if config.outside_occupied:
         beyond = hit_row & ((~in_rows) | (c_lo < 0) | (c_hi > config.cols - 1))
         occ = occ | beyond
@@ -215,14 +221,7 @@ def box_covers_occupied(prefix, grid_pose, boxes, config: ParkoutConfig):
     hit_row = (hi >= lo) & (jnp.abs(dy) <= half_rows[..., None] + 1e-3)
     c_lo = jnp.ceil(jnp.clip(lo, -1.0, config.cols + 1.0))
     c_hi = jnp.floor(jnp.clip(hi, -2.0, config.cols + 1.0))
-    in_rows = (r >= 0) & (r < config.rows)
-    a = jnp.clip(c_lo, 0, config.cols).astype(jnp.int32)
-    b = jnp.clip(c_hi + 1, 0, config.cols).astype(jnp.int32)
-    rr = jnp.clip(r, 0, config.rows - 1)
-    flat = prefix.reshape(-1)
-    w = config.cols + 1
-    count = flat[rr * w + jnp.maximum(b, a)] - flat[rr * w + a]
-    occ = hit_row & in_rows & (count > 0)
+    occ, in_rows = _rows_occupied(prefix, r, c_lo, c_hi, hit_row, config)
     if config.outside_occupied:
         occ = occ | (hit_row & (~in_rows | (c_lo < 0) | (c_hi > config.cols - 1)) & (c_hi >= c_lo))
     return jnp.any(occ, axis=-1)
