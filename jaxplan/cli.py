@@ -1,4 +1,4 @@
-"""Command line: ``jaxplan eval SUITE [...]`` (also ``python -m jaxplan``)."""
+"""Command line: ``jaxplan eval SUITE``, ``jaxplan tune PLANNER``, ``jaxplan report DIR`` (also ``python -m jaxplan``)."""
 from __future__ import annotations
 
 import argparse

@@ -380,3 +380,18 @@ def test_broad_phase_matches_dense(rng):
         assert close.any()
         np.testing.assert_allclose(got[close], dense[close], atol=1e-5)
         assert (got[~close] > 1.0 - 1e-5).all()
+
+
+def test_lateral_time_reaches_the_offset_early():
+    cfg = LatticeConfig(n_offsets=3, escalation=(1.0,), lateral_time=2.0)
+    st = PlanState.make(0.0, 0.0, 0.0, 20.0)
+    c = generate_jit(st, curved_ref(), cfg)
+    l, off = np.asarray(c.l), np.asarray(c.offset)
+    s = np.asarray(c.s) - np.asarray(c.s)[:, :1]
+    k = 20  # t = 2 s: the offset is reached where the car is then (s > s_min at 20 m/s), and held
+    np.testing.assert_allclose(l[:, k:], np.broadcast_to(off[:, None], l[:, k:].shape), atol=2e-3)
+    assert np.all(s[:, k] > cfg.s_min)
+    slow = generate_jit(st, curved_ref(), LatticeConfig(n_offsets=3, escalation=(1.0,)))
+    assert np.abs(np.asarray(slow.l)[:, k] - off).max() > 0.1  # the default spreads it over the horizon
+    with pytest.raises(ValueError, match="lateral_time"):
+        LatticeConfig(lateral_time=9.0).validate()

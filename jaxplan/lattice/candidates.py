@@ -5,7 +5,8 @@ order (``N = levels * speeds * lanes * offsets``). ``level`` is the speed-variat
 escalation: level ``e`` uses the speed deltas scaled by ``escalation[e]``.
 
 Each speed profile gives the distance ``s(t)`` along the reference line; the lateral
-path ``l(s)`` is a quintic reaching its offset after ``S = max(s(t_end), s_min)``.
+path ``l(s)`` is a quintic reaching its offset after ``S = max(s(t_lat), s_min)``, where
+``t_lat`` is ``lateral_time`` (or the horizon when it is 0), and holding it after.
 Positions, headings (unwrapped) and curvatures follow ``frenet_to_cartesian_state``'s
 formulas; the reference line is evaluated once per (level, speed, time) and shared
 by every lateral offset. The Cartesian speed is ``ds/dt * sqrt((1 - kappa_r l)^2 + l'^2)``
@@ -51,6 +52,9 @@ class LatticeConfig:
         jerk, a_min, a_max: profile limits.
         v_max: highest end speed (m/s).
         s_min: shortest lateral manoeuvre (m).
+        lateral_time: time (s) by which the lateral offset is reached; 0 = the horizon.
+            A short manoeuvre (2-3 s) lets a fast car swerve late, which a manoeuvre
+            stretched over the whole horizon distance cannot.
         vehicle: the car (static floats).
         ttc_min: TTC floor (s) in the risk ``1 / max(TTC, ttc_min)``.
         sep_eps: softness (m) of the smooth collision feature ``sigmoid(-min_sep / eps)``.
@@ -78,6 +82,7 @@ class LatticeConfig:
     a_max: float = 2.5
     v_max: float = 40.0
     s_min: float = 10.0
+    lateral_time: float = 0.0
     vehicle: VehicleParams = VehicleParams()
     ttc_min: float = 0.1
     sep_eps: float = 0.05
@@ -112,6 +117,8 @@ class LatticeConfig:
             raise ValueError(f"LatticeConfig.target_lane {self.target_lane} is not one of lanes {self.lanes}")
         if not (self.a_min < 0 < self.a_max) or self.jerk <= 0 or self.s_min <= 0:
             raise ValueError("LatticeConfig: need a_min < 0 < a_max, jerk > 0, s_min > 0")
+        if not 0.0 <= self.lateral_time <= self.horizon:
+            raise ValueError(f"LatticeConfig.lateral_time must be in [0, horizon], got {self.lateral_time}")
         self.vehicle.validate()
         return self
 
@@ -238,7 +245,8 @@ def generate(state: PlanState, ref: ReferenceLine, config: LatticeConfig) -> Can
         s_rel, sd, sdd = accel_profile(sdot0, v_end, t, config.a_min, config.a_max)
     # s_rel, sd, sdd: (E, V, T)
     G, P = E * V, Ln * O
-    S = jnp.maximum(s_rel[..., -1], config.s_min).reshape(G)
+    k_lat = T - 1 if config.lateral_time <= 0 else min(T - 1, int(round(config.lateral_time / config.dt)))
+    S = jnp.maximum(s_rel[..., k_lat], config.s_min).reshape(G)
     s_abs = (s0 + s_rel).reshape(G, T)  # the reference line is evaluated once per speed profile
     pos, theta_r, kr, dkr = ref_state(ref, s_abs)
     per_group = (s_rel.reshape(G, T), sd.reshape(G, T), sdd.reshape(G, T), S, pos, jnp.cos(theta_r),
