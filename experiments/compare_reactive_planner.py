@@ -409,7 +409,7 @@ def _window(boxes: np.ndarray, valid: np.ndarray, static: np.ndarray, k: int, T:
     return b, ok
 
 
-def jaxplan_config(sc, lanes: str = "auto", side_lanes=None, horizon: float = 5.0):
+def jaxplan_config(sc, lanes: str = "auto", side_lanes=None, horizon: float = 5.0, lateral_time: float = 0.0):
     """The lattice for a scenario: the BMW 320i at its centre; with ``lanes="auto"`` only the
     lanes that exist beside the start lane (``side_lanes``, -1 right / +1 left, either driving
     direction, as the peer's lateral samples also reach them; default: jaxplan's same-direction
@@ -430,11 +430,11 @@ def jaxplan_config(sc, lanes: str = "auto", side_lanes=None, horizon: float = 5.
         lanes = tuple(int(v) for v in lanes.split(","))
     span = float(np.clip(0.5 * (width - CAR_WIDTH) - 0.1, 0.0, 1.0))
     return LatticeConfig(horizon=horizon, lanes=lanes, target_lane=0, vehicle=car, lane_width=round(width, 2),
-                         offset_span=round(span, 2))
+                         offset_span=round(span, 2), lateral_time=min(lateral_time, horizon))
 
 
 def jaxplan_run(xml: str, ref_world: np.ndarray | None, max_steps: int, replan: int, lanes: str,
-                v_set: float, side_lanes=None, horizon: float = 5.0) -> dict:
+                v_set: float, side_lanes=None, horizon: float = 5.0, lateral_time: float = 0.0) -> dict:
     """Closed loop of ``jaxplan.lattice.plan`` on one XML file (local frame inside, world coordinates out)."""
     import jax
     import jax.numpy as jnp
@@ -446,7 +446,7 @@ def jaxplan_run(xml: str, ref_world: np.ndarray | None, max_steps: int, replan: 
     from jaxplan.types import Obstacles
 
     sc = load_commonroad(xml)
-    config = jaxplan_config(sc, lanes, side_lanes, horizon)
+    config = jaxplan_config(sc, lanes, side_lanes, horizon, lateral_time)
     o = np.asarray(sc.origin, float)
     route = "peer route" if ref_world is not None else "lane_polyline"
     ref = (np.asarray(ref_world, float) - o) if ref_world is not None else lane_polyline(sc, max_length=600.0)
@@ -527,6 +527,8 @@ def main(argv=None) -> dict:
     ap.add_argument("--replan", type=int, default=3, help="re-plan every this many 0.1 s steps")
     ap.add_argument("--max-steps", type=int, default=150)
     ap.add_argument("--jaxplan-horizon", type=float, default=5.0, help="lattice horizon (s); jaxplan's default 5")
+    ap.add_argument("--lateral-time", type=float, default=0.0,
+                    help="lattice lateral_time (s): offset reached by then; 0 = over the horizon (default)")
     ap.add_argument("--lanes", default="auto", help="jaxplan lattice lanes, e.g. -1,0,1 (auto: those that exist)")
     ap.add_argument("--out", default="/tmp/compare_reactive_planner.json")
     ap.add_argument("--worker", choices=("peer", "prep", "referee"), help=argparse.SUPPRESS)
@@ -583,7 +585,7 @@ def main(argv=None) -> dict:
                 row["jaxplan_route"] = "lane (peer gave no route)"
         try:
             j = jaxplan_run(x, ref, steps[x], args.replan, args.lanes, v_set, info[x].get("side_lanes"),
-                           args.jaxplan_horizon)
+                           args.jaxplan_horizon, args.lateral_time)
             v = judge(args.peer_python, tmp, x, j["states"])
             # the peer stops at its goal; judge jaxplan's drive up to the goal step too
             v = judge(args.peer_python, tmp, x, truncate_at_goal(j["states"], v))
