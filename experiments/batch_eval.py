@@ -47,11 +47,7 @@ SEED_STRIDE = 1_000_003  # scene i of a run is generated from seed (seed * strid
 @jax.jit
 def plan_chunk(batch):
     """Lattice plan of every scene of a chunk; per-scene summary figures."""
-    e = batch["ego"]
-    zeros = jnp.zeros_like(e[:, 0])
-    state = PlanState(x=e[:, 0], y=e[:, 1], heading=e[:, 2], kappa=zeros, v=e[:, 3], a=zeros, v_set=e[:, 3],
-                      d_crossroad=jnp.full_like(zeros, jnp.inf))
-    res = plan_batch(state, jax.vmap(reference_line)(batch["ref_xy"]),
+    res = plan_batch(PlanState.from_rows(batch["ego"]), jax.vmap(reference_line)(batch["ref_xy"]),
                      Obstacles(batch["boxes"], batch["valid"], batch["t"]), CONFIG, CostWeights())
     idx = res.chosen[:, None]
     pick = lambda a: jnp.take_along_axis(a, idx, axis=1)[:, 0]

@@ -386,14 +386,6 @@ def referee(xml: str, states: list) -> dict:
 N_REF = 256  # reference line samples (fixed: one compiled shape)
 
 
-def _resample(xy: np.ndarray, n: int) -> np.ndarray:
-    keep = np.concatenate([[True], np.linalg.norm(np.diff(xy, axis=0), axis=1) > 1e-3])
-    xy = xy[keep]
-    s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(xy, axis=0), axis=1))])
-    q = np.linspace(0.0, s[-1], n)
-    return np.column_stack([np.interp(q, s, xy[:, 0]), np.interp(q, s, xy[:, 1])])
-
-
 def _window(boxes: np.ndarray, valid: np.ndarray, static: np.ndarray, k: int, T: int):
     """Obstacle boxes ``(K, T, 5)`` seen from step ``k``; static ones held past the recording."""
     K, S = valid.shape
@@ -436,13 +428,13 @@ def jaxplan_config(sc, lanes: str = "auto", side_lanes=None, horizon: float = 5.
 def jaxplan_run(xml: str, ref_world: np.ndarray | None, max_steps: int, replan: int, lanes: str,
                 v_set: float, side_lanes=None, horizon: float = 5.0, lateral_time: float = 0.0) -> dict:
     """Closed loop of ``jaxplan.lattice.plan`` on one XML file (local frame inside, world coordinates out)."""
-    import jax
     import jax.numpy as jnp
 
     from jaxplan.geometry.frenet import ReferenceLine
     from jaxplan.lattice import PlanState, plan
     from jaxplan.scenarios.commonroad import load_commonroad
     from jaxplan.scenarios.loader import lane_polyline
+    from jaxplan.scenarios.polylines import uniform_resample
     from jaxplan.types import Obstacles
 
     sc = load_commonroad(xml)
@@ -451,10 +443,10 @@ def jaxplan_run(xml: str, ref_world: np.ndarray | None, max_steps: int, replan: 
     route = "peer route" if ref_world is not None else "lane_polyline"
     ref = (np.asarray(ref_world, float) - o) if ref_world is not None else lane_polyline(sc, max_length=600.0)
     try:
-        ref_line = ReferenceLine.from_polyline(_resample(ref, N_REF).astype(np.float32))
+        ref_line = ReferenceLine.from_polyline(uniform_resample(ref, N_REF).astype(np.float32))
     except ValueError as e:  # e.g. the route turns back on itself: follow the start lane instead
         route = f"lane_polyline (route rejected: {e})"
-        ref_line = ReferenceLine.from_polyline(_resample(lane_polyline(sc, max_length=600.0), N_REF).astype(np.float32))
+        ref_line = ReferenceLine.from_polyline(uniform_resample(lane_polyline(sc, max_length=600.0), N_REF).astype(np.float32))
     boxes = np.asarray(sc.obstacles.boxes, np.float32)
     valid = np.asarray(sc.obstacles.valid, bool)
     if boxes.shape[0] == 0:

@@ -79,3 +79,22 @@ def test_shared_data_loads():
     assert us101 and all(s.obstacles.boxes.shape[0] > 0 for s in us101)
     ref = lane_reference(us101[0])
     assert float(ref.length) > 50
+
+
+def test_polyline_tools_against_brute_force(rng):
+    from jaxplan.scenarios.polylines import nearest_on_polyline, uniform_resample
+
+    xy = np.cumsum(rng.normal(size=(12, 2)), axis=0)
+    xy = np.insert(xy, 5, xy[4], axis=0)  # a repeated point
+    out = uniform_resample(xy, 40)
+    steps = np.linalg.norm(np.diff(out, axis=0), axis=1)
+    np.testing.assert_allclose(out[[0, -1]], xy[[0, -1]], atol=1e-9)
+    spacing = np.sum(np.linalg.norm(np.diff(xy, axis=0), axis=1)) / 39
+    assert np.all(steps <= spacing + 1e-9)  # chords never exceed the arc-length spacing
+    for p in rng.normal(size=(50, 2)) * 5:
+        j, along, d = nearest_on_polyline(xy, p)
+        dense = np.concatenate([a + np.linspace(0, 1, 2001)[:, None] * (b - a) for a, b in zip(xy[:-1], xy[1:])])
+        assert d == pytest.approx(np.linalg.norm(dense - p, axis=1).min(), abs=1e-2)
+        seg = xy[j + 1] - xy[j]
+        q = xy[j] + along * seg / max(np.linalg.norm(seg), 1e-12)
+        assert np.linalg.norm(q - p) == pytest.approx(d, abs=1e-9)

@@ -26,6 +26,7 @@ from jaxplan.eval.registry import SuiteArgs, register
 from jaxplan.geometry import ReferenceLine
 from jaxplan.lattice import CostWeights, LatticeConfig, PlanState, plan_batch
 from jaxplan.lattice.plan import _plan_jit
+from jaxplan.scenarios.polylines import uniform_resample
 from jaxplan.types import Obstacles
 
 KINDS = ("following", "cut_in", "slow_leader", "congestion", "lane_change", "crossroad")
@@ -138,12 +139,6 @@ def _run_synthetic(n_per_kind, seed):
     return table, results, timing
 
 
-def _resample(xy, n):
-    d = np.concatenate([[0], np.cumsum(np.linalg.norm(np.diff(xy, axis=0), axis=1))])
-    s = np.linspace(0, d[-1], n)
-    return np.stack([np.interp(s, d, xy[:, 0]), np.interp(s, d, xy[:, 1])], 1)
-
-
 def _run_recorded(directory, limit, batch, cfg=NORMAL):
     """Recorded scenes planned ``batch`` at a time (the synthetic batch's shapes: no new compile)."""
     from jaxplan.scenarios.loader import lane_reference, load_scenario
@@ -158,7 +153,7 @@ def _run_recorded(directory, limit, batch, cfg=NORMAL):
             if abs(sc.dt - cfg.dt) > 1e-9:
                 skipped += 1
                 continue
-            ref = ReferenceLine.from_polyline(_resample(np.asarray(lane_reference(sc).xy), N_REF))
+            ref = ReferenceLine.from_polyline(uniform_resample(np.asarray(lane_reference(sc).xy), N_REF))
         except ValueError:
             skipped += 1
             continue

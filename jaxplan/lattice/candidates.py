@@ -148,6 +148,15 @@ class PlanState:
                                                 d_crossroad)))
         return st.validate()
 
+    @classmethod
+    def from_rows(cls, ego) -> "PlanState":
+        """Jittable: states from rows ``ego (..., 5)`` = [x, y, heading, v, a] (the layout of
+        ``jaxplan.scenarios.synthetic`` and ``jaxplan.tuning.demos``): no curvature, the set
+        speed is the current speed, no crossroad."""
+        e = jnp.asarray(ego)
+        zero = jnp.zeros_like(e[..., 0])
+        return cls(e[..., 0], e[..., 1], e[..., 2], zero, e[..., 3], e[..., 4], e[..., 3], zero + jnp.inf)
+
     def validate(self) -> "PlanState":
         for name in ("x", "y", "heading", "kappa", "v", "a", "v_set"):
             check_finite(f"PlanState.{name}", getattr(self, name))

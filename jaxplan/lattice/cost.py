@@ -88,6 +88,31 @@ def lam(weights: CostWeights, features):
     return weights.alpha * features[..., 0] + weights.beta * features[..., 1] + weights.delta * features[..., 3]
 
 
+def eligible(collided, level):
+    """The candidates the exact rule chooses among.
+
+    Args:
+        collided: ``(..., N)`` bool; level: ``(..., N)`` int escalation level.
+
+    Returns:
+        (eligible ``(..., N)``: the free candidates of the lowest level that has one, or every
+        candidate when all collide; any_free ``(...)``; first free level ``(...)``).
+    """
+    free = ~collided
+    big = jnp.iinfo(jnp.int32).max
+    first_level = jnp.min(jnp.where(free, level, big), axis=-1)  # (...)
+    any_free = first_level < big
+    ok = jnp.where(any_free[..., None], free & (level == first_level[..., None]), True)
+    return ok, any_free, first_level
+
+
+def rule_cost(weights, features, collided):
+    """The exact rule's cost ``(..., N)``: ``lambda``, plus ``gamma * risk`` when every
+    candidate collides. ``weights`` needs ``alpha, beta, gamma, delta`` attributes."""
+    all_collide = jnp.all(collided, axis=-1, keepdims=True)
+    return lam(weights, features) + jnp.where(all_collide, weights.gamma * features[..., 2], 0.0)
+
+
 def select(weights: CostWeights, features, collided, level):
     """Exact selection (see the module docstring).
 
@@ -98,15 +123,8 @@ def select(weights: CostWeights, features, collided, level):
         (index ``(...)`` int, mode ``(...)`` in {FREE, ESCALATED, RISK}, selection cost ``(..., N)``
         with ``inf`` for candidates the rule excluded).
     """
-    base = lam(weights, features)
-    free = ~collided
-    big = jnp.iinfo(jnp.int32).max
-    first_level = jnp.min(jnp.where(free, level, big), axis=-1)  # (...)
-    any_free = first_level < big
-    eligible = free & (level == first_level[..., None])
-    c_free = jnp.where(eligible, base, jnp.inf)
-    c_risk = base + weights.gamma * features[..., 2]
-    c = jnp.where(any_free[..., None], c_free, c_risk)
+    ok, any_free, first_level = eligible(collided, level)
+    c = jnp.where(ok, rule_cost(weights, features, collided), jnp.inf)
     idx = jnp.argmin(c, axis=-1)
     mode = jnp.where(any_free, jnp.where(first_level == 0, FREE, ESCALATED), RISK)
     return idx, mode, c

@@ -17,6 +17,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxplan.geometry.frenet import ReferenceLine
+from jaxplan.scenarios.polylines import nearest_on_polyline
 from jaxplan.types import FLOAT32_MAX_COORD, Obstacles
 
 
@@ -326,18 +327,13 @@ def lane_at(scenario: Scenario, xy, heading: float | None = None) -> Lane:
     xy = np.asarray(xy, float)
     best, best_d = None, np.inf
     for ln in scenario.lanes:
-        c = ln.center
-        seg = c[1:] - c[:-1]
-        L2 = np.maximum(np.sum(seg * seg, 1), 1e-12)
-        u = np.clip(np.sum((xy - c[:-1]) * seg, 1) / L2, 0, 1)
-        dist = np.linalg.norm(c[:-1] + u[:, None] * seg - xy, axis=1)
-        j = int(np.argmin(dist))
+        j, _, dist = nearest_on_polyline(ln.center, xy)
         if heading is not None:
-            h = math.atan2(seg[j, 1], seg[j, 0])
-            if math.cos(h - heading) < 0.5:
+            seg = ln.center[j + 1] - ln.center[j]
+            if math.cos(math.atan2(seg[1], seg[0]) - heading) < 0.5:
                 continue
-        if dist[j] < best_d:
-            best, best_d = ln, dist[j]
+        if dist < best_d:
+            best, best_d = ln, dist
     if best is None:
         raise ScenarioError(f"scenario {scenario.id}: no lane near {xy.tolist()}")
     return best

@@ -17,6 +17,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxplan.scenarios.loader import Scenario, ScenarioError, lane_at, lane_polyline
+from jaxplan.scenarios.polylines import arc_length, nearest_on_polyline, resample_polyline
 
 
 @dataclasses.dataclass(frozen=True)
@@ -72,27 +73,6 @@ def is_validation(scenario_id: str, share: int = 4) -> bool:
     return zlib.crc32(scenario_id.encode()) % share == 0
 
 
-def _resample(xy: np.ndarray, s: np.ndarray, s_query: np.ndarray) -> np.ndarray:
-    """Points at arc lengths ``s_query`` on a polyline, extended straight past both ends."""
-    out = np.column_stack([np.interp(s_query, s, xy[:, 0]), np.interp(s_query, s, xy[:, 1])])
-    for end, sl, (a, b) in ((s_query < s[0], s[0], (1, 0)), (s_query > s[-1], s[-1], (-2, -1))):
-        if end.any():
-            d = xy[b] - xy[a]
-            d = d / max(np.linalg.norm(d), 1e-9)
-            out[end] = xy[b] + (s_query[end] - sl)[:, None] * d
-    return out
-
-
-def _project(xy: np.ndarray, s: np.ndarray, p: np.ndarray) -> tuple[float, float]:
-    """Arc length and distance of the polyline point nearest ``p``."""
-    seg = xy[1:] - xy[:-1]
-    L2 = np.maximum(np.sum(seg * seg, 1), 1e-12)
-    u = np.clip(np.sum((p - xy[:-1]) * seg, 1) / L2, 0, 1)
-    d = np.linalg.norm(xy[:-1] + u[:, None] * seg - p, axis=1)
-    j = int(np.argmin(d))
-    return float(s[j] + u[j] * np.sqrt(L2[j])), float(d[j])
-
-
 def scenario_demos(sc: Scenario, cfg: DemoConfig = DemoConfig()) -> list[Demo]:
     """Every demonstration of one scenario, as unbatched numpy-backed ``Demo``s."""
     boxes = np.asarray(sc.obstacles.boxes, np.float64)   # (K, S, 5)
@@ -120,12 +100,13 @@ def scenario_demos(sc: Scenario, cfg: DemoConfig = DemoConfig()) -> list[Demo]:
                 continue
             keep = np.concatenate([[True], np.linalg.norm(np.diff(rxy, axis=0), axis=1) > 1e-3])
             rxy = rxy[keep]  # lanelets share their end points
-            rs = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(rxy, axis=0), axis=1))])
-            s0, off = _project(rxy, rs, np.array([x0, y0]))
+            rs = arc_length(rxy)
+            j, along, off = nearest_on_polyline(rxy, np.array([x0, y0]))
+            s0 = rs[j] + along
             if off > cfg.max_lane_offset:
                 continue
             origin = np.array([x0, y0])
-            ref_xy = _resample(rxy, rs, np.linspace(s0 - cfg.ref_back, s0 + cfg.ref_ahead, cfg.ref_points))
+            ref_xy = resample_polyline(rxy, rs, np.linspace(s0 - cfg.ref_back, s0 + cfg.ref_ahead, cfg.ref_points))
             others = np.array([j for j in range(boxes.shape[0]) if j != i and valid[j, k0]], int)
             K = cfg.n_obstacles
             obs = np.zeros((K, n_t, 5))

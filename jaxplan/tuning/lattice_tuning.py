@@ -8,6 +8,7 @@ rule (``jaxplan.lattice.select``) with the learned weights.
 from __future__ import annotations
 
 import dataclasses
+import types
 
 import jax
 import jax.numpy as jnp
@@ -15,7 +16,8 @@ import numpy as np
 
 from jaxplan.geometry.frenet import reference_line
 from jaxplan.lattice import CostWeights, LatticeConfig, PlanState, plan_batch, select
-from jaxplan.lattice.cost import FEATURES
+from jaxplan.lattice.cost import FEATURES, rule_cost
+from jaxplan.lattice.cost import eligible as rule_eligible
 from jaxplan.tuning.demos import Demo
 from jaxplan.tuning.train import choice_nll, from_log, target_distribution
 from jaxplan.types import Obstacles, VehicleParams
@@ -62,9 +64,8 @@ class LatticeData:
 
 
 def _states(demos: Demo) -> PlanState:
-    e = demos.ego
-    return PlanState(x=e[:, 0], y=e[:, 1], heading=e[:, 2], kappa=jnp.zeros_like(e[:, 0]), v=e[:, 3],
-                     a=jnp.clip(e[:, 4], -4.0, 2.5), v_set=e[:, 3], d_crossroad=jnp.full_like(e[:, 0], jnp.inf))
+    """The demonstrations' start states; recorded accelerations clipped to the lattice's limits."""
+    return PlanState.from_rows(demos.ego.at[:, 4].set(jnp.clip(demos.ego[:, 4], -4.0, 2.5)))
 
 
 def _chunk_data(demos: Demo, config: LatticeConfig) -> LatticeData:
@@ -94,20 +95,14 @@ def lattice_data(demos: Demo, config: LatticeConfig = TUNING_CONFIG, chunk: int 
 
 
 def eligible(data: LatticeData):
-    """``(B, N)`` the candidates the exact rule chooses among: the free ones of the lowest
-    free escalation level, or every candidate when all collide."""
-    free = ~data.collided
-    big = jnp.iinfo(jnp.int32).max
-    first = jnp.min(jnp.where(free, data.level, big), axis=-1, keepdims=True)
-    return jnp.where(first < big, free & (data.level == first), True)
+    """``(B, N)`` the candidates the exact rule chooses among (``jaxplan.lattice.cost.eligible``)."""
+    return rule_eligible(data.collided, data.level)[0]
 
 
 def selection_cost(weights: dict, data: LatticeData):
-    """``(B, N)`` the exact rule's ``lambda`` (+ ``gamma risk`` when every candidate collides)."""
-    f = data.features
-    lam = weights["alpha"] * f[..., 0] + weights["beta"] * f[..., 1] + weights["delta"] * f[..., 3]
-    all_collide = jnp.all(data.collided, axis=-1, keepdims=True)
-    return lam + jnp.where(all_collide, weights["gamma"] * f[..., 2], 0.0)
+    """``(B, N)`` the exact rule's cost (``jaxplan.lattice.cost.rule_cost``) for weights
+    ``{alpha, beta, gamma, delta, ...}``."""
+    return rule_cost(types.SimpleNamespace(**weights), data.features, data.collided)
 
 
 def lattice_loss(params: dict, data: LatticeData, sigma: float | None = 0.5, temperature: float = 1.0):

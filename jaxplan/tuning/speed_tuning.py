@@ -16,6 +16,7 @@ import optax
 
 from jaxplan.geometry.frenet import reference_line
 from jaxplan.speed import CostWeights, SpeedConfig, expected_speed_profile, plan_speed
+from jaxplan.scenarios.polylines import resample_polyline
 from jaxplan.tuning.demos import Demo
 from jaxplan.tuning.train import from_log
 from jaxplan.types import Obstacles, VehicleParams
@@ -71,12 +72,8 @@ def speed_data(demos: Demo, config: SpeedConfig = SPEED_TUNING_CONFIG, points: i
     paths = []
     for b in kept:
         keep = np.concatenate([[True], seg[b] > 1e-3])
-        p, sb = hxy[b][keep], s[b][keep]
-        d = p[-1] - p[-2]
-        p = np.vstack([p, p[-1] + extend * d / np.linalg.norm(d)])
-        sb = np.append(sb, sb[-1] + extend)
-        q = np.linspace(0.0, sb[-1], points)
-        paths.append(np.column_stack([np.interp(q, sb, p[:, 0]), np.interp(q, sb, p[:, 1])]))
+        sb = s[b][keep]
+        paths.append(resample_polyline(hxy[b][keep], sb, np.linspace(0.0, sb[-1] + extend, points)))
     pick = lambda x: jnp.asarray(np.asarray(x)[kept])
     obs = Obstacles(pick(demos.obstacles), pick(demos.obstacle_valid), pick(demos.t))
     data = SpeedData(jnp.asarray(np.array(paths), jnp.float32), obs, pick(demos.ego[:, 3]),

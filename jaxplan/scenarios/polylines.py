@@ -1,0 +1,44 @@
+"""Host-side (numpy) polyline tools shared by the loaders, demonstrations and experiments."""
+from __future__ import annotations
+
+import numpy as np
+
+
+def arc_length(xy: np.ndarray) -> np.ndarray:
+    """``(P,)`` cumulative chord length of ``xy (P, 2)``, starting at 0."""
+    return np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(xy, axis=0), axis=1))])
+
+
+def resample_polyline(xy: np.ndarray, s: np.ndarray, s_query: np.ndarray) -> np.ndarray:
+    """Points ``(Q, 2)`` at arc lengths ``s_query (Q,)`` on ``xy (P, 2)`` with arc lengths ``s (P,)``,
+    extended straight past both ends."""
+    out = np.column_stack([np.interp(s_query, s, xy[:, 0]), np.interp(s_query, s, xy[:, 1])])
+    for end, sl, (a, b) in ((s_query < s[0], s[0], (1, 0)), (s_query > s[-1], s[-1], (-2, -1))):
+        if end.any():
+            d = xy[b] - xy[a]
+            d = d / max(np.linalg.norm(d), 1e-9)
+            out[end] = xy[b] + (s_query[end] - sl)[:, None] * d
+    return out
+
+
+def uniform_resample(xy: np.ndarray, n: int, min_spacing: float = 1e-3) -> np.ndarray:
+    """``n`` points ``(n, 2)`` evenly spaced by arc length along ``xy (P, 2)`` (repeated points dropped)."""
+    xy = np.asarray(xy, float)
+    keep = np.concatenate([[True], np.linalg.norm(np.diff(xy, axis=0), axis=1) > min_spacing])
+    xy = xy[keep]
+    s = arc_length(xy)
+    return resample_polyline(xy, s, np.linspace(0.0, s[-1], n))
+
+
+def nearest_on_polyline(poly: np.ndarray, p: np.ndarray) -> tuple[int, float, float]:
+    """The point of polyline ``poly (P, 2)`` nearest ``p (2,)``.
+
+    Returns:
+        (segment index j, distance along that segment from ``poly[j]`` (m), distance to ``p`` (m)).
+    """
+    seg = poly[1:] - poly[:-1]
+    L2 = np.maximum(np.sum(seg * seg, 1), 1e-12)
+    u = np.clip(np.sum((p - poly[:-1]) * seg, 1) / L2, 0, 1)
+    d = np.linalg.norm(poly[:-1] + u[:, None] * seg - p, axis=1)
+    j = int(np.argmin(d))
+    return j, float(u[j] * np.sqrt(L2[j])), float(d[j])
