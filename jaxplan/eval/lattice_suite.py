@@ -200,6 +200,10 @@ def _figures(table, prefix=""):
 
 @register("lattice")
 def lattice_suite(args: SuiteArgs) -> dict:
+    if args.weights:  # a bad weights file fails before the planning, not after it
+        from jaxplan.eval.tune_suite import load_suite_weights
+
+        load_suite_weights(args)
     n = args.n or (4 if args.quick else 40)
     table, results, timing = _run_synthetic(n, args.seed)
     m = _figures(table)
