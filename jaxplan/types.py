@@ -222,21 +222,32 @@ class Trajectory:
         return self
 
 
-@_pytree(data_fields=("boxes", "valid", "t"))
+@_pytree(data_fields=("boxes", "valid", "t", "static"))
 class Obstacles:
-    """Moving (or static) box obstacles padded to a fixed count.
+    """Moving and static box obstacles padded to a fixed count.
 
     Attributes:
         boxes: ``(..., K, T, 5)`` pose and size of each obstacle at each time
             ``[x, y, length, width, heading]``; a static obstacle repeats its box.
         valid: ``(..., K, T)`` bool; False for padding and for times where the
             obstacle is not known (it then blocks nothing).
-        t: ``(..., T)`` the time stamps of the predictions.
+        t: ``(..., T)`` the time stamps of the predictions, ``t[k] = t[0] + k * dt``.
+        static: ``(..., K)`` bool; a static obstacle is there at every time, also
+            beyond ``T`` (``aligned`` / ``window`` hold it), and its box is the one of
+            its first valid step. Dynamic obstacles are there only where ``valid``
+            says so (CommonRoad semantics: they disappear when their recording ends).
+            Default: all False.
     """
 
     boxes: Any
     valid: Any
     t: Any
+    static: Any = None
+
+    def __post_init__(self):
+        # default flag for arrays (not for the prefix specs jax.vmap builds, whose leaves are ints / None)
+        if self.static is None and hasattr(self.boxes, "shape") and len(self.boxes.shape) >= 3:
+            object.__setattr__(self, "static", jnp.zeros(self.boxes.shape[:-2], bool))
 
     @classmethod
     def empty(cls, t) -> "Obstacles":
@@ -244,13 +255,45 @@ class Obstacles:
         return cls(jnp.zeros(t.shape[:-1] + (0, t.shape[-1], 5)), jnp.zeros(t.shape[:-1] + (0, t.shape[-1]), bool), t)
 
     @classmethod
-    def static(cls, boxes, t, valid=None) -> "Obstacles":
-        """Static obstacles ``(..., K, 5)`` held over times ``(T,)``."""
+    def held(cls, boxes, t, valid=None) -> "Obstacles":
+        """Static obstacles ``(..., K, 5)`` held over times ``(T,)`` (and beyond)."""
         boxes = jnp.asarray(boxes)
         t = jnp.asarray(t)
         b = jnp.broadcast_to(boxes[..., None, :], boxes.shape[:-1] + (t.shape[-1], 5))
         m = jnp.ones(boxes.shape[:-1], bool) if valid is None else jnp.asarray(valid, bool)
-        return cls(b, jnp.broadcast_to(m[..., None], b.shape[:-1]), t)
+        return cls(b, jnp.broadcast_to(m[..., None], b.shape[:-1]), t, m)
+
+    def window(self, start, n_steps: int) -> "Obstacles":
+        """Predictions for steps ``start .. start + n_steps - 1`` (jittable; ``start`` may be traced).
+
+        Steps past the end of the recording are invalid for dynamic obstacles and
+        held for static ones; so are steps before the start (``start < 0``). The time
+        stamps continue at the recording's step.
+
+        Args:
+            start: ``()`` int, first step.
+            n_steps: static count.
+
+        Returns:
+            ``Obstacles`` with boxes ``(..., K, n_steps, 5)``.
+        """
+        T = self.boxes.shape[-2]
+        k = jnp.asarray(start) + jnp.arange(n_steps)
+        inside = (k >= 0) & (k < T)
+        kc = jnp.clip(k, 0, T - 1)
+        static = jnp.asarray(self.static, bool)
+        first = jnp.argmax(self.valid, axis=-1)  # (..., K) first valid step of each obstacle
+        held = jnp.take_along_axis(self.boxes, first[..., None, None], axis=-2)  # (..., K, 1, 5)
+        b = jnp.where(static[..., None, None], held, jnp.take(self.boxes, kc, axis=-2))
+        v = jnp.take(self.valid, kc, axis=-1) & inside
+        v = jnp.where(static[..., None], jnp.any(self.valid, axis=-1, keepdims=True), v)
+        dt = self.t[..., 1:2] - self.t[..., :1] if T > 1 else jnp.ones_like(self.t[..., :1])
+        t = self.t[..., :1] + dt * k.astype(self.t.dtype)
+        return Obstacles(b, v, t, static)
+
+    def aligned(self, n_steps: int) -> "Obstacles":
+        """The first ``n_steps`` predictions (``window(0, n_steps)``): cut, or padded past the end."""
+        return self.window(0, n_steps)
 
     def validate(self) -> "Obstacles":
         b = check_trailing("Obstacles.boxes", self.boxes, (5,), coords=2)
@@ -261,7 +304,28 @@ class Obstacles:
             raise ValueError(f"Obstacles.valid: shape {m.shape} != boxes shape {b.shape[:-1]}")
         if np.any(b[..., 2:4][m] <= 0):
             raise ValueError("Obstacles.boxes: valid boxes must have positive length and width")
+        st = np.asarray(self.static)
+        if st.shape != b.shape[:-2] or st.dtype != bool:
+            raise ValueError(f"Obstacles.static: expected bool of shape {b.shape[:-2]}, got {st.dtype} {st.shape}")
         t = check_finite("Obstacles.t", self.t)
         if t.shape[-1] != b.shape[-2]:
             raise ValueError(f"Obstacles.t: {t.shape[-1]} time stamps for {b.shape[-2]} poses")
+        return self
+
+    def check_time_grid(self, dt: float, name: str = "obstacles") -> "Obstacles":
+        """Host-side: refuse predictions not sampled at ``t[k] = k * dt`` (the planner's grid).
+
+        Resample them first (``jaxplan.speed.path_profile.resample_obstacles``) when they are
+        sampled at another step or start at another time.
+        """
+        t = np.asarray(self.t, np.float64)
+        if t.shape[-1] == 0:
+            return self
+        want = np.arange(t.shape[-1]) * dt
+        tol = 1e-4 * max(1.0, dt * t.shape[-1])
+        if np.any(np.abs(t - want) > tol):
+            step = float(t.reshape(-1, t.shape[-1])[0, 1] - t.reshape(-1, t.shape[-1])[0, 0]) if t.shape[-1] > 1 else float("nan")
+            raise ValueError(f"{name}.t: predictions are stamped from t = {float(t.reshape(-1)[0]):g} s every "
+                             f"{step:g} s, but the planner's grid is t = k * {dt:g} s; resample them to that grid "
+                             f"(jaxplan.speed.path_profile.resample_obstacles)")
         return self

@@ -75,7 +75,7 @@ def test_static_obstacle_spans_all_times():
     ref = ReferenceLine.from_polyline(np.array([[0.0, 0.0], [100.0, 0.0]]))
     prof = _profile(ref, 0.0, N, DS)
     t = jnp.arange(5) * 0.5
-    obs = Obstacles.static(jnp.array([[15.0, 0.0, 4.0, 2.0, 0.3]]), t)
+    obs = Obstacles.held(jnp.array([[15.0, 0.0, 4.0, 2.0, 0.3]]), t)
     b = _blocking(prof, obs, CAR)
     assert bool(jnp.all(b.hit))
     # car front (3.85 m ahead of the rear axle) reaches the obstacle's rotated rear

@@ -78,7 +78,7 @@ def _small_costs(obs, v0):
 
 
 def test_dp_on_scene_costs_matches_exhaustive():
-    obs = Obstacles.static(jnp.array([[22.0, 0.0, 4.5, 1.8, 0.0]]), jnp.arange(5) * 1.0)
+    obs = Obstacles.held(jnp.array([[22.0, 0.0, 4.5, 1.8, 0.0]]), jnp.arange(5) * 1.0)
     costs = [np.asarray(c) for c in _small_costs(obs, 3.0)]
     assert costs[0].max() >= SMALL.big  # the obstacle is within reach
     ii, jj, aa, cost = _dp(*costs, SMALL)

@@ -42,4 +42,5 @@ def with_stop_target(obstacles: Obstacles, ref: ReferenceLine, s_car, d_crossroa
     T = obstacles.boxes.shape[-2]
     b = jnp.concatenate([obstacles.boxes, jnp.broadcast_to(box, (1, T, 5)).astype(obstacles.boxes.dtype)], axis=-3)
     v = jnp.concatenate([obstacles.valid, jnp.broadcast_to(active, (1, T))], axis=-2)
-    return Obstacles(b, v, obstacles.t)
+    st = jnp.concatenate([obstacles.static, jnp.ones((1,), bool)], axis=-1)
+    return Obstacles(b, v, obstacles.t, st)

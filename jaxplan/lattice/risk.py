@@ -36,21 +36,12 @@ class Risk:
 
 
 def align_obstacles(obstacles: Obstacles, n_steps: int) -> Obstacles:
-    """Obstacle predictions cut or padded (invalid) to ``n_steps`` samples.
+    """Obstacle predictions cut or padded to ``n_steps`` samples (``Obstacles.aligned``):
+    dynamic obstacles are invalid past their recording, static ones are held.
 
     Step ``k`` of the obstacles is taken to be time ``k * dt`` of the candidates.
     """
-    T = obstacles.boxes.shape[-2]
-    if T >= n_steps:
-        return Obstacles(obstacles.boxes[..., :n_steps, :], obstacles.valid[..., :n_steps],
-                         obstacles.t[..., :n_steps])
-    pad = n_steps - T
-    b = jnp.concatenate([obstacles.boxes, jnp.broadcast_to(obstacles.boxes[..., -1:, :],
-                                                           obstacles.boxes.shape[:-2] + (pad, 5))], axis=-2)
-    v = jnp.concatenate([obstacles.valid, jnp.zeros(obstacles.valid.shape[:-1] + (pad,), bool)], axis=-1)
-    dt = obstacles.t[..., -1:] - obstacles.t[..., -2:-1] if T > 1 else jnp.ones_like(obstacles.t[..., -1:])
-    t = jnp.concatenate([obstacles.t, obstacles.t[..., -1:] + dt * jnp.arange(1, pad + 1)], axis=-1)
-    return Obstacles(b, v, t)
+    return obstacles.aligned(n_steps)
 
 
 def _obstacle_parts(obstacles: Obstacles):

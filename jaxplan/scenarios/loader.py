@@ -60,7 +60,9 @@ class Scenario:
 
     Attributes:
         obstacles: ``Obstacles`` with boxes ``(K, T, 5)`` at times ``t = k * dt``
-            from the ego start; static obstacles repeat their box.
+            from the ego start; static obstacles (role ``static``, or given by a polygon
+            or centre) repeat their box and carry ``static = True``, so they are held
+            over any horizon; dynamic ones are invalid where their recording has no state.
         obstacle_ids: ``(K,)`` ids of the recorded vehicles.
         origin: ``(2,)`` the world position moved to the origin.
         goal: the first goal of the planning problem, coordinates shifted.
@@ -241,7 +243,10 @@ def parse_scenario(d: Any, path: str, horizon: float | None = None) -> Scenario:
     origin = _points([_field(init, "position", w, path)], f"{w}.position", path)[0]
     t0 = _number(init, "t", w, path) if "t" in init else 0.0
     a0 = _number(init, "acceleration", w, path) if init.get("acceleration") is not None else 0.0
-    ego = EgoState(0.0, 0.0, _number(init, "orientation", w, path), _number(init, "velocity", w, path), a0, 0.0)
+    v0 = _number(init, "velocity", w, path)
+    if v0 < 0:
+        raise ScenarioError(f"{path}: field {w}.velocity must be >= 0 (the car drives forward), got {v0:g}")
+    ego = EgoState(0.0, 0.0, _number(init, "orientation", w, path), v0, a0, 0.0)
 
     lanes = []
     for i, ln in enumerate(_field(d, "lanelets", "scenario", path, list)):
@@ -267,13 +272,22 @@ def parse_scenario(d: Any, path: str, horizon: float | None = None) -> Scenario:
     if horizon is not None:
         n_steps = min(n_steps, int(round(horizon / dt)) + 1)
     t = np.arange(n_steps) * dt
-    boxes, valids, ids, types, skipped = [], [], [], [], []
+    boxes, valids, statics, ids, types, skipped = [], [], [], [], [], []
     for i, o in enumerate(obstacles):
         where = f"obstacles[{i}]"
         oid = _int(o, "id", where, path)
+        role = o.get("role", "dynamic")
+        if role not in ("dynamic", "static"):
+            raise ScenarioError(f"{path}: field {where}.role should be 'dynamic' or 'static', got {role!r}")
         b = np.zeros((n_steps, 5))
         ok = np.zeros(n_steps, bool)
-        if i in states:
+        static = role == "static" or i not in states  # polygon / centre shapes have no motion
+        if i in states and static:  # a static obstacle: its first recorded pose, held at every time
+            length, width = _size(o, where, path)
+            st = states[i]
+            b[:] = [st[0, 1] - origin[0], st[0, 2] - origin[1], length, width, st[0, 3]]
+            ok[:] = True
+        elif i in states:
             length, width = _size(o, where, path)
             st = states[i]
             k = np.rint((st[:, 0] - t0) / dt)
@@ -301,11 +315,13 @@ def parse_scenario(d: Any, path: str, horizon: float | None = None) -> Scenario:
             raise ScenarioError(f"{path}: field {where} lies more than {FLOAT32_MAX_COORD:.0e} m from the ego start")
         boxes.append(b)
         valids.append(ok)
+        statics.append(static)
         ids.append(oid)
         types.append(str(o.get("type", "unknown")))
     K = len(boxes)
     obs = Obstacles(jnp.asarray(np.array(boxes).reshape(K, n_steps, 5), jnp.float32),
-                    jnp.asarray(np.array(valids, bool).reshape(K, n_steps)), jnp.asarray(t, jnp.float32))
+                    jnp.asarray(np.array(valids, bool).reshape(K, n_steps)), jnp.asarray(t, jnp.float32),
+                    jnp.asarray(np.array(statics, bool).reshape(K)))
     tags = d.get("tags") or []
     return Scenario(str(d.get("id", os.path.basename(path))), str(d.get("source", "")),
                     tuple(map(str, tags)) if isinstance(tags, list) else (), dt, tuple(lanes), obs,

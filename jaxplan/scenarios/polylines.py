@@ -12,12 +12,15 @@ def arc_length(xy: np.ndarray) -> np.ndarray:
 def resample_polyline(xy: np.ndarray, s: np.ndarray, s_query: np.ndarray) -> np.ndarray:
     """Points ``(Q, 2)`` at arc lengths ``s_query (Q,)`` on ``xy (P, 2)`` with arc lengths ``s (P,)``,
     extended straight past both ends."""
+    s_query = np.asarray(s_query, float)
     out = np.column_stack([np.interp(s_query, s, xy[:, 0]), np.interp(s_query, s, xy[:, 1])])
-    for end, sl, (a, b) in ((s_query < s[0], s[0], (1, 0)), (s_query > s[-1], s[-1], (-2, -1))):
+    # beyond each end: straight along the end chord's forward direction (before the start
+    # s_query - s[0] < 0, so the points lie behind the first point)
+    for end, base, (a, b) in ((s_query < s[0], 0, (0, 1)), (s_query > s[-1], -1, (-2, -1))):
         if end.any():
             d = xy[b] - xy[a]
             d = d / max(np.linalg.norm(d), 1e-9)
-            out[end] = xy[b] + (s_query[end] - sl)[:, None] * d
+            out[end] = xy[base] + (s_query[end] - s[base])[:, None] * d
     return out
 
 
