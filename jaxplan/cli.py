@@ -21,7 +21,7 @@ def main(argv=None) -> int:
     t.add_argument("planner", choices=("lattice", "speed"))
     t.add_argument("--scenarios", help="directory of recorded scenarios (default: synthetic demonstrations)")
     t.add_argument("--out", default="weights.json", help="weights file to write (default: weights.json)")
-    t.add_argument("--steps", type=int, help="optimiser steps (default: 200 lattice, 40 speed)")
+    t.add_argument("--steps", type=int, help="optimiser steps (default: 400 lattice, 40 speed)")
     t.add_argument("--seed", type=int, default=0)
     r = sub.add_parser("report", help="write RESULTS_DIR/report.md from its metrics and plots")
     r.add_argument("results_dir")
@@ -53,20 +53,31 @@ def main(argv=None) -> int:
 
 
 def _tune(args) -> int:
-    from jaxplan.tuning.run import demonstrations, tune_lattice, tune_speed
+    import dataclasses
+
+    from jaxplan.tuning.run import compare_lattice, demonstrations, tune_speed
     from jaxplan.tuning.train import save_weights
 
+    if args.steps is not None and args.steps < 1:
+        print(f"jaxplan: error: --steps must be >= 1, got {args.steps}", file=sys.stderr)
+        return 2
     try:
         train, val, source = demonstrations(args.scenarios, seed=args.seed)
     except ValueError as err:
         print(f"jaxplan: error: {err}", file=sys.stderr)
         return 2
     if args.planner == "lattice":
-        res = tune_lattice(train, val, steps=args.steps or 200, seed=args.seed)
+        res = compare_lattice(train, val, steps=args.steps or 400, seed=args.seed,
+                              candidate_set="rich" if source == "recorded" else "small")
+        model = dataclasses.replace(res.model, meta={**res.model.meta, "planner": "lattice", "source": source,
+                                                     "heldout": res.metrics})
+        model.save(args.out)
+        metrics = res.metrics
     else:
         res = tune_speed(train, val, steps=args.steps or 40, seed=args.seed)
-    save_weights(args.out, res.weights, meta={"planner": args.planner, "source": source, **res.metrics})
-    json.dump(res.metrics, sys.stdout, indent=1, sort_keys=True)
+        save_weights(args.out, res.weights, meta={"planner": args.planner, "source": source, **res.metrics})
+        metrics = res.metrics
+    json.dump(metrics, sys.stdout, indent=1, sort_keys=True)
     print(f"\nwrote {args.out}")
     return 0
 

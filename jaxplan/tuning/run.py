@@ -1,126 +1,297 @@
-"""End-to-end tuning runs (used by ``jaxplan tune``, ``jaxplan eval tune`` and the notebooks).
+"""End-to-end imitation runs (``jaxplan tune``, ``jaxplan eval tune``, ``jaxplan eval lattice
+--weights`` and the notebooks).
 
-``tune_lattice`` / ``tune_speed``: demonstrations -> training with optax -> figures on
-the held-out demonstrations before (defaults) and after tuning, and for a random
-search over the weights with the same number of loss evaluations.
+``compare_lattice``: demonstrations -> the lattice planned once per demonstration ->
+the imitation cost fitted with optax -> held-out figures, in one run and on one
+metric, for every baseline: constant velocity, constant acceleration, the IDM driven
+by the recorded leader (calibrated on the training demonstrations), the lattice's
+default weights, a grid over the default rule's weight ratios, a random search over
+the imitation cost's weights with the gradient's budget, and the best candidate in
+the lattice (oracle). ``held_out_locations``: the same, trained on every other
+location. ``tune_speed``: the speed planner's weights through the soft DP.
 """
 from __future__ import annotations
 
 import dataclasses
+import glob
+import os
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
-from jaxplan.tuning.demos import Demo, DemoConfig, load_demos, synthetic_demos
-from jaxplan.tuning.lattice_tuning import (LEARNED, _chosen, default_weights, imitation_metrics, lattice_data,
-                                           lattice_loss, weights_pytree)
-from jaxplan.tuning.train import fit, from_log, random_search, to_log
+from jaxplan.tuning.baselines import (CHUNK, IDM_GRID, calibrate_idm, constant_acceleration, constant_velocity, idm,
+                                      predict_errors)
+from jaxplan.tuning.demos import LOCATIONS, DemoConfig, DemoSet, demo_set, synthetic_set
+from jaxplan.tuning.imitation import ImitationModel, fit_model, random_search_model
+from jaxplan.tuning.lattice_tuning import (TUNING_CONFIG, TUNING_CONFIGS, LatticeData, choice_errors,
+                                           default_weights, lattice_data, nearest_eligible, rule_choice)
+from jaxplan.tuning.metrics import bootstrap_ci, summary
+from jaxplan.tuning.traffic import IDMParams
+from jaxplan.tuning.vehicles import split_by_vehicle
 
-# Weights of the hidden "driver" that generates synthetic demonstrations.
-SYNTHETIC_DRIVER = {"alpha": 1.0, "beta": 200.0, "delta": 2.0}
+# Candidate sets by name (stored in a model's metadata, so evaluation plans the same set).
+CANDIDATE_SETS = {"rich": TUNING_CONFIGS, "small": (TUNING_CONFIG,)}
+METHODS = ("constant_velocity", "constant_acceleration", "idm", "default", "grid", "random_search", "weights",
+           "oracle")
+SMALL_IDM_GRID = {"v_ratio": (1.0, 1.1), "v_extra": (0.0, 3.0), "headway": (0.5, 1.2), "a_max": (0.6,),
+                  "b_comf": (1.0, 2.0)}
+# Hidden "driver" of synthetic demonstrations: follows the desired progress, dislikes lane changes and jerk.
+SYNTHETIC_DRIVER = {"progress_dev": 1.0, "lane_change": 0.6, "jerk": 0.3, "d_lrp": 0.3}
+
+
+def slug(location: str) -> str:
+    """``German roads`` -> ``german_roads`` (metric names)."""
+    return location.lower().replace(" ", "_").replace("-", "")
+
+
+def load_scenarios(directory: str, max_files: int | None = None, pattern: str = "*") -> tuple[list, list]:
+    """Every loadable scenario of a folder (sorted by name; file names matching ``pattern``.json)
+    and the files that failed (named)."""
+    from jaxplan.scenarios.loader import ScenarioError, load_scenario
+
+    if not os.path.isdir(directory):
+        raise ValueError(f"--scenarios {directory}: not a directory")
+    files = sorted(glob.glob(os.path.join(directory, pattern + ".json")))
+    if not files:
+        raise ValueError(f"--scenarios {directory}: no scenario JSON files" + (f" matching {pattern}" if
+                                                                              pattern != "*" else ""))
+    scs, bad = [], []
+    for f in files[:max_files] if max_files else files:
+        try:
+            scs.append(load_scenario(f))
+        except ScenarioError as e:
+            bad.append(f"{os.path.basename(f)}: {e}")
+    if not scs:
+        raise ValueError(f"--scenarios {directory}: no loadable scenario file ({len(bad)} failed)")
+    return scs, bad
+
+
+def recorded_set(directory: str, cfg: DemoConfig = DemoConfig(), max_files: int | None = None,
+                 pattern: str | None = None) -> DemoSet:
+    """Every demonstration of a scenario folder, with vehicle identities across its files."""
+    scs, _ = load_scenarios(directory, pattern=pattern or "*")
+    if max_files:
+        scs = scs[:max_files]
+    ds = demo_set(scs, cfg)
+    if ds is None or len(ds) < 2:
+        raise ValueError(f"--scenarios {directory}: too few demonstrations ({0 if ds is None else len(ds)})")
+    return ds
+
+
+def synthetic_driver_set(n: int, seed: int = 0, configs=CANDIDATE_SETS["small"]) -> DemoSet:
+    """Synthetic demonstrations whose human is the imitation cost with the hidden weights
+    ``SYNTHETIC_DRIVER`` choosing among ``configs``' candidates (its chosen candidate is the
+    recorded future)."""
+    from jaxplan.tuning.features import FEATURES
+
+    from jaxplan.tuning.imitation import feature_scale
+
+    ds = synthetic_set(n, seed)
+    data, xy = lattice_data(ds.demos, configs, keep_xy=True)
+    theta = np.array([np.log(SYNTHETIC_DRIVER[k]) if k in SYNTHETIC_DRIVER else -30.0 for k in FEATURES], np.float32)
+    pick = ImitationModel(FEATURES, theta, feature_scale(data), 1.0).choose(data)
+    human = xy[np.arange(n), pick]
+    return DemoSet(dataclasses.replace(ds.demos, human_xy=jnp.asarray(human, jnp.float32)), ds.index)
+
+
+def split(ds: DemoSet, share: int = 4) -> tuple[DemoSet, DemoSet]:
+    """Train / validation, disjoint by vehicle (``vehicles.split_by_vehicle``)."""
+    val = split_by_vehicle(ds.index, share)
+    if val.all() or not val.any():
+        raise ValueError(f"split by vehicle: {int((~val).sum())} train and {int(val.sum())} validation "
+                         "demonstrations; need both")
+    return ds.take(~val), ds.take(val)
 
 
 @dataclasses.dataclass
-class TuneResult:
-    """What a tuning run produced.
+class ImitationRun:
+    """What ``compare_lattice`` produced.
 
     Attributes:
-        weights: the tuned positive weights (all of them, learned and fixed).
-        history: ``fit``'s history (step, loss, weights).
-        metrics: flat figures: ``before.*``, ``after.*``, ``random.*`` on the validation set,
-            plus sizes and losses.
-        extra: data for plots (validation data, chosen indices).
+        model: the fitted ``ImitationModel``; history: ``fit_model``'s history.
+        metrics: flat held-out figures ``{method}.{ade3, ade3_ci_lo, ...}`` and per location
+            ``{location}.{method}.{...}``, plus sizes, ``weights_vs_default`` (ratio of ADE3) with its
+            paired-bootstrap interval, and the training figures ``train.{method}.ade3``.
+        errors: per-demonstration held-out errors per method (``metrics.displacement`` form).
+        val: held-out ``DemoSet``; val_data: its ``LatticeData``; idm: the calibrated IDM.
+        rule: the grid's best rule weights; random: the random-search model.
     """
 
-    weights: dict
+    model: ImitationModel
     history: dict
     metrics: dict
-    extra: dict
+    errors: dict
+    val: DemoSet
+    val_data: LatticeData
+    idm: IDMParams
+    rule: dict
+    random: ImitationModel
 
 
-def demonstrations(scenarios: str | None, n_synthetic: int = 48, max_files: int | None = None,
-                   seed: int = 0) -> tuple[Demo, Demo, str]:
-    """Train / validation demonstrations from a scenario folder, or synthetic ones.
+def baseline_errors(demos, idm_params: IDMParams) -> dict:
+    """Per-demonstration errors of the prediction baselines."""
+    return {"constant_velocity": predict_errors(constant_velocity, demos),
+            "constant_acceleration": predict_errors(constant_acceleration, demos),
+            "idm": predict_errors(lambda d: idm(d, idm_params), demos)}
 
-    Synthetic demonstrations (no folder): the human is a lattice driver with the
-    hidden weights ``SYNTHETIC_DRIVER`` (its choice by the exact rule is the recorded future).
-    """
+
+def grid_rule(data: LatticeData, n: int = 7) -> tuple[dict, float]:
+    """The lattice rule's weights (``alpha = 1``, ``beta`` and ``delta`` on a log grid around the
+    defaults, ``n x n``) with the least ADE3 of the exact choice on ``data``."""
+    d = default_weights()
+    best, best_ade = d, np.inf
+    for b in d["beta"] * np.logspace(-2, 2, n):
+        for dl in d["delta"] * np.logspace(-2, 2, n):
+            w = {**d, "beta": float(b), "delta": float(dl)}
+            ade = float(choice_errors(rule_choice(w, data), data)["ade3"].mean())
+            if ade < best_ade:
+                best, best_ade = w, ade
+    return best, best_ade
+
+
+def method_errors(model: ImitationModel, rule: dict, rand: ImitationModel, data: LatticeData, demos,
+                  idm_params: IDMParams) -> dict:
+    """Per-demonstration errors of every method on one set of demonstrations."""
+    out = baseline_errors(demos, idm_params)
+    out["default"] = choice_errors(rule_choice(default_weights(), data), data)
+    out["grid"] = choice_errors(rule_choice(rule, data), data)
+    out["random_search"] = choice_errors(rand.choose(data), data)
+    out["weights"] = choice_errors(model.choose(data), data)
+    out["oracle"] = choice_errors(nearest_eligible(data), data)
+    return out
+
+
+def figures(errors: dict, ds: DemoSet, n_boot: int = 1000, seed: int = 0, by_location: bool = True) -> dict:
+    """Flat figures with bootstrap intervals over scenarios, overall and per location."""
+    m = {"demos": len(ds), "scenarios": len(set(ds.index.scenario.tolist()))}
+    groups = [("", np.ones(len(ds), bool))]
+    if by_location:
+        groups += [(slug(loc) + ".", ds.index.location == loc) for loc in LOCATIONS if (ds.index.location == loc).any()]
+    for prefix, mask in groups:
+        if prefix:
+            m[f"{prefix}demos"] = int(mask.sum())
+        for name, e in errors.items():
+            sub = {k: np.asarray(v)[mask] for k, v in e.items()}
+            m.update(summary(sub, ds.index.scenario[mask], f"{prefix}{name}.",
+                             collided=sub.get("collided"), n_boot=n_boot, seed=seed))
+            if "top1" in sub:
+                m[f"{prefix}{name}.top1"] = float(np.mean(sub["top1"]))
+        if "weights" in errors and "default" in errors:
+            est, lo, hi = bootstrap_ci(errors["weights"]["ade3"][mask], ds.index.scenario[mask], n_boot=n_boot,
+                                       seed=seed, ratio_to=errors["default"]["ade3"][mask])
+            m[f"{prefix}weights_vs_default"], m[f"{prefix}weights_vs_default_ci_lo"], \
+                m[f"{prefix}weights_vs_default_ci_hi"] = est, lo, hi
+    return m
+
+
+def compare_lattice(train: DemoSet, val: DemoSet, steps: int = 400, lr: float = 0.05, seed: int = 0,
+                    candidate_set: str = "rich", ce_weight: float = 0.0, idm_grid: dict = IDM_GRID,
+                    n_boot: int = 1000, log_every: int = 10, chunk: int = CHUNK, by_location: bool = True,
+                    random_evals: int | None = None) -> ImitationRun:
+    """Fit the imitation cost on ``train`` and compare every method on ``val`` (see the module docstring)."""
+    configs = CANDIDATE_SETS[candidate_set]
+    idm_params, _ = calibrate_idm(train.demos, idm_grid)
+    dtr = lattice_data(train.demos, configs, idm_params, chunk=chunk)
+    dva = lattice_data(val.demos, configs, idm_params, chunk=chunk)
+    model, hist = fit_model(dtr, steps=steps, lr=lr, ce_weight=ce_weight, val=dva, log_every=log_every)
+    rule, _ = grid_rule(dtr)
+    rand, _ = random_search_model(dtr, evals=steps if random_evals is None else random_evals, seed=seed)
+    meta = {"candidate_set": candidate_set, "idm": {k: float(v) for k, v in dataclasses.asdict(idm_params).items()},
+            "train_demos": len(train), "steps": steps, "lr": lr, "ce_weight": ce_weight}
+    model = dataclasses.replace(model, meta=meta)
+    errors = method_errors(model, rule, rand, dva, val.demos, idm_params)
+    m = figures(errors, val, n_boot, seed, by_location)
+    m["train_demos"] = len(train)
+    m["candidates"] = int(dva.features.shape[1])
+    for name, e in method_errors(model, rule, rand, dtr, train.demos, idm_params).items():
+        m[f"train.{name}.ade3"] = float(np.mean(e["ade3"]))
+    m["temperature"] = model.temperature
+    m.update({f"weight.{k}": v for k, v in model.weights().items()})
+    return ImitationRun(model, hist, m, errors, val, dva, idm_params, rule, rand)
+
+
+def held_out_locations(ds: DemoSet, steps: int = 400, seed: int = 0, candidate_set: str = "rich",
+                       idm_grid: dict = IDM_GRID, n_boot: int = 1000, min_demos: int = 10) -> dict:
+    """``compare_lattice`` trained on every other location, figures on each held-out location:
+    ``{location}.{method}.{metric}``."""
+    out = {}
+    for loc in LOCATIONS:
+        test = ds.index.location == loc
+        if test.sum() < min_demos or (~test).sum() < min_demos:
+            continue
+        run = compare_lattice(ds.take(~test), ds.take(test), steps, seed=seed, candidate_set=candidate_set,
+                              idm_grid=idm_grid, n_boot=n_boot, log_every=max(1, steps), by_location=False)
+        out.update({f"{slug(loc)}.{k}": v for k, v in run.metrics.items()
+                    if not k.startswith(("train.", "weight."))})
+    return out
+
+
+def tune_speed(train: DemoSet, val: DemoSet, steps: int = 40, lr: float = 0.1, seed: int = 0, batch_size: int = 32,
+               idm_params: IDMParams | None = None, n_boot: int = 1000):
+    """Learn the speed planner's weights through the soft DP (``speed_tuning``) and compare on
+    ``val`` with the same baselines on the same metric (station errors along the human path)."""
+    from jaxplan.tuning.speed_tuning import compare_speed
+
+    return compare_speed(train, val, steps=steps, lr=lr, seed=seed, batch_size=batch_size, idm_params=idm_params,
+                         n_boot=n_boot)
+
+
+def load_cost(path: str):
+    """A weights file of either kind: an ``ImitationModel`` (``jaxplan tune lattice``) or the
+    lattice rule's ``CostWeights`` as ``{name: value}`` (``train.save_weights``)."""
+    import json
+
+    from jaxplan.tuning.imitation import MODEL_KIND
+    from jaxplan.tuning.train import load_weights
+
+    try:
+        with open(path) as f:
+            kind = json.load(f).get("kind")
+    except (OSError, json.JSONDecodeError, AttributeError) as e:
+        raise ValueError(f"{path}: not a weights file ({type(e).__name__}: {e})") from None
+    if kind == MODEL_KIND:
+        return ImitationModel.load(path)
+    w = load_weights(path)
+    unknown = [k for k in w if k not in default_weights()]
+    if unknown:
+        raise ValueError(f"{path}: unknown weights {unknown}; known: {', '.join(default_weights())}")
+    return w
+
+
+def demonstrations(scenarios: str | None, n_synthetic: int = 48, seed: int = 0, max_files: int | None = None,
+                   pattern: str | None = None) -> tuple[DemoSet, DemoSet, str]:
+    """Train / validation demonstrations (disjoint by vehicle) from a scenario folder, or
+    synthetic ones whose human is the hidden ``SYNTHETIC_DRIVER``."""
     if scenarios:
-        import glob
-        import os
-
-        from jaxplan.scenarios.loader import ScenarioError, load_scenario
-
-        files = sorted(glob.glob(os.path.join(scenarios, "*.json")))
-        if not files:
-            raise ValueError(f"{scenarios}: no scenario JSON files")
-        scs = []
-        for f in files:
-            try:
-                scs.append(load_scenario(f))
-            except ScenarioError:
-                continue
-        if max_files:  # the files with the most recorded vehicles, from both sides of the split
-            from jaxplan.tuning.demos import is_validation
-
-            scs = sorted(scs, key=lambda s: -s.obstacles.boxes.shape[0])
-            n_val = max(1, max_files // 3)
-            scs = ([s for s in scs if not is_validation(s.id)][:max_files - n_val]
-                   + [s for s in scs if is_validation(s.id)][:n_val])
-        train, val, _ = load_demos(scs, DemoConfig())
-        if train is None or val is None:
-            raise ValueError(f"{scenarios}: too few demonstrations for a train / validation split")
+        ds = recorded_set(scenarios, max_files=max_files, pattern=pattern)
+        train, val = split(ds)
         return train, val, "recorded"
-    demos = synthetic_demos(2 * n_synthetic, seed=seed)
-    data = lattice_data(demos, chunk=n_synthetic)
-    truth = {**default_weights(), **SYNTHETIC_DRIVER}
-    pick = _chosen(weights_pytree(truth), data)
-    human = jnp.take_along_axis(data.xy, pick[:, None, None, None], axis=1)[:, 0]
-    demos = dataclasses.replace(demos, human_xy=human.astype(jnp.float32))
-    half = lambda d, sl: jax.tree_util.tree_map(lambda x: x[sl], d)
-    return half(demos, slice(0, n_synthetic)), half(demos, slice(n_synthetic, None)), "synthetic"
+    ds = synthetic_driver_set(2 * n_synthetic, seed)
+    half = np.arange(len(ds)) < n_synthetic
+    return ds.take(half), ds.take(~half), "synthetic"
 
 
-def tune_lattice(train: Demo, val: Demo, steps: int = 200, lr: float = 0.1, seed: int = 0,
-                 sigma: float | None = 0.5) -> TuneResult:
-    """Learn the lattice weights ``LEARNED`` from demonstrations."""
-    dtr, dva = lattice_data(train), lattice_data(val)
-    start = {k: v for k, v in to_log(default_weights()).items() if k in LEARNED}
-    loss = lambda p, d: lattice_loss(p, d, sigma=sigma)
-    params, hist = fit(loss, start, dtr, steps=steps, lr=lr, seed=seed)
-    rs_params, rs_loss = random_search(loss, start, dtr, steps, seed=seed)
-    full = lambda p: {**default_weights(), **{k: float(v) for k, v in from_log(p).items()}}
-    tuned, rand = full(params), full(rs_params)
-    m = {"train_demos": int(dtr.features.shape[0]), "val_demos": int(dva.features.shape[0]),
-         "candidates": int(dtr.features.shape[1]), "steps": steps,
-         "loss_start": hist["loss"][0], "loss_end": hist["loss"][-1], "loss_random_search": rs_loss,
-         "val_loss_before": float(loss(start, dva)), "val_loss_after": float(loss(params, dva))}
-    for name, w in (("before", default_weights()), ("after", tuned), ("random", rand)):
-        m.update({f"{name}.{k}": v for k, v in imitation_metrics(w, dva).items()})
-    m["ade3_change"] = m["after.ade3"] / m["before.ade3"] - 1.0
-    m.update({f"weight.{k}": tuned[k] for k in LEARNED})
-    return TuneResult(tuned, hist, m, {"val_data": dva, "val": val})
+def evaluate_cost(train: DemoSet, val: DemoSet, cost, n_boot: int = 1000, seed: int = 0, chunk: int = CHUNK) -> dict:
+    """Held-out figures of a weights file's cost (``load_cost``) beside the default weights,
+    constant velocity, constant acceleration, the IDM and the best candidate, on the same
+    demonstrations: ``{method}.{ade3, ade3_ci_lo, ..., collision_share}``, per location too.
 
-
-def tune_speed(train: Demo, val: Demo, steps: int = 40, lr: float = 0.1, seed: int = 0,
-               batch_size: int = 32) -> TuneResult:
-    """Learn the speed planner's weights ``SPEED_LEARNED`` from recorded speed profiles."""
-    from jaxplan.tuning.speed_tuning import SPEED_LEARNED, default_speed_weights, speed_data, speed_loss, \
-        speed_metrics
-
-    dtr, _ = speed_data(train)
-    dva, _ = speed_data(val)
-    start = {k: v for k, v in to_log(default_speed_weights()).items() if k in SPEED_LEARNED}
-    params, hist = fit(speed_loss, start, dtr, steps=steps, lr=lr, batch_size=batch_size, seed=seed,
-                       log_every=max(1, steps // 20))
-    evals = max(2, steps * batch_size // max(1, dtr.v0.shape[0]))  # same number of example evaluations
-    rs_params, rs_loss = random_search(speed_loss, start, dtr, evals, scale=1.0, seed=seed)
-    full = lambda p: {**default_speed_weights(), **{k: float(v) for k, v in from_log(p).items()}}
-    tuned, rand = full(params), full(rs_params)
-    m = {"train_demos": int(dtr.v0.shape[0]), "val_demos": int(dva.v0.shape[0]), "steps": steps,
-         "loss_start": hist["loss"][0], "loss_end": hist["loss"][-1], "loss_random_search": rs_loss,
-         "val_loss_before": float(speed_loss(start, dva)), "val_loss_after": float(speed_loss(params, dva))}
-    for name, w in (("before", default_speed_weights()), ("after", tuned), ("random", rand)):
-        m.update({f"{name}.{k}": v for k, v in speed_metrics(w, dva).items()})
-    m.update({f"weight.{k}": tuned[k] for k in SPEED_LEARNED})
-    return TuneResult(tuned, hist, m, {"val_data": dva})
+    An ``ImitationModel`` is evaluated on its own candidate set with the IDM of its
+    features; rule weights on the rich candidate set with the IDM calibrated on ``train``.
+    """
+    if isinstance(cost, ImitationModel):
+        configs = CANDIDATE_SETS[cost.meta.get("candidate_set", "rich")]
+        idm_params = IDMParams(**cost.meta["idm"]) if "idm" in cost.meta else calibrate_idm(train.demos)[0]
+    else:
+        configs = CANDIDATE_SETS["rich"]
+        idm_params = calibrate_idm(train.demos)[0]
+    data = lattice_data(val.demos, configs, idm_params, chunk=chunk)
+    errors = baseline_errors(val.demos, idm_params)
+    errors["default"] = choice_errors(rule_choice(default_weights(), data), data)
+    pick = cost.choose(data) if isinstance(cost, ImitationModel) else rule_choice(cost, data)
+    errors["weights"] = choice_errors(pick, data)
+    errors["oracle"] = choice_errors(nearest_eligible(data), data)
+    m = figures(errors, val, n_boot, seed)
+    m["candidates"] = int(data.features.shape[1])
+    return m

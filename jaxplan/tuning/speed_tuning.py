@@ -1,13 +1,23 @@
-"""Learning the ST speed planner's weights from recorded speed profiles.
+"""Learning the ST speed planner's weights from recorded speed profiles, against baselines.
 
 Each demonstration gives the path the human drove (its recorded positions,
 resampled by arc length and extended straight past the end) and the stations it
-reached at the DP times. The smooth (soft-min) DP's expected station profile is
-differentiable in the weights; the loss is its squared error to the human's.
+reached at the DP times (every ``config.dt``). The smooth (soft-min) DP's expected
+station profile is differentiable in the weights; the loss is its Huber error to
+the human's (masked where the recording ended).
+
+Everything is measured on the same metric, station errors along the human's own
+path (ADE / FDE at 3 s and 5 s): the exact DP with the tuned weights, with the
+default ones, with a grid over two of them and with a random search; constant
+velocity, constant acceleration, and the IDM following the recorded leader along
+the same path; and the DP grid's own limit (``oracle``: the DP run with a cost that
+tracks the human's stations, the best profile the grid can express).
 """
 from __future__ import annotations
 
 import dataclasses
+import functools
+import itertools
 
 import jax
 import jax.numpy as jnp
@@ -15,10 +25,12 @@ import numpy as np
 import optax
 
 from jaxplan.geometry.frenet import reference_line
-from jaxplan.speed import CostWeights, SpeedConfig, expected_speed_profile, plan_speed
 from jaxplan.scenarios.polylines import resample_polyline
+from jaxplan.speed import CostWeights, SpeedConfig, expected_speed_profile, plan_speed
+from jaxplan.speed.dp import dp_from_costs, make_scene, stage_costs
 from jaxplan.tuning.demos import Demo
-from jaxplan.tuning.train import from_log
+from jaxplan.tuning.train import fit, from_log, random_search, to_log
+from jaxplan.tuning.traffic import IDMParams, frenet_traffic, idm_rollout
 from jaxplan.types import Obstacles, VehicleParams
 
 # 5 s at 1 s steps and 2 m stations (speed steps 2 m/s), speeds up to 30 m/s (US-101 traffic).
@@ -27,6 +39,8 @@ SPEED_TUNING_CONFIG = SpeedConfig(n_t=5, dt=1.0, ds=2.0, v_max=30.0, a_min=-4.0,
 # speed is learned relative to each driver's start speed: v_cruise = cruise_ratio * v0.
 SPEED_LEARNED = ("cruise_ratio", "w_speed", "w_accel", "w_jerk", "w_block", "follow_dist")
 VEHICLE = VehicleParams(reference="center")
+SPEED_METHODS = ("constant_velocity", "constant_acceleration", "idm", "default", "grid", "random_search", "weights",
+                 "oracle")
 
 
 def default_speed_weights() -> dict:
@@ -47,6 +61,7 @@ class SpeedData:
         obstacles: the other vehicles, boxes ``(B, K, T, 5)``.
         v0, a0: ``(B,)`` start speed and acceleration.
         s_human: ``(B, n_t + 1)`` stations the human reached at the DP times.
+        valid: ``(B, n_t + 1)`` the recording reaches that time.
     """
 
     path_xy: jax.Array
@@ -54,6 +69,7 @@ class SpeedData:
     v0: jax.Array
     a0: jax.Array
     s_human: jax.Array
+    valid: jax.Array
 
 
 def speed_data(demos: Demo, config: SpeedConfig = SPEED_TUNING_CONFIG, points: int = 64,
@@ -64,21 +80,24 @@ def speed_data(demos: Demo, config: SpeedConfig = SPEED_TUNING_CONFIG, points: i
         (data, kept) where ``kept`` indexes the demonstrations used.
     """
     hxy = np.asarray(demos.human_xy, np.float64)
-    seg = np.linalg.norm(np.diff(hxy, axis=1), axis=-1)                    # (B, T-1)
+    hv = np.asarray(demos.human_valid, bool)
+    seg = np.linalg.norm(np.diff(hxy, axis=1), axis=-1) * hv[:, 1:]       # (B, T-1), 0 past the recording
     s = np.concatenate([np.zeros((len(hxy), 1)), np.cumsum(seg, 1)], 1)   # (B, T)
     steps = int(round(config.dt / 0.1))
     idx = np.arange(config.n_t + 1) * steps
-    kept = np.nonzero((s[:, -1] > 2.0) & (idx[-1] < s.shape[1]))[0]
+    if idx[-1] >= s.shape[1]:
+        raise ValueError(f"speed_data: demonstrations of {s.shape[1]} samples are shorter than the DP horizon")
+    kept = np.nonzero(s[:, -1] > 2.0)[0]
     paths = []
     for b in kept:
         keep = np.concatenate([[True], seg[b] > 1e-3])
         sb = s[b][keep]
         paths.append(resample_polyline(hxy[b][keep], sb, np.linspace(0.0, sb[-1] + extend, points)))
     pick = lambda x: jnp.asarray(np.asarray(x)[kept])
-    obs = Obstacles(pick(demos.obstacles), pick(demos.obstacle_valid), pick(demos.t))
-    data = SpeedData(jnp.asarray(np.array(paths), jnp.float32), obs, pick(demos.ego[:, 3]),
-                     jnp.clip(pick(demos.ego[:, 4]), config.a_min, config.a_max),
-                     jnp.asarray(s[kept][:, idx], jnp.float32))
+    obs = Obstacles(pick(demos.obstacles), pick(demos.obstacle_valid), pick(demos.t), pick(demos.obstacle_static))
+    data = SpeedData(jnp.asarray(np.array(paths).reshape(len(kept), points, 2), jnp.float32), obs,
+                     pick(demos.ego[:, 3]), jnp.clip(pick(demos.ego[:, 4]), config.a_min, config.a_max),
+                     jnp.asarray(s[kept][:, idx], jnp.float32), jnp.asarray(hv[kept][:, idx]))
     return data, kept
 
 
@@ -92,12 +111,13 @@ def _weights(w: dict, v0) -> CostWeights:
 
 def speed_loss(params: dict, data: SpeedData, config: SpeedConfig = SPEED_TUNING_CONFIG,
                temperature: float = 1.0):
-    """Mean Huber loss (1 m) of the soft DP's expected stations against the human's."""
+    """Mean Huber loss (1 m) of the soft DP's expected stations against the human's (recorded times)."""
     w = _weights({**default_speed_weights(), **from_log(params)}, data.v0)
     refs = jax.vmap(reference_line)(data.path_xy)
     plan = expected_speed_profile(refs, data.obstacles, config, w, temperature, v0=data.v0, a0=data.a0,
                                   vehicle=VEHICLE)
-    return jnp.mean(optax.huber_loss(plan.s, data.s_human, delta=1.0))
+    err = optax.huber_loss(plan.s, data.s_human, delta=1.0)
+    return jnp.sum(jnp.where(data.valid, err, 0.0)) / jnp.maximum(jnp.sum(data.valid), 1)
 
 
 def _exact(weights: dict, data: SpeedData, config: SpeedConfig):
@@ -111,11 +131,126 @@ def station_profiles(weights: dict, data: SpeedData, config: SpeedConfig = SPEED
     return np.asarray(_exact(weights, data, config).s)
 
 
+@functools.partial(jax.jit, static_argnames=("config",))
+def _oracle(data: SpeedData, config: SpeedConfig):
+    def one(path_xy, obs, v0, a0, s_h, ok):
+        _, scene = make_scene(reference_line(path_xy), obs, config, VEHICLE)
+        node, accel, jerk, terminal, j0, m0 = stage_costs(scene, config, CostWeights.default(path_xy.dtype), v0, a0)
+        stations = jnp.arange(config.n_s, dtype=node.dtype) * config.ds
+        track = jnp.where(ok[1:, None], jnp.abs(stations[None, :] - s_h[1:, None]), 0.0)      # (n_t, N)
+        hard = jnp.where(node >= config.big, config.big, 0.0)                              # keep the hard limits
+        ends = jnp.where(terminal >= config.big, config.big, 0.0)
+        ii, _, _, _ = dp_from_costs(hard + track[:, :, None], 0.0 * accel, 0.0 * jerk, ends, j0, m0, config)
+        return jnp.concatenate([jnp.zeros((1,), node.dtype), ii.astype(node.dtype) * config.ds])
+
+    return jax.vmap(one)(data.path_xy, data.obstacles, data.v0, data.a0, data.s_human, data.valid)
+
+
+def oracle_stations(data: SpeedData, config: SpeedConfig = SPEED_TUNING_CONFIG) -> np.ndarray:
+    """``(B, n_t + 1)`` the DP grid's best profile: the exact DP with a cost ``|s - s_human|`` (and
+    the grid's hard limits), i.e. the least station error the speed planner can express."""
+    return np.asarray(_oracle(data, config))
+
+
+@functools.partial(jax.jit, static_argnames=("steps",))
+def _baseline_stations(data: SpeedData, idm: IDMParams, steps: int):
+    t = jnp.arange(data.s_human.shape[1], dtype=data.v0.dtype) * (steps * 0.1)
+    v0, a0 = data.v0[:, None], data.a0[:, None]
+    cv = v0 * t
+    t_stop = jnp.where(a0 < 0, -v0 / jnp.where(a0 < 0, a0, -1.0), jnp.inf)
+    tt = jnp.minimum(t, t_stop)
+    ca = v0 * tt + 0.5 * a0 * tt * tt
+
+    def one(path_xy, obs, v0):
+        ref = reference_line(path_xy)
+        tr = frenet_traffic(ref, obs, 0.1)
+        s, _ = idm_rollout(tr, jnp.zeros((), ref.xy.dtype), jnp.zeros((), ref.xy.dtype), v0, 4.8, idm, 0.1)
+        return s[::steps]
+
+    return cv, ca, jax.vmap(one)(data.path_xy, data.obstacles, data.v0)
+
+
+def station_errors(stations, data: SpeedData, config: SpeedConfig = SPEED_TUNING_CONFIG) -> dict:
+    """Per-example station errors ``(B,)`` (m) at 3 s and 5 s, in the form of ``metrics.displacement``."""
+    err = np.abs(np.asarray(stations)[:, :data.s_human.shape[1]] - np.asarray(data.s_human))
+    ok = np.asarray(data.valid)
+    k3, k5 = int(round(3.0 / config.dt)), int(round(5.0 / config.dt))
+    return {"ade3": err[:, 1:k3 + 1].mean(1), "fde3": err[:, k3], "valid3": ok[:, k3],
+            "ade5": err[:, 1:k5 + 1].mean(1), "fde5": err[:, k5], "valid5": ok[:, k5]}
+
+
 def speed_metrics(weights: dict, data: SpeedData, config: SpeedConfig = SPEED_TUNING_CONFIG) -> dict:
-    """Station errors (m) of the exact DP plan at 3 s and 5 s, and the feasible share."""
+    """Station errors (m) of the exact DP plan at 3 s and 5 s (recorded times only), and the feasible share."""
     plan = _exact(weights, data, config)
-    err = np.abs(np.asarray(plan.s) - np.asarray(data.s_human))
-    k3 = int(round(3.0 / config.dt))
-    return {"station_ade3": float(err[:, 1:k3 + 1].mean()), "station_fde3": float(err[:, k3].mean()),
-            "station_ade5": float(err[:, 1:].mean()), "station_fde5": float(err[:, -1].mean()),
+    e = station_errors(plan.s, data, config)
+    mean = lambda k, v: float(e[k][e[v]].mean()) if e[v].any() else float("nan")
+    return {"station_ade3": mean("ade3", "valid3"), "station_fde3": mean("fde3", "valid3"),
+            "station_ade5": mean("ade5", "valid5"), "station_fde5": mean("fde5", "valid5"),
             "feasible_share": float(np.asarray(plan.feasible).mean())}
+
+
+SPEED_GRID = {"cruise_ratio": (0.95, 1.0, 1.05, 1.1), "w_accel": (0.1, 1.0, 10.0)}
+
+
+def grid_speed(data: SpeedData, grid: dict = SPEED_GRID, config: SpeedConfig = SPEED_TUNING_CONFIG) -> tuple[dict, float]:
+    """The combination of ``grid`` (others default) with the least station ADE3 of the exact DP on ``data``."""
+    best, best_ade = default_speed_weights(), np.inf
+    for combo in itertools.product(*grid.values()):
+        w = {**default_speed_weights(), **dict(zip(grid, combo))}
+        e = station_errors(station_profiles(w, data, config), data, config)
+        ade = float(e["ade3"][e["valid3"]].mean())
+        if ade < best_ade:
+            best, best_ade = w, ade
+    return best, best_ade
+
+
+@dataclasses.dataclass
+class SpeedRun:
+    """What ``compare_speed`` produced: tuned ``weights``, ``history``, flat ``metrics``
+    (``{method}.{ade3, ...}`` with intervals), per-example ``errors``, held-out ``val_data``."""
+
+    weights: dict
+    history: dict
+    metrics: dict
+    errors: dict
+    val_data: SpeedData
+    grid: dict
+
+
+def compare_speed(train, val, steps: int = 40, lr: float = 0.1, seed: int = 0, batch_size: int = 32,
+                  idm_params: IDMParams | None = None, n_boot: int = 1000, grid: dict = SPEED_GRID,
+                  config: SpeedConfig = SPEED_TUNING_CONFIG, grid_examples: int = 128) -> SpeedRun:
+    """Fit ``SPEED_LEARNED`` through the soft DP on ``train`` (``DemoSet``) and compare every
+    method of ``SPEED_METHODS`` on ``val`` (station errors, bootstrap intervals over scenarios)."""
+    from jaxplan.tuning.metrics import summary
+
+    dtr, _ = speed_data(train.demos, config)
+    dva, kept = speed_data(val.demos, config)
+    if dtr.v0.shape[0] == 0 or dva.v0.shape[0] == 0:
+        raise ValueError("compare_speed: no demonstration moved 2 m on one side of the split")
+    idm_params = IDMParams() if idm_params is None else idm_params
+    start = {k: v for k, v in to_log(default_speed_weights()).items() if k in SPEED_LEARNED}
+    loss = lambda p, d: speed_loss(p, d, config)
+    params, hist = fit(loss, start, dtr, steps=steps, lr=lr, batch_size=batch_size, seed=seed,
+                       log_every=max(1, steps // 20))
+    sub = jax.tree_util.tree_map(lambda x: x[:grid_examples], dtr)
+    evals = max(2, steps * batch_size // max(1, sub.v0.shape[0]))  # the gradient's number of example evaluations
+    rs_params, _ = random_search(loss, start, sub, evals, scale=1.0, seed=seed)
+    rule, _ = grid_speed(sub, grid, config)
+    full = lambda p: {**default_speed_weights(), **{k: float(v) for k, v in from_log(p).items()}}
+    tuned, rand = full(params), full(rs_params)
+    steps_per = int(round(config.dt / 0.1))
+    cv, ca, im = _baseline_stations(dva, idm_params, steps_per)
+    stations = {"constant_velocity": cv, "constant_acceleration": ca, "idm": im,
+                "default": station_profiles(default_speed_weights(), dva, config),
+                "grid": station_profiles(rule, dva, config), "random_search": station_profiles(rand, dva, config),
+                "weights": station_profiles(tuned, dva, config), "oracle": oracle_stations(dva, config)}
+    errors = {k: station_errors(v, dva, config) for k, v in stations.items()}
+    scen = val.index.scenario[kept]
+    m = {"train_examples": int(dtr.v0.shape[0]), "val_examples": int(dva.v0.shape[0]), "steps": steps,
+         "loss_start": hist["loss"][0], "loss_end": hist["loss"][-1],
+         "feasible_share": float(np.asarray(_exact(tuned, dva, config).feasible).mean())}
+    for name, e in errors.items():
+        m.update(summary(e, scen, f"{name}.", n_boot=n_boot, seed=seed))
+    m.update({f"weight.{k}": tuned[k] for k in SPEED_LEARNED})
+    return SpeedRun(tuned, hist, m, errors, dva, rule)
