@@ -469,14 +469,19 @@ def pad_scene(scene: Scene, K: int, T: int, M: int, V: int, G: int, W: int) -> S
                                obstacle_type=ty, goal=goal)
 
 
-def stack_scenes(scenes: list, min_steps: int = 1) -> Scene:
+def stack_scenes(scenes: list, min_steps: int = 1, min_sizes: tuple | None = None) -> Scene:
     """One batched ``Scene`` (jnp leaves with a leading scene axis) from unbatched numpy scenes
-    of any sizes (same route points and lanes). ``min_steps``: pad obstacles to at least
-    this many steps."""
+    of any sizes (same route points and lanes).
+
+    Args:
+        min_steps: pad obstacles to at least this many steps.
+        min_sizes: optional lower bounds ``(K, T, M, V, G, W)`` of the padded sizes (one
+            compiled shape for several batches).
+    """
     if not scenes:
         raise ValueError("stack_scenes: no scenes")
     dims = np.array([[s.obstacles.boxes.shape[0], s.obstacles.boxes.shape[1], *s.drivable.shape[:2],
-                      *s.goal.region.shape[:2]] for s in scenes])
+                      *s.goal.region.shape[:2]] for s in scenes] + ([list(min_sizes)] if min_sizes else []))
     K, T, M, V, G, W = dims.max(0)
     K = max(int(K), 1)  # one invalid obstacle at least: no zero-size arrays in the kernels
     padded = [pad_scene(s, int(K), int(max(T, min_steps)), int(M), int(V), int(G), int(W)) for s in scenes]
