@@ -250,3 +250,39 @@ def test_drive_cli_unknown_planner(tmp_path, capsys):
     rc = main(["drive", "--builtin", "--planner", "nosuch", "--out", str(tmp_path)])
     err = capsys.readouterr().err.strip().splitlines()
     assert rc == 2 and len(err) == 1 and "nosuch" in err[0] and "lattice" in err[0]
+
+
+SHARD_SCRIPT = """
+import sys, numpy as np, jax
+from jaxplan.scenarios import builtin
+from jaxplan.scenarios.loader import parse_scenario
+from jaxplan.scenarios.scene import build_scene, stack_scenes
+from jaxplan.sim.drive import run_planner
+from jaxplan.sim.rollout import SimConfig
+from jaxplan.baselines import IDMPlanner
+rng = np.random.default_rng(3)
+scenes = [build_scene(parse_scenario(d, d["id"]))[0]
+          for d in (builtin.scene_dict(k, rng, 0) for k in ("slow_leader", "cut_in", "stopped_car"))]
+cfg = SimConfig(n_steps=40)
+log, m, _ = run_planner(IDMPlanner(), stack_scenes(scenes, min_steps=41), cfg)
+np.savez(sys.argv[1], x=log.x, y=log.y, v=log.v, collided=m["overlap.collided"], devices=jax.device_count())
+"""
+
+
+def test_sharded_drives_equal_single_device(tmp_path):
+    import os
+    import subprocess
+    import sys
+
+    script = tmp_path / "shard.py"
+    script.write_text(SHARD_SCRIPT)
+    out = {}
+    for n in (1, 3):
+        env = dict(os.environ, XLA_FLAGS=f"--xla_force_host_platform_device_count={n}", JAX_PLATFORMS="cpu")
+        r = subprocess.run([sys.executable, str(script), str(tmp_path / f"d{n}.npz")], env=env, capture_output=True,
+                           text=True, timeout=600)
+        assert r.returncode == 0, r.stderr[-2000:]
+        out[n] = np.load(tmp_path / f"d{n}.npz")
+    assert int(out[1]["devices"]) == 1 and int(out[3]["devices"]) == 3
+    for k in ("x", "y", "v", "collided"):
+        np.testing.assert_array_equal(out[1][k], out[3][k])

@@ -59,7 +59,7 @@ def run(args) -> int:
             w = load_weights(args.weights)
         except (OSError, ValueError) as e:
             return _fail(f"--weights {args.weights}: {e}")
-        options = {n: {"weights": w} for n in names if "weights" in _fields(get_factory(n))}
+        options = {n: {"weights": tuple(sorted(w.items()))} for n in names if "weights" in _fields(get_factory(n))}
     from jaxplan.scenarios.loader import ScenarioError
     from jaxplan.scenarios.scene import load_records
 
