@@ -12,7 +12,8 @@ def add_parser(sub) -> None:
     d.add_argument("paths", nargs="*", help="scenario files (.json shared format, .xml CommonRoad) or folders of them")
     d.add_argument("--builtin", action="store_true", help="also drive the built-in synthetic scenes")
     d.add_argument("--planner", default="lattice",
-                   help="planner name, several separated by commas, or 'all' (every road planner)")
+                   help="planner name, several separated by commas, or 'all' (every planner that loads, "
+                        "the baselines brake and idm included)")
     d.add_argument("--out", required=True, help="output folder")
     d.add_argument("--replan-every", type=int, default=3, help="steps between re-plans (default 3 = 0.3 s)")
     d.add_argument("--tracking", choices=("exact", "bicycle"), default="exact", help="tracking model (default exact)")
@@ -29,7 +30,7 @@ def _fail(msg: str) -> int:
 
 
 def run(args) -> int:
-    from jaxplan.planner import ROAD_PLANNERS, get_factory
+    from jaxplan.planner import get_factory, loadable_planners
     from jaxplan.sim.drive import DEFAULT_MAX_STEPS, drive, expand_paths, n_steps_for
 
     if not args.paths and not args.builtin:
@@ -40,7 +41,7 @@ def run(args) -> int:
         return _fail(f"--max-steps must be >= 1, got {args.max_steps}")
     if os.path.exists(args.out) and not os.path.isdir(args.out):
         return _fail(f"--out {args.out}: exists and is not a folder")
-    names = list(ROAD_PLANNERS) if args.planner == "all" else [p.strip() for p in args.planner.split(",") if p.strip()]
+    names = loadable_planners() if args.planner == "all" else [p.strip() for p in args.planner.split(",") if p.strip()]
     if not names:
         return _fail("--planner: no planner named")
     for n in names:
