@@ -61,7 +61,8 @@ def main(argv=None) -> int:
 def _tune(args) -> int:
     import dataclasses
 
-    from jaxplan.tuning.run import compare_lattice, demonstrations, tune_speed
+    from jaxplan.tuning.baselines import IDM_GRID
+    from jaxplan.tuning.run import SMALL_IDM_GRID, compare_lattice, demonstrations, tune_speed
     from jaxplan.tuning.train import save_weights
 
     if args.steps is not None and args.steps < 1:
@@ -73,8 +74,10 @@ def _tune(args) -> int:
         print(f"jaxplan: error: {err}", file=sys.stderr)
         return 2
     if args.planner == "lattice":
+        recorded = source == "recorded"
         res = compare_lattice(train, val, steps=args.steps or 400, seed=args.seed,
-                              candidate_set="rich" if source == "recorded" else "small")
+                              candidate_set="rich" if recorded else "small",
+                              idm_grid=IDM_GRID if recorded else SMALL_IDM_GRID, ce_weight=0.0 if recorded else 1.0)
         model = dataclasses.replace(res.model, meta={**res.model.meta, "planner": "lattice", "source": source,
                                                      "heldout": res.metrics})
         model.save(args.out)

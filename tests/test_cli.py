@@ -30,17 +30,22 @@ def test_report_lists_figures_and_plots(tmp_path):
     assert main(["report", str(tmp_path / "missing")]) == 2
 
 
-def test_tune_writes_weights_that_eval_reads(tmp_path):
+def test_tune_writes_a_model_that_eval_reads(tmp_path):
     from jaxplan.eval.lattice_suite import imitation_figures
     from jaxplan.eval.registry import SuiteArgs
-    from jaxplan.tuning.train import load_weights
+    from jaxplan.tuning.imitation import ImitationModel
 
     path = str(tmp_path / "w.json")
     assert main(["tune", "lattice", "--steps", "3", "--out", path]) == 0
-    w = load_weights(path)
-    assert set(w) >= {"alpha", "beta", "gamma", "delta"} and all(v > 0 for v in w.values())
+    model = ImitationModel.load(path)
+    assert abs(sum(v * v for v in model.weights().values()) - 1.0) < 1e-5 and model.temperature > 0
     meta = json.load(open(path))["meta"]
-    assert meta["planner"] == "lattice" and meta["source"] == "synthetic" and "after.ade3" in meta
+    assert meta["planner"] == "lattice" and meta["source"] == "synthetic" and "weights.ade3" in meta["heldout"]
     m = imitation_figures(SuiteArgs(out=str(tmp_path), weights=path, n=24))
     assert m["imitation.recorded"] == 0
-    assert 0 <= m["imitation.weights.top1"] <= 1 and m["imitation.default.ade3"] >= 0
+    for k in ("default", "weights", "constant_velocity", "idm"):
+        for f in ("ade3", "fde3", "ade5", "collision_share"):
+            assert m[f"imitation.{k}.{f}"] >= 0
+        assert m[f"imitation.{k}.ade3_ci_lo"] <= m[f"imitation.{k}.ade3"] <= m[f"imitation.{k}.ade3_ci_hi"]
+    assert os.path.exists(os.path.join(str(tmp_path), "lattice_imitation.png"))
+    assert main(["tune", "lattice", "--steps", "-3", "--out", path]) == 2

@@ -206,10 +206,12 @@ def tune_suite(args: SuiteArgs) -> dict:
     quick = args.quick
     run = compare_lattice(train, val, steps=60 if quick else 400, seed=args.seed,
                           candidate_set="small" if quick or source == "synthetic" else "rich",
-                          idm_grid=SMALL_IDM_GRID if quick else IDM_GRID,
+                          idm_grid=SMALL_IDM_GRID if quick or source == "synthetic" else IDM_GRID,
+                          ce_weight=1.0 if source == "synthetic" else 0.0,
                           n_boot=200 if quick else 1000)
     m = {f"lattice.{k}": v for k, v in run.metrics.items()}
     m["source_recorded"] = int(source == "recorded")
+    run.model.save(os.path.join(args.out, "tune_lattice_model.json"))  # `jaxplan eval lattice --weights` reads it
     plot_learning_curve(run.history, run.metrics, os.path.join(args.out, "tune_learning_curve.png"))
     plot_heldout(run.metrics, os.path.join(args.out, "tune_heldout.png"), LOCATION_GROUPS,
                  title="held-out vehicles: ADE at 3 s")

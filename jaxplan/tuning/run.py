@@ -189,7 +189,13 @@ def compare_lattice(train: DemoSet, val: DemoSet, steps: int = 400, lr: float = 
                     candidate_set: str = "rich", ce_weight: float = 0.0, idm_grid: dict = IDM_GRID,
                     n_boot: int = 1000, log_every: int = 10, chunk: int = CHUNK, by_location: bool = True,
                     random_evals: int | None = None) -> ImitationRun:
-    """Fit the imitation cost on ``train`` and compare every method on ``val`` (see the module docstring)."""
+    """Fit the imitation cost on ``train`` and compare every method on ``val`` (see the module docstring).
+
+    ``ce_weight``: the cross-entropy beside the expected ADE3. Recorded humans: 0 (the
+    metric alone did better on held-out vehicles, 0.879 m against 0.898 m with 0.1, in a
+    prototype); synthetic demonstrations, whose human is one of the candidates: 1 (the
+    expected ADE alone stalls on their plateaus).
+    """
     configs = CANDIDATE_SETS[candidate_set]
     idm_params, _ = calibrate_idm(train.demos, idm_grid)
     dtr = lattice_data(train.demos, configs, idm_params, chunk=chunk)

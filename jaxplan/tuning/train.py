@@ -130,6 +130,9 @@ def load_weights(path: str) -> dict:
         out = {str(k): float(v) for k, v in w.items()}
     except (OSError, json.JSONDecodeError, KeyError, TypeError, ValueError, AttributeError) as e:
         raise ValueError(f"{path}: not a weights file ({type(e).__name__}: {e})") from None
+    if isinstance(d, dict) and str(d.get("kind", "")).startswith("jaxplan.imitation"):
+        raise ValueError(f"{path}: an imitation cost over scene features (jaxplan.tuning.imitation.ImitationModel), "
+                         "not the lattice rule's weights")
     bad = [k for k, v in out.items() if not (np.isfinite(v) and v > 0)]
     if bad:
         raise ValueError(f"{path}: weights must be positive and finite, not {bad}")
