@@ -41,7 +41,7 @@ def test_tune_writes_a_model_that_eval_reads(tmp_path):
     assert abs(sum(v * v for v in model.weights().values()) - 1.0) < 1e-5 and model.temperature > 0
     meta = json.load(open(path))["meta"]
     assert meta["planner"] == "lattice" and meta["source"] == "synthetic" and "weights.ade3" in meta["heldout"]
-    m = imitation_figures(SuiteArgs(out=str(tmp_path), weights=path, n=24))
+    m = imitation_figures(SuiteArgs(out=str(tmp_path), weights=path, n=32))  # the compiled shape of the others
     assert m["imitation.recorded"] == 0
     for k in ("default", "weights", "constant_velocity", "idm"):
         for f in ("ade3", "fde3", "ade5", "collision_share"):

@@ -9,27 +9,29 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxplan.geometry.frenet import reference_line
-from jaxplan.lattice import CostWeights, plan_batch
+from jaxplan.tuning.baselines import demo_traffic
 from jaxplan.tuning.demos import synthetic_demos
 from jaxplan.tuning.features import FEATURES, SIGNED, FeatureConfig
 from jaxplan.tuning.imitation import ImitationModel, cross_entropy, direction, expected_ade, feature_scale, fit_model
 from jaxplan.tuning.lattice_tuning import (LEARNED, LatticeData, choice_errors, default_weights, eligible,
                                            imitation_metrics, lattice_data, lattice_loss, nearest_eligible,
-                                           rule_choice, start_states, synthetic_choices)
+                                           synthetic_choices)
 from jaxplan.tuning.run import CANDIDATE_SETS
-from jaxplan.tuning.traffic import IDMParams, frenet_traffic
+from jaxplan.tuning.traffic import IDMParams
 from jaxplan.tuning.train import fit, from_log, load_weights, random_search, save_weights, to_log
-from jaxplan.types import Obstacles
 
 SMALL = CANDIDATE_SETS["small"]
 SIGNED_MASK = jnp.asarray([n in SIGNED for n in FEATURES])
 
 
 @functools.lru_cache(maxsize=None)
-def synth() -> LatticeData:
+def synth_and_candidates():
     # 32 synthetic road scenes, the small candidate set (75 candidates), the chunk every run uses
-    return lattice_data(synthetic_demos(32, seed=1), SMALL)
+    return lattice_data(synthetic_demos(32, seed=1), SMALL, keep=("s", "l", "a", "lane", "offset", "v_end"))
+
+
+def synth() -> LatticeData:
+    return synth_and_candidates()[0]
 
 
 def _numpy_idm(ts, tl, tv, tlen, tvalid, s0, l_lane, v0, p, dt, length=4.8, band=1.75):
@@ -56,16 +58,11 @@ def _numpy_idm(ts, tl, tv, tlen, tvalid, s0, l_lane, v0, p, dt, length=4.8, band
 
 def test_features_against_an_independent_computation():
     demos = synthetic_demos(32, seed=1)  # the demonstrations of synth(): its features are the ones checked
-    data = synth()
+    data, c = synth_and_candidates()   # the features and the candidates they were computed from
     cfg = SMALL[0]
     p, fc = IDMParams(), FeatureConfig()   # synth()'s settings
-    refs = jax.vmap(reference_line)(demos.ref_xy)
-    obs = Obstacles(demos.obstacles, demos.obstacle_valid, demos.t, demos.obstacle_static)
-    res = plan_batch(start_states(demos), refs, obs, cfg, CostWeights())
-    tr = jax.jit(jax.vmap(lambda r, o: frenet_traffic(r, o.aligned(cfg.n_steps), cfg.dt)))(refs, obs)
+    trn = jax.tree_util.tree_map(np.asarray, demo_traffic(demos)[0])
     F = np.asarray(data.features)
-    c = jax.tree_util.tree_map(np.asarray, res.candidates)
-    trn = jax.tree_util.tree_map(np.asarray, tr)
     col = {n: i for i, n in enumerate(FEATURES)}
     e = fc.every
     idx = np.arange(0, cfg.n_steps, e)
@@ -74,19 +71,19 @@ def test_features_against_an_independent_computation():
     checked = 0
     for b in (0, 5, 11):
         v0 = float(demos.ego[b, 3])
-        s_start = c.s[b, 0, 0]
+        s_start = c["s"][b, 0, 0]
         lanes = {ln: _numpy_idm(trn.s[b][:, idx], trn.l[b][:, idx], trn.v[b][:, idx], trn.length[b][:, idx],
                                 trn.valid[b][:, idx], s_start, ln * cfg.lane_width, v0, p, cfg.dt * e) - s_start
                  for ln in cfg.lanes}
         led = any(trn.valid[b][j, 0] and trn.s[b][j, 0] > s_start and abs(trn.l[b][j, 0]) < fc.band
                   for j in range(trn.s.shape[1]))
-        for n in range(0, c.s.shape[1], 4):
-            s = c.s[b, n, idx] - s_start
-            lane = c.lane[b, n]
+        for n in range(0, c["s"].shape[1], 4):
+            s = c["s"][b, n, idx] - s_start
+            lane = c["lane"][b, n]
             want = {"lane_change": abs(lane), "lane_side": lane,
-                    "lane_offset": abs(c.offset[b, n] - lane * cfg.lane_width),
-                    "speed_change": c.v_end[b, n] - v0, "speed_change_abs": abs(c.v_end[b, n] - v0),
-                    "accel": np.mean(c.traj.a[b, n, idx][early] ** 2),
+                    "lane_offset": abs(c["offset"][b, n] - lane * cfg.lane_width),
+                    "speed_change": c["v_end"][b, n] - v0, "speed_change_abs": abs(c["v_end"][b, n] - v0),
+                    "accel": np.mean(c["a"][b, n, idx][early] ** 2),
                     "cv_dev": np.mean((s - v0 * tt)[early] ** 2), "cv_ahead": np.mean((s - v0 * tt)[early]),
                     "free_cv_dev": 0.0 if led else np.mean((s - v0 * tt)[early] ** 2),
                     "progress_dev": np.mean((s - lanes[lane])[early] ** 2),

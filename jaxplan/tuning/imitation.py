@@ -180,6 +180,12 @@ class ImitationModel:
         return ImitationModel(names, theta, scale, tau, d.get("meta") or {})
 
 
+@functools.lru_cache(maxsize=None)
+def _adam(lr: float, steps: int):
+    """Adam with warm-up and cosine decay (one object per setting: the training step compiles once)."""
+    return optax.adam(optax.warmup_cosine_decay_schedule(0.0, lr, max(1, steps // 10), steps, lr * 0.05))
+
+
 @functools.partial(jax.jit, static_argnames=("opt", "ce_weight", "sigma", "l2"))
 def _train_step(params, state, data, scale, signed, opt, ce_weight, sigma, l2):
     def objective(p):
@@ -219,7 +225,7 @@ def fit_model(train: LatticeData, steps: int = 400, lr: float = 0.05, ce_weight:
     scale = jnp.asarray(feature_scale(train))
     signed = jnp.asarray(np.array([n in SIGNED for n in names]))
     params = init_params(names) if init is None else init
-    opt = optax.adam(optax.warmup_cosine_decay_schedule(0.0, lr, max(1, steps // 10), steps, lr * 0.05))
+    opt = _adam(float(lr), int(steps))
     state = opt.init(params)
     hist = {"step": [], "loss": [], "train_ade3": [], "val_ade3": [], "temperature": [], "weights": []}
     for i in range(steps):

@@ -131,16 +131,19 @@ def _chunk_data(demos: Demo, idm: IDMParams, configs: tuple, fcfg: FeatureConfig
             res.candidates, res.ttc, traffic, state.v, cfg, idm, fcfg)
         xy = jnp.stack([res.candidates.traj.x, res.candidates.traj.y], -1)     # (B, N, T, 2)
         e = displacement(xy, demos.human_xy[:, None], demos.human_valid[:, None])
-        parts.append((feats, res.features, res.collided, res.candidates.level, e["ade3"], e["fde3"], e["ade5"],
-                      e["fde5"], xy))
-    cat = [jnp.concatenate([p[i] for p in parts], axis=1) for i in range(9)]
+        c = res.candidates
+        raw = {"x": c.traj.x, "y": c.traj.y, "s": c.s, "l": c.l, "v": c.traj.v, "a": c.traj.a, "lane": c.lane,
+               "offset": c.offset, "v_end": c.v_end}
+        parts.append((feats, res.features, res.collided, c.level, e["ade3"], e["fde3"], e["ade5"], e["fde5"], raw))
+    cat = [jnp.concatenate([p[i] for p in parts], axis=1) for i in range(8)]
+    raw = {k: jnp.concatenate([p[8][k] for p in parts], axis=1) for k in parts[0][8]}
     valid5 = displacement(demos.human_xy, demos.human_xy, demos.human_valid)["valid5"]
-    return LatticeData(*cat[:8], valid5), cat[8]
+    return LatticeData(*cat, valid5), raw
 
 
 def lattice_data(demos: Demo, configs: tuple = TUNING_CONFIGS, idm: IDMParams = IDMParams(),
                  fcfg: FeatureConfig = FeatureConfig(), chunk: int = CHUNK, start_accel: str = "zero",
-                 keep_xy: bool = False):
+                 keep: tuple = ()):
     """Plan every config of the candidate set for every demonstration (in chunks, to bound memory).
 
     Args:
@@ -149,11 +152,12 @@ def lattice_data(demos: Demo, configs: tuple = TUNING_CONFIGS, idm: IDMParams = 
         idm: parameters of the desired-progress model of the features.
         chunk: demonstrations per compiled call (every call is padded to it: one compiled shape
             whatever the number of demonstrations).
-        keep_xy: also return the candidates' positions ``(B, N, T, 2)`` (few demonstrations:
-            they are large).
+        keep: names of candidate fields to return as well, ``{name: (B, N, ...)}`` numpy, from
+            ``x, y, s, l, v, a`` (``(B, N, T)``) and ``lane, offset, v_end`` (``(B, N)``); for a few
+            demonstrations (they are large).
 
     Returns:
-        ``LatticeData`` (numpy-backed jax arrays), and the positions when ``keep_xy``.
+        ``LatticeData`` (numpy-backed jax arrays), and the kept fields when ``keep`` is given.
     """
     if isinstance(configs, LatticeConfig):
         configs = (configs,)
@@ -163,20 +167,22 @@ def lattice_data(demos: Demo, configs: tuple = TUNING_CONFIGS, idm: IDMParams = 
     B = demos.ego.shape[0]
     if B == 0:
         raise ValueError("lattice_data: no demonstrations")
-    parts, xys = [], []
+    parts, kept = [], []
     for part, n in chunks(demos, chunk):
-        out, xy = _chunk_data(part, idm, configs, fcfg, start_accel)
+        out, raw = _chunk_data(part, idm, configs, fcfg, start_accel)
         parts.append(jax.tree_util.tree_map(lambda x: np.asarray(x)[:n], out))
-        if keep_xy:
-            xys.append(np.asarray(xy)[:n])
+        kept.append({k: np.asarray(raw[k])[:n] for k in keep})
     data = jax.tree_util.tree_map(lambda *xs: jnp.asarray(np.concatenate(xs)), *parts)
-    return (data, np.concatenate(xys)) if keep_xy else data
+    if not keep:
+        return data
+    return data, {k: np.concatenate([p[k] for p in kept]) for k in keep}
 
 
 def candidate_xy(demos: Demo, configs: tuple = TUNING_CONFIGS, start_accel: str = "zero") -> np.ndarray:
     """``(B, N, T, 2)`` candidate positions of the candidate set (for plots; the order of
     ``lattice_data``, whose compiled call it reuses)."""
-    return lattice_data(demos, configs, start_accel=start_accel, keep_xy=True)[1]
+    raw = lattice_data(demos, configs, start_accel=start_accel, keep=("x", "y"))[1]
+    return np.stack([raw["x"], raw["y"]], -1)
 
 
 def eligible(data: LatticeData):

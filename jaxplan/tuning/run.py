@@ -88,7 +88,8 @@ def synthetic_driver_set(n: int, seed: int = 0, configs=CANDIDATE_SETS["small"])
     from jaxplan.tuning.imitation import feature_scale
 
     ds = synthetic_set(n, seed)
-    data, xy = lattice_data(ds.demos, configs, keep_xy=True)
+    data, raw = lattice_data(ds.demos, configs, keep=("x", "y"))
+    xy = np.stack([raw["x"], raw["y"]], -1)
     theta = np.array([np.log(SYNTHETIC_DRIVER[k]) if k in SYNTHETIC_DRIVER else -30.0 for k in FEATURES], np.float32)
     pick = ImitationModel(FEATURES, theta, feature_scale(data), 1.0).choose(data)
     human = xy[np.arange(n), pick]
@@ -265,7 +266,7 @@ def load_cost(path: str):
     return w
 
 
-def demonstrations(scenarios: str | None, n_synthetic: int = 48, seed: int = 0, max_files: int | None = None,
+def demonstrations(scenarios: str | None, n_synthetic: int = CHUNK, seed: int = 0, max_files: int | None = None,
                    pattern: str | None = None) -> tuple[DemoSet, DemoSet, str]:
     """Train / validation demonstrations (disjoint by vehicle) from a scenario folder, or
     synthetic ones whose human is the hidden ``SYNTHETIC_DRIVER``."""
