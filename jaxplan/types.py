@@ -401,3 +401,7 @@ class Obstacles:
                              f"{step:g} s, but the planner's grid is t = k * {dt:g} s; resample them to that grid "
                              f"(jaxplan.speed.path_profile.resample_obstacles)")
         return self
+
+
+# ``Obstacles.at_times`` compiled once per shape, for host code that reads many recordings.
+at_times_jit = jax.jit(lambda obstacles, t: obstacles.at_times(t))

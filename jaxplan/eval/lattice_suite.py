@@ -27,7 +27,7 @@ from jaxplan.geometry import ReferenceLine
 from jaxplan.lattice import MODE_NAMES, CostWeights, LatticeConfig, PlanState, plan_batch
 from jaxplan.lattice.plan import _plan_jit
 from jaxplan.scenarios.polylines import uniform_resample
-from jaxplan.types import Obstacles
+from jaxplan.types import Obstacles, at_times_jit
 
 KINDS = ("following", "cut_in", "slow_leader", "congestion", "lane_change", "crossroad")
 # small lattices: the dense collision check compiles faster and costs little here
@@ -145,7 +145,7 @@ def recorded_obstacles(sc, cfg: LatticeConfig = NORMAL, k_max: int = K_SYN) -> O
     whole horizon, dynamic ones gone when their recording ends), padded to ``k_max``."""
     T = cfg.n_steps
     t = np.arange(T) * cfg.dt
-    obs = _at_times(sc.obstacles, jnp.asarray(t, sc.obstacles.boxes.dtype))
+    obs = at_times_jit(sc.obstacles, jnp.asarray(t, sc.obstacles.boxes.dtype))
     b, v, st = np.asarray(obs.boxes), np.asarray(obs.valid), np.asarray(obs.static)
     d0 = np.where(v.any(1), np.min(np.where(v, np.hypot(b[..., 0], b[..., 1]), np.inf), 1), np.inf)
     keep = np.argsort(d0)[:k_max]
@@ -154,9 +154,6 @@ def recorded_obstacles(sc, cfg: LatticeConfig = NORMAL, k_max: int = K_SYN) -> O
     ss = np.zeros(k_max, bool)
     bb[:len(keep)], vv[:len(keep)], ss[:len(keep)] = b[keep], v[keep], st[keep]
     return Obstacles(jnp.asarray(bb, jnp.float32), jnp.asarray(vv), jnp.asarray(t, jnp.float32), jnp.asarray(ss))
-
-
-_at_times = jax.jit(lambda obs, t: obs.at_times(t))
 
 
 def _run_recorded(directory, limit, batch, cfg=NORMAL):

@@ -12,6 +12,7 @@ use ``all``.
 from __future__ import annotations
 
 import ast
+import functools
 import hashlib
 import json
 import numbers
@@ -93,6 +94,24 @@ def _first_line(doc: str | None, name: str) -> str:
     return para if end < 0 else para[:end + 1]
 
 
+@functools.lru_cache(maxsize=64)
+def _module_summaries(path: str, mtime_ns: int) -> dict[str, str]:
+    """``{suite: line}`` of the ``@register`` functions of one suite module (parsed, not imported)."""
+    with open(path) as f:
+        tree = ast.parse(f.read())
+    mod_doc = ast.get_docstring(tree)
+    out = {}
+    for node in tree.body:
+        if not isinstance(node, ast.FunctionDef):
+            continue
+        for dec in node.decorator_list:
+            if (isinstance(dec, ast.Call) and getattr(dec.func, "id", None) == "register" and dec.args
+                    and isinstance(dec.args[0], ast.Constant)):
+                name = dec.args[0].value
+                out[name] = _first_line(ast.get_docstring(node) or mod_doc, name)
+    return out
+
+
 def suite_summaries() -> dict[str, str]:
     """``{suite: one line}`` for every built-in suite, read from the suite modules' source
     (no import: ``jaxplan eval --help`` stays fast), plus suites registered at run time."""
@@ -101,19 +120,9 @@ def suite_summaries() -> dict[str, str]:
     out = {}
     folder = os.path.dirname(pkg.__file__)
     for fname in sorted(os.listdir(folder)):
-        if not fname.endswith("_suite.py"):
-            continue
-        with open(os.path.join(folder, fname)) as f:
-            tree = ast.parse(f.read())
-        mod_doc = ast.get_docstring(tree)
-        for node in tree.body:
-            if not isinstance(node, ast.FunctionDef):
-                continue
-            for dec in node.decorator_list:
-                if (isinstance(dec, ast.Call) and getattr(dec.func, "id", None) == "register" and dec.args
-                        and isinstance(dec.args[0], ast.Constant)):
-                    name = dec.args[0].value
-                    out[name] = _first_line(ast.get_docstring(node) or mod_doc, name)
+        if fname.endswith("_suite.py"):
+            path = os.path.join(folder, fname)
+            out.update(_module_summaries(path, os.stat(path).st_mtime_ns))
     for name, fn in SUITES.items():
         if name not in out:
             out[name] = _first_line(fn.__doc__ or sys.modules.get(fn.__module__).__doc__, name)

@@ -37,7 +37,7 @@ from jaxplan.geometry.frenet import ref_state, reference_line, to_frenet
 from jaxplan.geometry.polygons import has_overlap
 from jaxplan.speed import CostWeights, SpeedConfig, compose_plan, plan_speed
 from jaxplan.speed.nonblocking import obstacle_speed
-from jaxplan.types import Obstacles, VehicleParams
+from jaxplan.types import Obstacles, VehicleParams, at_times_jit
 
 CAR = VehicleParams()
 DT_OBS = 0.1
@@ -160,7 +160,7 @@ def recorded_scenes(directory: str, t_max: float, horizon: float, k_max: int = 2
         q = np.linspace(0, u[-1], 64)
         xy = np.stack([np.interp(q, u, np.asarray(ref.xy)[:, i]) for i in range(2)], -1)
         s0, _ = to_frenet(reference_line(jnp.asarray(xy, jnp.float32)), jnp.zeros((1, 2)))
-        ob = _at_times(s.obstacles, jnp.asarray(tg, s.obstacles.boxes.dtype))
+        ob = at_times_jit(s.obstacles, jnp.asarray(tg, s.obstacles.boxes.dtype))
         b = np.asarray(ob.boxes, float)
         ok = np.asarray(ob.valid)
         dist = np.where(ok[:, 0], np.linalg.norm(b[:, 0, :2], axis=-1), 1e9)
@@ -185,9 +185,6 @@ def recorded_scenes(directory: str, t_max: float, horizon: float, k_max: int = 2
                   np.array(out["v_cruise"]), np.array(out["boxes"]), np.array(out["valid"]), kc,
                   np.zeros((B, R_MAX), bool), np.array(out["goal"]), t_max, np.array(out["static"], bool).reshape(B, k_max),
                   len(folder.skipped))
-
-
-_at_times = jax.jit(lambda obs, t: obs.at_times(t))
 
 
 def _weights(sc: Scenes, with_nb: bool):

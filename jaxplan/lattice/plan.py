@@ -154,5 +154,12 @@ def plan_batch(state: PlanState, reference_line: ReferenceLine, obstacles: Obsta
     obstacles (``config`` and ``weights`` are shared; default weights if None)."""
     weights = CostWeights() if weights is None else weights
     _check_shapes("plan_batch", state, reference_line, obstacles, 1)
+    sizes = {"state": jnp.shape(state.x)[0], "reference line": jnp.shape(reference_line.xy)[0],
+             "obstacles": jnp.shape(obstacles.boxes)[0]}
+    if len(set(sizes.values())) > 1:
+        raise ValueError(f"plan_batch: batch sizes differ ({', '.join(f'{k} {v}' for k, v in sizes.items())})")
+    # scalar state fields (PlanState.make's defaults) are shared by the batch
+    state = jax.tree_util.tree_map(lambda f: jnp.broadcast_to(f, (sizes["state"],) + jnp.shape(f)[1:])
+                                   if jnp.ndim(f) == 0 else f, state)
     _validate(state, reference_line, obstacles, config, weights)
     return _plan_batch_jit(state, reference_line, obstacles, config, weights)
