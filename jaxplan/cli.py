@@ -1,4 +1,5 @@
-"""Command line: ``jaxplan eval SUITE``, ``jaxplan tune PLANNER``, ``jaxplan report DIR`` (also ``python -m jaxplan``).
+"""Command line: ``jaxplan drive PATHS``, ``jaxplan eval SUITE``, ``jaxplan tune PLANNER``, ``jaxplan report DIR``
+(also ``python -m jaxplan``).
 
 Every argument is checked before any heavy work (``jaxplan.cli_args``); a bad one gets one
 line ``jaxplan: error: ...`` naming it, and exit status 2.
@@ -58,6 +59,9 @@ def parser() -> argparse.ArgumentParser:
     r = sub.add_parser("report", help="write RESULTS_DIR/report.md from its metrics and plots")
     r.add_argument("results_dir", type=ca.existing_dir)
     r.add_argument("--force", action="store_true", help="replace a report.md that `jaxplan report` did not write")
+    from jaxplan.sim import cli as drive_cli
+
+    drive_cli.add_parser(sub)
     return p
 
 
@@ -65,6 +69,10 @@ def main(argv=None) -> int:
     args, status = ca.parse(parser(), argv)
     if args is None:
         return status
+    if args.cmd == "drive":
+        from jaxplan.sim import cli as drive_cli
+
+        return drive_cli.run(args)
     try:
         if args.cmd == "report":
             from jaxplan.eval.report import write_report
