@@ -275,6 +275,9 @@ def test_item13_version_and_suite_list(capsys):
     text = capsys.readouterr().out
     listed = text.split("suites:\n", 1)[1].splitlines()
     names = [ln.split()[0] for ln in listed if ln.strip()]
-    assert names == ["bounds", "geometry", "lattice", "parkout", "replan", "speed", "tune"]
+    from jaxplan.eval.registry import SUITES, _load_builtin_suites
+
+    _load_builtin_suites()  # the suites that register themselves when imported: the same list
+    assert names == sorted(SUITES) and {"lattice", "speed", "tune"} <= set(names)
     assert all(len(ln.split(None, 1)) == 2 for ln in listed if ln.strip())  # a line of text each
     assert any("candidate lattice" in ln for ln in listed)
