@@ -54,10 +54,11 @@ def run(args) -> int:
         return _fail(problems[0] + (f" (and {len(problems) - 1} more)" if len(problems) > 1 else ""))
     options = {}
     if args.weights:
+        from jaxplan.tuning.lattice_tuning import WEIGHT_NAMES
         from jaxplan.tuning.train import load_weights
 
-        try:
-            w = load_weights(args.weights)
+        try:  # the lattice's weight names only (the planners with weights take CostWeights)
+            w = load_weights(args.weights, allowed=WEIGHT_NAMES, planner="lattice")
         except (OSError, ValueError) as e:
             return _fail(f"--weights {args.weights}: {e}")
         options = {n: {"weights": tuple(sorted(w.items()))} for n in names if "weights" in _fields(get_factory(n))}
