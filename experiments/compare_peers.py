@@ -285,6 +285,18 @@ def _goal_reached(pp, row: list, k: int) -> bool:
                                            velocity=float(row[4]), steering_angle=0.0)))
 
 
+def _crop_route(job: dict, start) -> np.ndarray:
+    """The route from 30 m behind the start to as far as the drive can reach (a route planner may
+    return kilometres: DEU_Hhr-1_1's goal lies behind the start, at the end of a 4.6 km loop)."""
+    r = np.asarray(job["route"], float)
+    s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(r, axis=0), axis=1))])
+    near = s <= 200.0  # the route begins at the start lanelet; a loop's end may pass the start again
+    s0 = s[near][int(np.argmin(np.linalg.norm(r[near] - np.asarray(start, float), axis=1)))]
+    reach = (max(job["v_set"], job.get("v0", 0.0)) + 10.0) * job["steps"] * 0.1 + 100.0
+    keep = (s >= s0 - 30.0) & (s <= s0 + reach)
+    return r[keep] if keep.sum() >= 2 else r
+
+
 def _extend_back(ref: np.ndarray, metres: float = 10.0) -> np.ndarray:
     u = ref[0] - ref[1]
     return np.concatenate([ref[:1] + np.linspace(metres, 1.0, 10)[:, None] * u / np.linalg.norm(u), ref])
@@ -309,7 +321,8 @@ def reactive_worker(job: dict) -> dict:
     out = {"status": "ok", "cycles": [], "rows": []}
     try:
         planner = ReactivePlanner(cfg)
-        planner.set_reference_path(coordinate_system=create_coordinate_system(_extend_back(np.asarray(job["route"]))))
+        route = _extend_back(_crop_route(job, pp.initial_state.position))
+        planner.set_reference_path(coordinate_system=create_coordinate_system(route))
     except Exception as e:  # noqa: BLE001 - the peer cannot run here
         out["status"] = f"setup failed: {type(e).__name__}: {e}"
         return out
@@ -497,7 +510,7 @@ def frenetix_worker(job: dict) -> dict:
     sc, pp = _read_xml(job["xml"])
     out = {"status": "ok", "cycles": [], "rows": []}
     try:
-        loop = _FrenetixLoop(sc, pp, _extend_back(np.asarray(job["route"], float)), job["v_set"])
+        loop = _FrenetixLoop(sc, pp, _extend_back(_crop_route(job, pp.initial_state.position)), job["v_set"])
     except Exception as e:  # noqa: BLE001
         out["status"] = f"setup failed: {type(e).__name__}: {e}"
         return out
@@ -584,11 +597,14 @@ def worker_main(args) -> None:
 
 def _stats(cycles: list) -> dict:
     w = np.array([c["wall_s"] for c in cycles]) * 1e3
+    errors = [c["error"] for c in cycles if c.get("error")]
+    failed = sum(not c["found"] for c in cycles)
     if not len(w):
         return {"cycles": 0}
+    extra = {"cycles_without_plan": int(failed), **({"first_error": errors[0][:200]} if errors else {})}
     cpu = np.array([c["cpu_s"] for c in cycles]) * 1e3
     return {"cycles": int(len(w)), "plan_ms_median": float(np.median(w)), "plan_ms_mean": float(w.mean()),
-            "plan_ms_p90": float(np.percentile(w, 90)), "cpu_ms_median": float(np.median(cpu))}
+            "plan_ms_p90": float(np.percentile(w, 90)), "cpu_ms_median": float(np.median(cpu)), **extra}
 
 
 def _python_ok(p: str, what: str) -> str:
@@ -681,7 +697,7 @@ def main(argv=None) -> dict:
                 if s["notes"]:
                     timing[peer][k] = {"status": "not run: " + "; ".join(s["notes"])}
                     continue
-                job = {"xml": s["xml"], "route": routes[k]["route"], "v_set": s["v_set"], "steps": s["steps"],
+                job = {"xml": s["xml"], "route": routes[k]["route"], "v_set": s["v_set"], "steps": s["steps"], "v0": s["v0"],
                        "replan": args.replan, "horizon_steps": args.reactive_horizon_steps,
                        "t_min": args.reactive_t_min}
                 t0 = time.time()
@@ -725,12 +741,90 @@ def main(argv=None) -> dict:
               "summary": _summary(verdicts, timing, scen), "timing": timing, "args": vars(args),
               "cpu_count": os.cpu_count(), "wall_s": time.time() - t_start}
     _write_json(os.path.join(out, "compare_peers.json"), result)
+    try:
+        plots = plot_drives(result, folders, out)
+        print(f"{len(plots)} plots in {out}/plots")
+    except ImportError as e:  # the plots need jaxplan's loader and matplotlib (this interpreter)
+        print(f"no plots: {e}")
     report = render_report(result)
     with open(os.path.join(out, "report.md"), "w") as f:
         f.write(report)
     print(report)
     print(f"wrote {out}/compare_peers.json and {out}/report.md")
     return result
+
+
+def plot_drives(res: dict, folders: dict, out: str) -> list:
+    """A bird's-eye plot per scenario: lanes, obstacles at t = 0 (static filled), recorded paths,
+    every planner's driven path, where it collided (x) and where it reached the goal (*)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.patches import Polygon as Patch
+
+    sys.path.insert(0, ROOT)
+    from jaxplan.scenarios.commonroad import load_commonroad
+    from jaxplan.scenarios.loader import load_scenario
+
+    by = {label: {r["scenario"]: r for r in rows} for label, rows in res["verdicts"].items()}
+    colours = dict(zip(folders, plt.rcParams["axes.prop_cycle"].by_key()["color"]))
+    written = []
+    for key, s in res["scenarios"].items():
+        try:
+            sc = load_scenario(s["path"]) if s["path"].endswith(".json") else load_commonroad(s["path"])
+        except Exception:  # noqa: BLE001 - no plot for a scenario the loader refuses
+            continue
+        o = np.asarray(sc.origin)
+        fig, ax = plt.subplots(figsize=(9, 6))
+        for ln in sc.lanes:
+            ax.add_patch(Patch(np.vstack([ln.left, ln.right[::-1]]) + o, closed=True, fc="0.93", ec="0.7", lw=0.5))
+        boxes, valid, static = (np.asarray(sc.obstacles.boxes), np.asarray(sc.obstacles.valid),
+                                np.asarray(sc.obstacles.static))
+        for i in range(len(boxes)):
+            ok = valid[i]
+            if ok.any():
+                b = boxes[i, np.argmax(ok)]
+                c, sn = math.cos(b[4]), math.sin(b[4])
+                corners = np.array([[c * u - sn * v, sn * u + c * v] for u, v in
+                                    ((b[2] / 2, b[3] / 2), (-b[2] / 2, b[3] / 2), (-b[2] / 2, -b[3] / 2),
+                                     (b[2] / 2, -b[3] / 2))]) + b[:2] + o
+                ax.add_patch(Patch(corners, closed=True, fc="0.35" if static[i] else "none", ec="0.35", lw=0.8))
+                if not static[i]:
+                    ax.plot(boxes[i, ok, 0] + o[0], boxes[i, ok, 1] + o[1], color="0.6", lw=0.5)
+        lo, hi = np.array([np.inf, np.inf]), -np.array([np.inf, np.inf])
+        for label, folder in folders.items():
+            f = os.path.join(folder, key, "driven.json")
+            if not os.path.exists(f):
+                continue
+            with open(f) as fh:
+                st = np.asarray(json.load(fh)["states"], float)
+            v = by.get(label, {}).get(key, {})
+            tag = ("goal" if v.get("goal_reached") else "no goal") + (", collision" if v.get("collided") else "") + \
+                (", off road" if v.get("off_road") else "")
+            ax.plot(st[:, 1], st[:, 2], color=colours[label], lw=1.8, label=f"{label} ({tag})")
+            for when, marker in ((v.get("first_collision_time"), "x"), (v.get("goal_time"), "*")):
+                if when is not None:
+                    j = int(np.argmin(np.abs(st[:, 0] - when)))
+                    ax.plot(st[j, 1], st[j, 2], marker, color=colours[label], ms=11, mew=2)
+            lo, hi = np.minimum(lo, st[:, 1:3].min(0)), np.maximum(hi, st[:, 1:3].max(0))
+        if np.all(np.isfinite(lo)):
+            pad = max(25.0, 0.15 * float(np.max(hi - lo)))
+            ax.set_xlim(lo[0] - pad, hi[0] + pad)
+            ax.set_ylim(lo[1] - pad, hi[1] + pad)
+        else:
+            ax.autoscale()
+        ax.set_aspect("equal")
+        ax.set_xlabel("x (m)")
+        ax.set_ylabel("y (m)")
+        ax.set_title(f"{key}: closed-loop drives (set speed {s.get('v_set', float('nan')):.1f} m/s)")
+        ax.legend(loc="best", fontsize=8)
+        path = os.path.join(out, "plots", key.replace("@", "_at_") + ".png")
+        os.makedirs(os.path.dirname(path), exist_ok=True)
+        fig.savefig(path, dpi=90, bbox_inches="tight")
+        plt.close(fig)
+        written.append(path)
+    return written
 
 
 def _jaxplan_timing(folder: str, label: str) -> dict:
@@ -786,6 +880,12 @@ def render_report(res: dict) -> str:
     for label, s in res["summary"].items():
         if s["not_judged"]:
             lines.append(f"Not judged ({label}): " + "; ".join(f"{k}: {v}" for k, v in s["not_judged"].items()))
+    for label, t in res["timing"].items():
+        bad = {k: r for k, r in t.items() if isinstance(r, dict) and r.get("status") not in (None, "goal", "ok")}
+        if bad:
+            lines += ["", f"Drives that ended before the goal or its time window ({label}):", ""]
+            lines += [f"- {k}: {r['status']}" + (f" (first error: {r['first_error']})" if r.get("first_error") else "")
+                      for k, r in bad.items()]
     lines += ["", "## Per scenario", "", "| scenario | v_set (m/s) | " + " | ".join(res["summary"]) + " |",
               "| --- | --- | " + " | ".join("---" for _ in res["summary"]) + " |"]
     by = {label: {r["scenario"]: r for r in rows} for label, rows in res["verdicts"].items()}
