@@ -286,18 +286,20 @@ def _goal_reached(pp, row: list, k: int) -> bool:
 
 
 def _crop_route(job: dict, start) -> np.ndarray:
-    """The route from 30 m behind the start to as far as the drive can reach (a route planner may
-    return kilometres: DEU_Hhr-1_1's goal lies behind the start, at the end of a 4.6 km loop)."""
+    """The route up to 1 km past what the drive can reach (a route planner may return kilometres:
+    DEU_Hhr-1_1's goal lies behind the start, at the end of a 4.6 km loop); its start as given."""
     r = np.asarray(job["route"], float)
     s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(r, axis=0), axis=1))])
     near = s <= 200.0  # the route begins at the start lanelet; a loop's end may pass the start again
     s0 = s[near][int(np.argmin(np.linalg.norm(r[near] - np.asarray(start, float), axis=1)))]
     reach = (max(job["v_set"], job.get("v0", 0.0)) + 10.0) * job["steps"] * 0.1 + 100.0
-    keep = (s >= s0 - 30.0) & (s <= s0 + reach)
+    keep = s <= s0 + reach + 1000.0
     return r[keep] if keep.sum() >= 2 else r
 
 
 def _extend_back(ref: np.ndarray, metres: float = 10.0) -> np.ndarray:
+    """The route extended ``metres`` straight backwards (the peers plan from the rear axle, which can lie
+    behind the route's first point)."""
     u = ref[0] - ref[1]
     return np.concatenate([ref[:1] + np.linspace(metres, 1.0, 10)[:, None] * u / np.linalg.norm(u), ref])
 
@@ -834,8 +836,12 @@ def _jaxplan_timing(folder: str, label: str) -> dict:
         return {}
     with open(f) as fh:
         m = json.load(fh)
-    flat = m if isinstance(m, dict) else {}
-    vals = {k: v for k, v in flat.items() if k.endswith(".plan_ms_median") and isinstance(v, (int, float))}
+    flat, todo = {}, [("", m)]
+    while todo:  # flat ("drive.lattice.plan_ms_median": ...) or nested metrics alike
+        pre, d = todo.pop()
+        for k, v in (d.items() if isinstance(d, dict) else ()):
+            (todo.append((f"{pre}{k}.", v)) if isinstance(v, dict) else flat.__setitem__(f"{pre}{k}", v))
+    vals = {k: v for k, v in flat.items() if k.endswith("plan_ms_median") and isinstance(v, (int, float))}
     return {"_all": {"plan_ms_median": next(iter(vals.values()))}} if vals else {}
 
 
