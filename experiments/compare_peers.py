@@ -6,8 +6,9 @@ exactly (perfect tracking). All follow the same route (the reference path of ``r
 get the same set speed, and drive the BMW 320i (4.508 m x 1.61 m, the reactive planner's and
 Frenetix's car). A drive ends when the goal is reached (CommonRoad's rule, on the car's centre),
 at the end of the goal's time interval, or after ``--max-steps``. When a planner finds no
-trajectory, the car goes on along its previous plan and the planner tries again next step; a
-drive whose previous plan runs out ends there.
+trajectory (or raises), the car goes on along its previous plan and the planner tries again next
+step; with no plan left, the car brakes straight ahead at 8 m/s^2 (to a stand) and the planner
+tries again every step.
 
 Peers, each in its own virtual environment (their pins conflict with jaxplan's commonroad-io
 2026.1); this script runs itself there as child processes (``--worker``), trajectories go
@@ -75,6 +76,7 @@ machine they are noisy.
 from __future__ import annotations
 
 import argparse
+import copy
 import glob
 import importlib
 import json
@@ -278,6 +280,16 @@ def _centre_row(k: int, dt: float, rear_x, rear_y, th, v, a) -> list:
             float(th), float(v), float(a)]
 
 
+BRAKE = 8.0  # m/s^2: the fallback when a planner has no plan left (straight ahead, then standing)
+
+
+def _brake(x: tuple, dt: float) -> tuple:
+    """One step of the fallback from rear-axle state ``(x, y, theta, v, a)``: brake straight ahead."""
+    v1 = max(0.0, x[3] - BRAKE * dt)
+    d = 0.5 * (x[3] + v1) * dt
+    return (x[0] + d * math.cos(x[2]), x[1] + d * math.sin(x[2]), x[2], v1, -BRAKE if x[3] > 0 else 0.0)
+
+
 def _goal_reached(pp, row: list, k: int) -> bool:
     from commonroad.scenario.state import KSState
     return bool(pp.goal.is_reached(KSState(time_step=int(k), position=np.array(row[1:3]),
@@ -349,14 +361,22 @@ def reactive_worker(job: dict) -> dict:
             plan_ok = bool(res)
             if res:
                 plan, since = (res[0].state_list, res[1], res[2]), 0
-        if plan is None or since + 1 >= len(plan[0]):
-            out["status"] = "no trajectory (previous plan used up)"
-            break
-        since += 1
-        nxt = plan[0][since]
-        planner.record_state_and_input(nxt)
-        planner.reset(initial_state_cart=nxt, initial_state_curv=(plan[1][since], plan[2][since]),
-                      collision_checker=planner.collision_checker, coordinate_system=planner.coordinate_system)
+        if plan is None or since + 1 >= len(plan[0]):  # no plan left: brake, plan again next step
+            x = planner.x_0
+            b = _brake((*x.position, x.orientation, x.velocity, getattr(x, "acceleration", 0.0) or 0.0), dt)
+            nxt = copy.deepcopy(x)
+            nxt.time_step, nxt.position, nxt.velocity, nxt.acceleration = k + 1, np.array(b[:2]), b[3], b[4]
+            out["braked_steps"] = out.get("braked_steps", 0) + 1
+            plan, curv = None, None
+        else:
+            since += 1
+            nxt = plan[0][since]
+            curv = (plan[1][since], plan[2][since])
+        try:
+            planner.reset(initial_state_cart=nxt, initial_state_curv=curv, collision_checker=planner.collision_checker,
+                          coordinate_system=planner.coordinate_system)
+        except Exception:  # noqa: BLE001 - the braked state lies outside its frame: it plans again next step
+            planner.x_0, planner.x_0_cl = nxt, None
         rows.append(_centre_row(k + 1, dt, *nxt.position, nxt.orientation, nxt.velocity,
                                 getattr(nxt, "acceleration", 0.0) or 0.0))
     else:
@@ -543,13 +563,14 @@ def frenetix_worker(job: dict) -> dict:
                 plan = (np.column_stack([c.x, c.y, c.theta, c.v, c.a]),
                         np.column_stack([cl.s, cl.s_dot, cl.s_ddot, cl.d, cl.d_dot, cl.d_ddot]))
                 since = 0
-        if plan is None or since + 1 >= len(plan[0]):
-            out["status"] = "no trajectory (previous plan used up)"
-            break
-        since += 1
-        x = tuple(float(v) for v in plan[0][since])
-        q = plan[1][since]
-        x_cl = ([q[0], q[1], q[2]], [q[3], q[4], q[5]])
+        if plan is None or since + 1 >= len(plan[0]):  # no plan left: brake, plan again next step
+            x, x_cl, plan = _brake(x, dt), None, None
+            out["braked_steps"] = out.get("braked_steps", 0) + 1
+        else:
+            since += 1
+            x = tuple(float(v) for v in plan[0][since])
+            q = plan[1][since]
+            x_cl = ([q[0], q[1], q[2]], [q[3], q[4], q[5]])
         rows.append(_centre_row(k + 1, dt, *x))
     else:
         if _goal_reached(pp, rows[-1], k0 + len(rows) - 1):
@@ -711,8 +732,10 @@ def main(argv=None) -> dict:
                     _write_json(os.path.join(out, peer, k, "driven.json"), {
                         "scenario": k, "planner": peer, "dt": info[k]["dt"],
                         "vehicle": {"length": CAR_LENGTH, "width": CAR_WIDTH}, "states": res["rows"]})
-                _write_json(os.path.join(out, peer, k, "cycles.json"), {"status": res["status"], "cycles": res["cycles"]})
-                timing[peer][k] = {"status": res["status"], **_stats(res["cycles"])}
+                braked = int(res.get("braked_steps", 0))
+                _write_json(os.path.join(out, peer, k, "cycles.json"), {"status": res["status"], "cycles": res["cycles"],
+                                                                        "braked_steps": braked})
+                timing[peer][k] = {"status": res["status"], "braked_steps": braked, **_stats(res["cycles"])}
                 print(f"{peer:9s} {k:40s} {res['status'][:60]:60s} {len(res['rows']):4d} rows "
                       f"{timing[peer][k].get('plan_ms_median', float('nan')):8.1f} ms/cycle ({time.time() - t0:.0f} s)",
                       flush=True)
@@ -732,7 +755,8 @@ def main(argv=None) -> dict:
                 if os.path.exists(f):
                     with open(f) as fh:
                         c = json.load(fh)
-                    timing.setdefault(peer, {})[k] = {"status": c["status"], **_stats(c["cycles"])}
+                    timing.setdefault(peer, {})[k] = {"status": c["status"], "braked_steps": c.get("braked_steps", 0),
+                                                      **_stats(c["cycles"])}
     folders = {p: os.path.join(out, p) for p in args.peers}
     folders.update(drives)
     verdicts = child(referee_py, "judge", {"folders": folders,
@@ -887,11 +911,13 @@ def render_report(res: dict) -> str:
         if s["not_judged"]:
             lines.append(f"Not judged ({label}): " + "; ".join(f"{k}: {v}" for k, v in s["not_judged"].items()))
     for label, t in res["timing"].items():
-        bad = {k: r for k, r in t.items() if isinstance(r, dict) and r.get("status") not in (None, "goal", "ok")}
+        bad = {k: r for k, r in t.items() if isinstance(r, dict) and (r.get("status") not in (None, "goal", "ok")
+                                                                        or r.get("braked_steps"))}
         if bad:
-            lines += ["", f"Drives that ended before the goal or its time window ({label}):", ""]
-            lines += [f"- {k}: {r['status']}" + (f" (first error: {r['first_error']})" if r.get("first_error") else "")
-                      for k, r in bad.items()]
+            lines += ["", f"Drives where {label} had no plan (the car braked on the fallback), or did not run:", ""]
+            lines += [f"- {k}: {r['status']}, {r.get('braked_steps', 0)} steps braking, "
+                      f"{r.get('cycles_without_plan', 0)} of {r.get('cycles', 0)} planning calls without a plan"
+                      + (f" (first error: {r['first_error']})" if r.get("first_error") else "") for k, r in bad.items()]
     lines += ["", "## Per scenario", "", "| scenario | v_set (m/s) | " + " | ".join(res["summary"]) + " |",
               "| --- | --- | " + " | ".join("---" for _ in res["summary"]) + " |"]
     by = {label: {r["scenario"]: r for r in rows} for label, rows in res["verdicts"].items()}
