@@ -77,7 +77,6 @@ from __future__ import annotations
 
 import argparse
 import copy
-import glob
 import importlib
 import json
 import math
