@@ -1,9 +1,9 @@
 """``jaxplan drive PATHS... --planner NAME --out DIR``: closed-loop drives (see ``jaxplan.sim.drive``)."""
 from __future__ import annotations
 
-import argparse
-import os
 import sys
+
+from jaxplan import cli_args as ca
 
 
 def add_parser(sub) -> None:
@@ -14,13 +14,13 @@ def add_parser(sub) -> None:
     d.add_argument("--planner", default="lattice",
                    help="planner name, several separated by commas, or 'all' (every planner that loads, "
                         "the baselines brake and idm included)")
-    d.add_argument("--out", required=True, help="output folder")
-    d.add_argument("--replan-every", type=int, default=3, help="steps between re-plans (default 3 = 0.3 s)")
+    d.add_argument("--out", required=True, type=ca.output_dir, help="output folder")
+    d.add_argument("--replan-every", type=ca.positive_int, default=3, help="steps between re-plans (default 3 = 0.3 s)")
     d.add_argument("--tracking", choices=("exact", "bicycle"), default="exact", help="tracking model (default exact)")
-    d.add_argument("--max-steps", type=int, default=None, help="step cap of a drive (default 200 = 20 s)")
+    d.add_argument("--max-steps", type=ca.positive_int, default=None, help="step cap of a drive (default 200 = 20 s)")
     d.add_argument("--animate", action="store_true", help="also write a GIF per drive")
     d.add_argument("--quick", action="store_true", help="fewer built-in scenes")
-    d.add_argument("--seed", type=int, default=0, help="seed of the built-in scenes")
+    d.add_argument("--seed", type=ca.nonnegative_int, default=0, help="seed of the built-in scenes")
     d.add_argument("--weights", help="cost weights JSON (jaxplan tune) for the planners that take them")
 
 
@@ -31,16 +31,11 @@ def _fail(msg: str) -> int:
 
 def run(args) -> int:
     from jaxplan.planner import get_factory, loadable_planners
-    from jaxplan.sim.drive import DEFAULT_MAX_STEPS, drive, expand_paths, n_steps_for
+    from jaxplan.scenarios.files import expand_paths
+    from jaxplan.sim.drive import DEFAULT_MAX_STEPS, drive, n_steps_for
 
     if not args.paths and not args.builtin:
         return _fail("give scenario files or folders, or --builtin")
-    if args.replan_every < 1:
-        return _fail(f"--replan-every must be >= 1, got {args.replan_every}")
-    if args.max_steps is not None and args.max_steps < 1:
-        return _fail(f"--max-steps must be >= 1, got {args.max_steps}")
-    if os.path.exists(args.out) and not os.path.isdir(args.out):
-        return _fail(f"--out {args.out}: exists and is not a folder")
     names = loadable_planners() if args.planner == "all" else [p.strip() for p in args.planner.split(",") if p.strip()]
     if not names:
         return _fail("--planner: no planner named")
@@ -49,9 +44,10 @@ def run(args) -> int:
             get_factory(n)
         except ValueError as e:
             return _fail(f"--planner: {e}")
-    files, problems = expand_paths(args.paths)
-    if problems:
-        return _fail(problems[0] + (f" (and {len(problems) - 1} more)" if len(problems) > 1 else ""))
+    try:
+        files = expand_paths(args.paths)
+    except ValueError as e:
+        return _fail(str(e))
     options = {}
     if args.weights:
         from jaxplan.tuning.lattice_tuning import WEIGHT_NAMES
@@ -63,7 +59,7 @@ def run(args) -> int:
             return _fail(f"--weights {args.weights}: {e}")
         options = {n: {"weights": tuple(sorted(w.items()))} for n in names if "weights" in _fields(get_factory(n))}
     from jaxplan.scenarios.loader import ScenarioError
-    from jaxplan.scenarios.scene import load_records
+    from jaxplan.scenarios.scene import load_records, unique_names
 
     records, skipped = [], []
     for f in files:
@@ -80,6 +76,7 @@ def run(args) -> int:
         records += builtin_records(quick=args.quick, seed=args.seed)
     if not records:
         return _fail("no scenario could be loaded")
+    records = unique_names(records)
     from jaxplan.sim.rollout import SimConfig
 
     cap = args.max_steps or DEFAULT_MAX_STEPS
