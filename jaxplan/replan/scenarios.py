@@ -15,13 +15,13 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxplan.replan.planner import SimplePlanner
+from jaxplan.replan.path_planner import ApproachPlanner, nominal_forward_path
 from jaxplan.replan.simulator import Scenario
 
 R, P, D = 1, 2, 1
 
 
-def sample_scenarios(seed: int, n: int, kind: str = "park", planner: SimplePlanner = SimplePlanner(),
+def sample_scenarios(seed: int, n: int, kind: str = "park", planner: ApproachPlanner = ApproachPlanner(),
                      max_bias: float = 0.8, p_real: float = 0.5, p_phantom: float = 0.6, p_dyn: float = 0.35,
                      goal_sigma: float = 0.15) -> Scenario:
     """``n`` scenarios of ``kind`` ``"park"`` or ``"drive"``, stacked on a leading axis."""
@@ -41,7 +41,7 @@ def sample_scenarios(seed: int, n: int, kind: str = "park", planner: SimplePlann
         else:
             goal = np.array([rng.uniform(25, 35), rng.uniform(-0.5, 0.5), rng.uniform(-0.05, 0.05)])
             bias = np.zeros(3)
-        xy = planner.nominal_forward_path(start, goal, park)
+        xy = nominal_forward_path(planner, start, goal, park)
         d = np.diff(xy, axis=0)
         th = np.arctan2(d[:, 1], d[:, 0])
 
