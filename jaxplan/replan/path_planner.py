@@ -23,7 +23,8 @@ end it can reach instead of looping; a car standing at its target gets an empty 
 model, and its car boxes (grown by ``margin``) are checked against every obstacle
 *where that obstacle is predicted to be when the car gets there* (constant velocity,
 swept over ``[t - before, t + after]``, :func:`jaxplan.replan.prediction.plan_separation`).
-Cost: length, penalties for back-up / pull-forward / goal-region targets, and a large
+Cost: length (reverse metres count ``reverse_weight`` times), penalties for back-up /
+pull-forward / goal-region targets, and a large
 penalty for a collision (the cheapest colliding candidate is returned with ``ok = False``
 when none is free; the supervisor then keeps its old plan).
 """
@@ -81,6 +82,7 @@ class ApproachPlanner:
     before: float = 0.5
     after: float = 2.0
     back_up_cost: float = 6.0
+    reverse_weight: float = 2.0
     region_cost: float = 0.5
     v_stopped: float = 0.05
     max_obstacles: int = 4
@@ -235,7 +237,7 @@ class ApproachPlanner:
             (jnp.abs(jnp.sin(0.5 * (final_target[2] - start[2]))) < 1e-3)
         first_gear = jnp.where(valid_b, -1, jnp.where(valid_f, 1, jnp.where(valid_r, -1, jnp.sign(r.speed))))
         gear_ok = ~moving | (first_gear == jnp.sign(r.speed))
-        length = back_len + jnp.where(valid_f, len_f, 0.0) + jnp.where(valid_r, len_r, 0.0)
+        length = self.reverse_weight * (back_len + jnp.where(valid_r, len_r, 0.0)) + jnp.where(valid_f, len_f, 0.0)
         reaches = ok_f & (ok_r | ~has_rev) & (any_valid | at_target) & gear_ok
         approach = park & ~final_leg  # j indexes the pre-poses; else 0: goal, 1: goal region, 2+: unused
         extra = (self.back_up_cost * (valid_b | (pull_len > 0)) + self.region_cost * (~approach & (j == 1))
