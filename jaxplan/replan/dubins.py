@@ -37,9 +37,14 @@ def _mod2pi(x):
     return x - _TWO_PI * jnp.floor(x / _TWO_PI)
 
 
+SNAP = 1e-2
+
+
 def _snap(x):
-    """Angles within 1e-4 of a full turn are no turn (rounding of a zero-length arc)."""
-    return jnp.where(x > _TWO_PI - 1e-4, 0.0, x)
+    """An arc within ``SNAP`` rad of a full turn is no turn: float32 rounding of a zero-length
+    arc (from a start a hair off an earlier path) must not become a loop. The path then ends
+    up to ``radius * SNAP`` off its target; callers check the end pose (see :func:`end_pose`)."""
+    return jnp.where(x > _TWO_PI - SNAP, 0.0, x)
 
 
 def word_lengths(start, end, radius):
@@ -129,6 +134,13 @@ def _advance(pose, sign, length, radius):
     straight = sign == 0
     return jnp.stack([jnp.where(straight, x + length * jnp.cos(h), arc_x),
                       jnp.where(straight, y + length * jnp.sin(h), arc_y), h2], -1)
+
+
+def end_pose(path: DubinsPath):
+    """Where ``path`` ends ``(..., 3)``."""
+    p1 = _advance(path.start, path.signs[..., 0], path.lengths[..., 0], path.radius)
+    p2 = _advance(p1, path.signs[..., 1], path.lengths[..., 1], path.radius)
+    return _advance(p2, path.signs[..., 2], path.lengths[..., 2], path.radius)
 
 
 def sample(path: DubinsPath, u):

@@ -57,6 +57,15 @@ def _flip(pose):
     return pose.at[..., 2].add(jnp.pi)
 
 
+def _unflip(pose):
+    return pose.at[..., 2].add(-jnp.pi)
+
+
+def _pose_err(a, b):
+    """(distance, |heading difference|) between poses ``(3,)``."""
+    return jnp.linalg.norm(a[:2] - b[:2]), jnp.abs(jnp.arctan2(jnp.sin(a[2] - b[2]), jnp.cos(a[2] - b[2])))
+
+
 @dataclasses.dataclass(frozen=True)
 class ApproachPlanner:
     """Candidate-set Dubins planner (static config, hashable); ``__call__(PlanRequest) -> Plan``.
@@ -78,6 +87,7 @@ class ApproachPlanner:
     chord_offsets: tuple = (2.5, -2.5)
     obstacle_clearance: float = 0.6
     goal_tol: tuple = (0.2, 0.1)
+    end_tol: tuple = (0.05, 0.02)
     margin: float = 0.2
     before: float = 0.5
     after: float = 2.0
@@ -196,14 +206,16 @@ class ApproachPlanner:
         pulled = q.at[:2].add(pull_len * _unit(q[2]))
         fwd_end = jnp.where(final_leg, pulled, tgt_fwd)
         via = jnp.where(final_leg | ~via_used, fwd_end, via)
+        # Each piece starts where the previous one really ends (continuous path); the end is checked.
         p1 = dubins.shortest(q, via, R)
-        p2 = dubins.shortest(via, fwd_end, R)
+        p2 = dubins.shortest(dubins.end_pose(p1), fwd_end, R)
         fwd, kf, len_f, ok_f = self._leg([p1, p2], self.n_fwd)
+        fwd_real = dubins.end_pose(p2)
         # Reverse leg into the slot: from the pre-pose (approach) or from the car / pulled pose (final leg).
         rev_goal = jnp.where(final_leg, goal_j, r.goal)
-        rp = dubins.shortest(_flip(fwd_end), _flip(rev_goal), R)
+        rp = dubins.shortest(_flip(fwd_real), _flip(rev_goal), R)
         rev, kr, len_r, ok_r = self._leg([rp], self.n_rev)
-        rev = _flip(rev)
+        rev = _unflip(rev)
         has_rev = park | final_leg
         valid_b = back_len > 1e-3
         valid_f = len_f > 1e-3
@@ -238,7 +250,10 @@ class ApproachPlanner:
         first_gear = jnp.where(valid_b, -1, jnp.where(valid_f, 1, jnp.where(valid_r, -1, jnp.sign(r.speed))))
         gear_ok = ~moving | (first_gear == jnp.sign(r.speed))
         length = self.reverse_weight * (back_len + jnp.where(valid_r, len_r, 0.0)) + jnp.where(valid_f, len_f, 0.0)
-        reaches = ok_f & (ok_r | ~has_rev) & (any_valid | at_target) & gear_ok
+        real_end = jnp.where(has_rev, _unflip(dubins.end_pose(rp)), fwd_real)
+        e_pos, e_yaw = _pose_err(real_end, final_target)
+        close = (e_pos <= self.end_tol[0]) & (e_yaw <= self.end_tol[1])
+        reaches = ok_f & (ok_r | ~has_rev) & (any_valid | at_target) & gear_ok & close
         approach = park & ~final_leg  # j indexes the pre-poses; else 0: goal, 1: goal region, 2+: unused
         extra = (self.back_up_cost * (valid_b | (pull_len > 0)) + self.region_cost * (~approach & (j == 1))
                  + 1e6 * ~reaches + 1e6 * (~approach & (j > 1)))
