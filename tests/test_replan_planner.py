@@ -7,7 +7,6 @@ import functools
 import jax
 import jax.numpy as jnp
 import numpy as np
-import pytest
 import shapely
 
 from jaxplan.replan import ApproachPlanner, PlanRequest, max_curvature

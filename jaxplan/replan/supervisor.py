@@ -53,7 +53,7 @@ import jax.numpy as jnp
 
 from jaxplan.geometry.boxes import poses_to_boxes
 from jaxplan.replan.longitudinal import MotionLimits, advance, arrival_times
-from jaxplan.replan.planner import Plan, PlanRequest
+from jaxplan.replan.planner import Plan, PlanRequest, finish_plan
 from jaxplan.replan.prediction import first_contact, plan_separation
 from jaxplan.replan.queue import (BrakeStop, CollisionQueue, ObstacleMemory, brake_init, memory_init, memory_update,
                                   queue_expire, queue_init, queue_push, queue_reanchor, update_brake_stop)
@@ -317,8 +317,6 @@ def stitch(old: Plan, s_from, s_to, gear, new: Plan, v0, cfg: SupervisorConfig) 
     ``gear``, then the new plan; speed profile and time stamps again from speed ``v0``.
 
     Returns a plan of ``prefix_points + N`` points (``N`` the new plan's)."""
-    from jaxplan.replan.planner import finish_plan
-
     n_p = cfg.prefix_points
     u = jnp.linspace(0.0, 1.0, n_p)
     sp = s_from + u * (s_to - s_from)
