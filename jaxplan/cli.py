@@ -1,4 +1,5 @@
-"""Command line: ``jaxplan eval SUITE``, ``jaxplan tune PLANNER``, ``jaxplan report DIR`` (also ``python -m jaxplan``)."""
+"""Command line: ``jaxplan drive PATHS``, ``jaxplan eval SUITE``, ``jaxplan tune PLANNER``, ``jaxplan report DIR``
+(also ``python -m jaxplan``)."""
 from __future__ import annotations
 
 import argparse
@@ -25,7 +26,12 @@ def main(argv=None) -> int:
     t.add_argument("--seed", type=int, default=0)
     r = sub.add_parser("report", help="write RESULTS_DIR/report.md from its metrics and plots")
     r.add_argument("results_dir")
+    from jaxplan.sim import cli as drive_cli
+
+    drive_cli.add_parser(sub)
     args = p.parse_args(argv)
+    if args.cmd == "drive":
+        return drive_cli.run(args)
     if args.cmd == "report":
         from jaxplan.eval.report import write_report
 

@@ -282,14 +282,26 @@ class Obstacles:
         inside = (k >= 0) & (k < T)
         kc = jnp.clip(k, 0, T - 1)
         static = jnp.asarray(self.static, bool)
-        first = jnp.argmax(self.valid, axis=-1)  # (..., K) first valid step of each obstacle
-        held = jnp.take_along_axis(self.boxes, first[..., None, None], axis=-2)  # (..., K, 1, 5)
-        b = jnp.where(static[..., None, None], held, jnp.take(self.boxes, kc, axis=-2))
         v = jnp.take(self.valid, kc, axis=-1) & inside
         v = jnp.where(static[..., None], jnp.any(self.valid, axis=-1, keepdims=True), v)
         dt = self.t[..., 1:2] - self.t[..., :1] if T > 1 else jnp.ones_like(self.t[..., :1])
         t = self.t[..., :1] + dt * k.astype(self.t.dtype)
-        return Obstacles(b, v, t, static)
+        return Obstacles(self.window_of(self.boxes, start, n_steps), v, t, static)
+
+    def window_of(self, values, start, n_steps: int):
+        """Any per-obstacle, per-step array ``values (..., K, T, ...)`` (e.g. the obstacles'
+        Frenet coordinates) over the steps of ``window(start, n_steps)``: static obstacles
+        hold their first valid step's value. Returns ``(..., K, n_steps, ...)``."""
+        nb = self.valid.ndim  # axes up to and including T
+        T = self.valid.shape[-1]
+        k = jnp.clip(jnp.asarray(start) + jnp.arange(n_steps), 0, T - 1)
+        first = jnp.argmax(self.valid, axis=-1)  # (..., K)
+        extra = values.ndim - nb
+        idx = first.reshape(first.shape + (1,) + (1,) * extra)
+        held = jnp.take_along_axis(values, idx, axis=nb - 1)  # (..., K, 1, ...)
+        moving = jnp.take(values, k, axis=nb - 1)
+        st = jnp.asarray(self.static, bool).reshape(self.static.shape + (1,) * (extra + 1))
+        return jnp.where(st, held, moving)
 
     def aligned(self, n_steps: int) -> "Obstacles":
         """The first ``n_steps`` predictions (``window(0, n_steps)``): cut, or padded past the end."""

@@ -36,6 +36,7 @@ from jaxplan.geometry.polygons import (
     overlap_polygon,
     overlap_polygon_tagged,
     points_in_polygon,
+    points_in_simple_polygon,
     polygon_area,
     polygon_edges,
     separation,

@@ -61,10 +61,17 @@ def _goal(goal, dt: float) -> dict:
     if st is None:
         return out
     pos = getattr(st, "position", None)
-    if pos is not None:
-        f = _shape_fields(pos)
-        if "center" in f:
-            out["rectangle"] = f
+    if pos is not None and not lanelets:
+        group = getattr(pos, "shapes", None)
+        shape = group[0] if group else pos  # a shape group: its first shape
+        if hasattr(shape, "radius"):
+            out["circle"] = {"center": _point(getattr(shape, "center", None)).tolist(), "radius": float(shape.radius)}
+        else:
+            f = _shape_fields(shape)
+            if "center" in f:
+                out["rectangle"] = f
+            elif "polygon" in f:
+                out["polygon"] = f["polygon"]
     ts = getattr(st, "time_step", None)
     if ts is not None and hasattr(ts, "start"):
         out["time"] = [float(ts.start) * dt, float(ts.end) * dt]
