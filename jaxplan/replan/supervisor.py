@@ -20,7 +20,7 @@ that the planner flagged as not reaching the goal (``OBSTACLE``, once per
 Everything else is the same for every strategy (:func:`supervise`, :func:`submit`):
 
 * **Collision points** at ``collision_hz`` on the current sub-trajectory from the
-  tracking point, time-aware (each plan point is checked against where every
+  tracking point, time-aware (each plan point, the car box grown by ``clearance``, is checked against where every
   perceived obstacle is predicted to be when the car gets there,
   :mod:`jaxplan.replan.prediction`), into the time-stamped queue; the brake-stop
   point ``brake_safety`` before the nearest entry.
@@ -78,6 +78,8 @@ class SupervisorConfig:
     least one); ``debounce_s``: least time between two immediate re-plans;
     ``before`` / ``after``: the prediction window of the time-aware collision test;
     ``stitch_tol``: how far the car may be past the start of a new plan when it arrives;
+    ``clearance``: the car boxes of the collision test are grown by this much on each side
+    (the tracking error; the planner keeps a larger margin);
     ``keep_s``: a re-plan whose start would lie this close to the end of the current
     sub-trajectory starts at that end instead (the old plan is kept up to there);
     ``prefix_points``: points of the kept stretch of the old plan.
@@ -103,6 +105,7 @@ class SupervisorConfig:
     before: float = 0.5
     after: float = 2.0
     stitch_tol: float = 0.3
+    clearance: float = 0.15
     keep_s: float = 3.0
     prefix_points: int = 16
     limits: MotionLimits = MotionLimits()
@@ -112,7 +115,7 @@ class SupervisorConfig:
             if not float(getattr(self, f)) > 0:
                 raise ValueError(f"SupervisorConfig.{f} must be positive, got {getattr(self, f)}")
         for f in ("window_s", "brake_safety", "goal_pos_thresh", "goal_yaw_thresh", "lost_time", "retry_s",
-                  "latency_s", "debounce_s", "before", "after", "keep_s"):
+                  "latency_s", "debounce_s", "before", "after", "keep_s", "clearance"):
             if not float(getattr(self, f)) >= 0:
                 raise ValueError(f"SupervisorConfig.{f} must be >= 0, got {getattr(self, f)}")
         for f in ("queue_size", "track_window", "max_sub", "prefix_points"):
@@ -270,13 +273,18 @@ def init(plan_like: Plan, pose, goal, n_obstacles: int, cfg: SupervisorConfig, v
     lo, hi, dirs, nsub = sub_trajectories(plan.traj.gear, plan.valid, cfg.max_sub)
     z, zi, f = jnp.zeros(()), jnp.zeros((), jnp.int32), jnp.zeros((), bool)
     return SupervisorState(
-        plan=plan, boxes=poses_to_boxes(plan.traj.xy, plan.traj.theta, vehicle), lo=lo, hi=hi, dirs=dirs, nsub=nsub,
+        plan=plan, boxes=_car_boxes(plan, vehicle, cfg), lo=lo, hi=hi, dirs=dirs, nsub=nsub,
         k=zi, track_idx=zi, lost_t=z, queue=queue_init(cfg.queue_size), memory=memory_init(n_obstacles),
         brake=brake_init(), plan_goal=jnp.asarray(goal, jnp.float32), last_replan_t=z, tick=zi, pending=f,
         pending_plan=placeholder_plan(plan_like, pose), ready_t=z, req_s=z, req_v=z, stitch_s=z,
         pending_goal=jnp.asarray(goal, jnp.float32),
         first=jnp.ones((), bool), done=f, n_replan=zi, n_replan_moving=zi, n_reason=jnp.zeros((5,), jnp.int32),
         n_rejected=jnp.zeros((3,), jnp.int32), n_jumps=zi)
+
+
+def _car_boxes(plan: Plan, vehicle: VehicleParams, cfg: SupervisorConfig):
+    """Car boxes ``(N, 5)`` along a plan, grown by ``cfg.clearance`` on each side."""
+    return poses_to_boxes(plan.traj.xy, plan.traj.theta, vehicle).at[:, 2:4].add(2 * cfg.clearance)
 
 
 def _contacts(plan: Plan, boxes, check, tau, obs, vel, age, valid, cfg: SupervisorConfig):
@@ -364,7 +372,7 @@ def supervise(state: SupervisorState, car: CarState, per: Perception, goal_est, 
     arrive = state.pending & (t >= state.ready_t - 1e-4)
     old = state.plan
     new = stitch(old, state.req_s, state.stitch_s, state.dirs[state.k], state.pending_plan, state.req_v, cfg)
-    new_boxes = poses_to_boxes(new.traj.xy, new.traj.theta, vehicle)
+    new_boxes = _car_boxes(new, vehicle, cfg)
     s_rel = car.s - state.req_s
     stale = (s_rel < -cfg.stitch_tol) | (car.s > state.stitch_s + cfg.stitch_tol)
     collides, (lo_n, hi_n, dirs_n, nsub_n) = check_new_plan(new, new_boxes, jnp.maximum(s_rel, 0.0), speed, per, cfg)
@@ -426,7 +434,10 @@ def supervise(state: SupervisorState, car: CarState, per: Perception, goal_est, 
     at_gear_shift = (k < st.nsub - 1) & at_end
     at_final = (k == st.nsub - 1) & at_end
     at_brake = brake.active & (brake.s - s < cfg.at_point_tol)
-    moved = goal_moved(goal_est, st.plan_goal, cfg)
+    # The goal moved: the believed goal is off where the plan ends (not off the goal it was made for:
+    # a plan may end anywhere in the planner's goal region).
+    plan_end = jnp.stack([plan.traj.x[old_last], plan.traj.y[old_last], plan.traj.theta[old_last]])
+    moved = goal_moved(goal_est, plan_end, cfg)
     lost = lost_t >= cfg.lost_time
     arrived = ~st.first & at_final & stopped & ~at_brake & plan.ok & ~st.pending
     done = st.done | arrived
