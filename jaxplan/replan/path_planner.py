@@ -19,7 +19,8 @@ The final target is the goal or, at a small extra cost, a pose of the goal regio
 (``goal_tol`` = (distance, yaw), the supervisor's goal-moved thresholds): the current
 plan's end while it lies in the region, else the region's pose nearest the car. So a
 re-plan just before the goal, with the believed goal moved a few centimetres, keeps the
-end it can reach instead of looping; a car standing at its target gets an empty plan. Each candidate gets the speed profile and time stamps of the shared longitudinal
+end it can reach instead of looping; a car standing at its target gets an empty plan.
+Each candidate gets the speed profile and time stamps of the shared longitudinal
 model, and its car boxes (grown by ``margin``) are checked against every obstacle
 *where that obstacle is predicted to be when the car gets there* (constant velocity,
 swept over ``[t - before, t + after]``, :func:`jaxplan.replan.prediction.plan_separation`).

@@ -206,7 +206,8 @@ def _plan_shape(cfg: SimConfig, n_obs: int):
     """Shapes of the planner's plan (``jax.eval_shape``)."""
     z3 = jnp.zeros((3,))
     req = PlanRequest(z3, jnp.zeros(()), jnp.ones((), jnp.int32), jnp.ones((), jnp.int32), z3,
-                      jnp.zeros((n_obs, 5)), jnp.zeros((n_obs, 2)), jnp.zeros((n_obs,), bool), jnp.zeros((), bool), z3, z3)
+                      jnp.zeros((n_obs, 5)), jnp.zeros((n_obs, 2)), jnp.zeros((n_obs,), bool), jnp.zeros((), bool),
+                      z3, z3)
     return jax.eval_shape(cfg.planner, req)
 
 

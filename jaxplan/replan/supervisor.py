@@ -136,7 +136,8 @@ class SupervisorConfig:
 def goal_moved(goal_est, plan_goal, cfg: SupervisorConfig):
     """Whether the believed goal ``(..., 3)`` moved or turned more than the thresholds from the plan's."""
     d = jnp.linalg.norm(goal_est[..., :2] - plan_goal[..., :2], axis=-1)
-    dy = jnp.abs(jnp.arctan2(jnp.sin(goal_est[..., 2] - plan_goal[..., 2]), jnp.cos(goal_est[..., 2] - plan_goal[..., 2])))
+    dh = goal_est[..., 2] - plan_goal[..., 2]
+    dy = jnp.abs(jnp.arctan2(jnp.sin(dh), jnp.cos(dh)))
     return (d > cfg.goal_pos_thresh) | (dy > cfg.goal_yaw_thresh)
 
 
