@@ -66,7 +66,8 @@ class PathQPConfig:
         jerk_max: ``|l'''|`` bound, 1/m^2.
         eps_abs, eps_rel: OSQP's convergence tolerances (unscaled residuals).
         eps_pinf: tolerance of the primal-infeasibility certificate.
-        rho: initial ADMM step; adapted every ``check_every`` iterations (``adaptive_rho``).
+        rho: initial ADMM step; adapted (``adaptive_rho``) at most ``rho_updates`` times.
+        check_every: iterations between residual / certificate checks.
         max_iter: iteration cap (a multiple of ``check_every``).
         tol_violation: bound violation (m) above which a solution is not ``ok``.
         ruiz_iters: equilibration passes.
@@ -81,6 +82,7 @@ class PathQPConfig:
     rho: float = 0.1
     adaptive_rho: bool = True
     check_every: int = 25
+    rho_updates: int = 3
     max_iter: int = 4000
     tol_violation: float = 1e-3
     ruiz_iters: int = 10
@@ -98,7 +100,7 @@ class PathQPResult(NamedTuple):
         max_violation: largest bound violation of ``l`` (m).
         iterations: ADMM iterations run.
         rho: the final step size.
-        z, y: the solver's jerks ``(..., T-1)`` and duals (warm start of a later solve).
+        z, y: the solver's states ``(..., 3T)`` and duals ``(..., 6T-3)`` (warm start of a later solve).
     """
 
     l: jnp.ndarray
@@ -152,35 +154,66 @@ def curvature_bounds(kappa_ref, kappa_max, margin: float = 0.9):
     return -km - kappa_ref, km - kappa_ref
 
 
-def jerk_problem(ds, l_ref, lower, upper, dl_lo, dl_hi, ddl_lo, ddl_hi, jerk_max, init, weights: PathWeights):
-    """The QP in the jerks for one frame: ``min 1/2 z'Pz + q'z, lo <= C z <= hi``.
+def state_problem(ds, l_ref, lower, upper, dl_lo, dl_hi, ddl_lo, ddl_hi, jerk_max, init, weights: PathWeights):
+    """The QP in the states ``x = [l, l', l''] (3T)`` for one frame (Apollo's piecewise-jerk
+    form): ``min 1/2 x'Px + q'x, lo <= A x <= hi`` with equality rows where ``lo = hi``.
+
+    Rows of ``A`` (``m = 6T - 3``): the boxes on ``l, l', l''`` (``3T``; point 0 fixed to
+    ``init``), the jerks ``(l''_{i+1} - l''_i) / ds`` (``T - 1``), the two integration
+    equalities (``2 (T - 1)``).
 
     Args:
         ds: ``()``; l_ref, lower, upper, dl_lo, dl_hi, ddl_lo, ddl_hi: ``(T,)``; jerk_max:
         ``()``; init: ``(3,)``.
 
     Returns:
-        (P ``(n, n)``, q ``(n,)``, C ``(m, n)``, lo ``(m,)``, hi ``(m,)``, M, H) with
-        ``n = T - 1``, ``m = 4 (T - 1)`` (rows: l, l', l'' at points 1.., then the jerks).
+        (P ``(3T, 3T)``, q ``(3T,)``, A ``(m, 3T)``, lo ``(m,)``, hi ``(m,)``).
     """
     T = l_ref.shape[-1]
     dtype = l_ref.dtype
-    M, H = jerk_map(T, ds, dtype)
-    wq = jnp.concatenate([jnp.full((T,), weights.ref, dtype), jnp.full((T,), weights.dl, dtype),
-                          jnp.full((T,), weights.ddl, dtype)])
-    off = H @ init  # (3T,)
-    xr = jnp.concatenate([l_ref, jnp.zeros(2 * T, dtype)])
-    P = 2 * (M.T * wq) @ M + 2 * weights.dddl * jnp.eye(T - 1, dtype=dtype)
-    q = 2 * M.T @ (wq * (off - xr))
-    rows = jnp.concatenate([jnp.arange(1, T), T + jnp.arange(1, T), 2 * T + jnp.arange(1, T)])
-    C = jnp.concatenate([M[rows], jnp.eye(T - 1, dtype=dtype)], axis=0)
+    ds = jnp.asarray(ds, dtype)
+    eye = jnp.eye(T, dtype=dtype)
+    D = (jnp.eye(T - 1, T, 1, dtype=dtype) - jnp.eye(T - 1, T, dtype=dtype)) / ds  # (T-1, T)
+    Z = jnp.zeros((T, T), dtype)
+    P = 2 * jnp.block([[weights.ref * eye, Z, Z], [Z, weights.dl * eye, Z],
+                       [Z, Z, weights.ddl * eye + weights.dddl * D.T @ D]])
+    q = jnp.concatenate([-2 * weights.ref * l_ref, jnp.zeros(2 * T, dtype)])
+    I0 = jnp.eye(T - 1, T, dtype=dtype)
+    I1 = jnp.eye(T - 1, T, 1, dtype=dtype)
+    Zr = jnp.zeros((T - 1, T), dtype)
+    A_pos = jnp.concatenate([I1 - I0, -ds * I0, -(ds ** 2 / 3) * I0 - (ds ** 2 / 6) * I1], axis=1)
+    A_vel = jnp.concatenate([Zr, I1 - I0, -(ds / 2) * (I0 + I1)], axis=1)
+    A_jerk = jnp.concatenate([Zr, Zr, D], axis=1)
+    A = jnp.concatenate([jnp.eye(3 * T, dtype=dtype), A_jerk, A_pos, A_vel], axis=0)
     big = jnp.asarray(_FAR, dtype)
-    hi_x = jnp.concatenate([upper, dl_hi, ddl_hi])[rows] - off[rows]
-    lo_x = jnp.concatenate([lower, dl_lo, ddl_lo])[rows] - off[rows]
+    fix0 = lambda v, x0: v.at[0].set(x0)
+    hi_x = jnp.concatenate([fix0(upper, init[0]), fix0(dl_hi, init[1]), fix0(ddl_hi, init[2])])
+    lo_x = jnp.concatenate([fix0(lower, init[0]), fix0(dl_lo, init[1]), fix0(ddl_lo, init[2])])
     jm = jnp.full((T - 1,), jerk_max, dtype)
-    hi = jnp.clip(jnp.concatenate([hi_x, jm]), -big, big)
-    lo = jnp.clip(jnp.concatenate([lo_x, -jm]), -big, big)
-    return P, q, C, lo, hi, M, H
+    zeq = jnp.zeros(2 * (T - 1), dtype)
+    hi = jnp.clip(jnp.concatenate([hi_x, jm, zeq]), -big, big)
+    lo = jnp.clip(jnp.concatenate([lo_x, -jm, zeq]), -big, big)
+    return P, q, A, lo, hi
+
+
+def _tri_inverse(L):
+    """Inverse of a lower-triangular ``(n, n)`` matrix by blocks (matrix products; blocks of
+    at most 32 rows by triangular solves): on XLA's CPU backend far faster than one
+    ``n x n`` triangular solve or ``jnp.linalg.inv``."""
+    n = L.shape[-1]
+    if n <= 32:
+        return jax.lax.linalg.triangular_solve(L, jnp.eye(n, dtype=L.dtype), left_side=True, lower=True)
+    k = n // 2
+    Ai, Ci = _tri_inverse(L[:k, :k]), _tri_inverse(L[k:, k:])
+    low = -Ci @ (L[k:, :k] @ Ai)
+    return jnp.concatenate([jnp.concatenate([Ai, jnp.zeros((k, n - k), L.dtype)], 1),
+                            jnp.concatenate([low, Ci], 1)], 0)
+
+
+def spd_inverse(K):
+    """Inverse of a symmetric positive definite ``(n, n)`` matrix (Cholesky, then ``_tri_inverse``)."""
+    Li = _tri_inverse(jnp.linalg.cholesky(K))
+    return Li.T @ Li
 
 
 def _ruiz(P, C, iters):
@@ -205,13 +238,21 @@ def _ruiz(P, C, iters):
     return d, e, Ps
 
 
-def admm_solve(P, q, C, lo, hi, config: PathQPConfig, z0=None, y0=None):
+def admm_solve(P, q, C, lo, hi, config: PathQPConfig, z0=None, y0=None, matvec=None):
     """OSQP's ADMM for ``min 1/2 z'Pz + q'z, lo <= C z <= hi`` (one problem; vmap it).
 
+    The iterations run in stages: ``rho`` is adapted (and the matrix refactorised) only
+    between stages, at most ``config.rho_updates`` times (stage ``k`` runs up to
+    ``2^(k+1)`` blocks of ``check_every`` iterations, the last one up to ``max_iter``), so
+    a batch pays a fixed, small number of factorisations.
+
     Args:
-        P: ``(n, n)`` positive definite; q: ``(n,)``; C: ``(m, n)``; lo, hi: ``(m,)`` finite.
+        P: ``(n, n)`` positive definite; q: ``(n,)``; C: ``(m, n)``; lo, hi: ``(m,)``
+            finite (rows with ``lo == hi`` are equalities and get ``1e3 rho``).
         config: tolerances and iteration counts.
         z0, y0: optional warm start ``(n,)``, ``(m,)`` (unscaled).
+        matvec: optional function ``z -> C z`` exploiting ``C``'s structure (the dense
+            ``C`` is then used only for the equilibration).
 
     Returns:
         (z ``(n,)``, y ``(m,)``, converged, infeasible, iterations, rho).
@@ -224,74 +265,106 @@ def admm_solve(P, q, C, lo, hi, config: PathQPConfig, z0=None, y0=None):
     c = jnp.clip(c, 1e-4, 1e4)
     Ps, qs = c * Ps, c * qs
     Cs = e[:, None] * C * d[None, :]
+    if matvec is None:
+        cz = lambda z: Cs @ z
+        cty = lambda y: Cs.T @ y
+    else:
+        cz = lambda z: e * matvec(d * z)
+        tr = jax.linear_transpose(matvec, jnp.zeros(n, dtype))
+        cty = lambda y: d * tr(e * y)[0]
     los, his = e * lo, e * hi
     sigma, alpha = 1e-6, 1.6
     eye = jnp.eye(n, dtype=dtype)
+    eq = (hi - lo) <= 1e-9 * (1.0 + jnp.abs(hi))  # equality rows get 1e3 rho (as OSQP)
+    rho_scale = jnp.where(eq, 1e3, 1.0).astype(dtype)
+    CtC = Cs.T * rho_scale
 
     def factor(rho):
-        return jnp.linalg.inv(Ps + sigma * eye + rho * Cs.T @ Cs)
+        return spd_inverse(Ps + sigma * eye + rho * CtC @ Cs)
 
     zs = jnp.zeros(n, dtype) if z0 is None else z0 / d
     ys = jnp.zeros(m, dtype) if y0 is None else y0 * c / e
-    ws = jnp.clip(Cs @ zs, los, his)
-    rho0 = jnp.asarray(config.rho, dtype)
+    ws = jnp.clip(cz(zs), los, his)
 
     def residuals(zs, ws, ys):
-        Cz = Cs @ zs
+        Cz = cz(zs)
         prim = jnp.max(jnp.abs((Cz - ws) / e))
         Pz = Ps @ zs
-        Cty = Cs.T @ ys
+        Cty = cty(ys)
         dual = jnp.max(jnp.abs((Pz + qs + Cty) / d)) / c
         prim_scale = jnp.maximum(jnp.max(jnp.abs(Cz / e)), jnp.max(jnp.abs(ws / e)))
         dual_scale = jnp.maximum(jnp.maximum(jnp.max(jnp.abs(Pz / d)), jnp.max(jnp.abs(Cty / d))),
                                  jnp.max(jnp.abs(qs / d))) / c
         return prim, dual, prim_scale, dual_scale
 
-    def block(st):
-        zs, ws, ys, rho, Kinv, it, done, conv, infeas = st
+    def run_stage(st, rho, Kinv, n_blocks_max):
+        rv = rho * rho_scale
 
-        def step(_, inner):
-            zs, ws, ys, _ = inner
-            rhs = sigma * zs - qs + Cs.T @ (rho * ws - ys)
-            zt = Kinv @ rhs
-            wt = Cs @ zt
-            wr = alpha * wt + (1 - alpha) * ws
-            wn = jnp.clip(wr + ys / rho, los, his)
-            yn = ys + rho * (wr - wn)
-            zn = alpha * zt + (1 - alpha) * zs
-            return zn, wn, yn, ys
+        def block(st):
+            zs, ws, ys, it, nb, done, conv, infeas, prim, dual, ps_, ds_ = st
 
-        zn, wn, yn, yprev = jax.lax.fori_loop(0, config.check_every, step, (zs, ws, ys, ys))
-        prim, dual, ps_, ds_ = residuals(zn, wn, yn)
-        c_ok = (prim <= config.eps_abs + config.eps_rel * ps_) & (dual <= config.eps_abs + config.eps_rel * ds_)
-        # Primal infeasibility certificate on the unscaled dual step dy = E (y_k - y_{k-1}) / c.
-        dy = e * (yn - yprev) / c
-        ndy = jnp.max(jnp.abs(dy))
-        ctdy = jnp.max(jnp.abs((Cs.T @ (yn - yprev)) / d / c))
-        support = jnp.sum(hi * jnp.maximum(dy, 0.0) + lo * jnp.minimum(dy, 0.0))
-        inf_ok = (ndy > 1e-12) & (ctdy <= config.eps_pinf * ndy) & (support < -config.eps_pinf * ndy)
-        if config.adaptive_rho:
+            def step(_, inner):
+                zs, ws, ys, _ = inner
+                rhs = sigma * zs - qs + cty(rv * ws - ys)
+                zt = Kinv @ rhs
+                wt = cz(zt)
+                wr = alpha * wt + (1 - alpha) * ws
+                wn = jnp.clip(wr + ys / rv, los, his)
+                yn = ys + rv * (wr - wn)
+                zn = alpha * zt + (1 - alpha) * zs
+                return zn, wn, yn, ys
+
+            zn, wn, yn, yprev = jax.lax.fori_loop(0, config.check_every, step, (zs, ws, ys, ys))
+            pr, du, pscale, dscale = residuals(zn, wn, yn)
+            c_ok = (pr <= config.eps_abs + config.eps_rel * pscale) & (du <= config.eps_abs + config.eps_rel * dscale)
+            # Primal infeasibility certificate on the unscaled dual step dy = E (y_k - y_{k-1}) / c.
+            dy = e * (yn - yprev) / c
+            ndy = jnp.max(jnp.abs(dy))
+            ctdy = jnp.max(jnp.abs(cty(yn - yprev) / d / c))
+            support = jnp.sum(hi * jnp.maximum(dy, 0.0) + lo * jnp.minimum(dy, 0.0))
+            inf_ok = (ndy > 1e-12) & (ctdy <= config.eps_pinf * ndy) & (support < -config.eps_pinf * ndy)
+            keep = done  # finished problems keep their state (vmap runs every lane)
+            pick = lambda a, b: jnp.where(keep, a, b)
+            return (pick(zs, zn), pick(ws, wn), pick(ys, yn), pick(it, it + config.check_every), nb + 1,
+                    done | c_ok | inf_ok, pick(conv, c_ok), pick(infeas, inf_ok), pick(prim, pr), pick(dual, du),
+                    pick(ps_, pscale), pick(ds_, dscale))
+
+        st = st[:4] + (jnp.asarray(0, jnp.int32),) + st[5:]
+        return jax.lax.while_loop(lambda s: (~s[5]) & (s[4] < n_blocks_max), block, st)
+
+    z0_ = jnp.asarray(0.0, dtype)
+    st = (zs, ws, ys, jnp.asarray(0, jnp.int32), jnp.asarray(0, jnp.int32), jnp.asarray(False), jnp.asarray(False),
+          jnp.asarray(False), z0_, z0_, z0_, z0_)
+    rho = jnp.asarray(config.rho, dtype)
+    total = max(config.max_iter // config.check_every, 1)
+    n_stages = config.rho_updates + 1 if config.adaptive_rho else 1
+    used = 0
+    for k in range(n_stages):
+        last = k == n_stages - 1
+        budget = total - used if last else min(2 ** (k + 1), total - used)
+        if budget <= 0:
+            break
+        used += budget
+        st = run_stage(st, rho, factor(rho), budget)
+        if not last:
+            prim, dual, ps_, ds_ = st[8:12]
             ratio = (prim / jnp.maximum(ps_, 1e-10)) / jnp.maximum(dual / jnp.maximum(ds_, 1e-10), 1e-10)
-            rho_new = jnp.clip(rho * jnp.sqrt(ratio), 1e-6, 1e6)
-            change = (rho_new > 5 * rho) | (rho_new < rho / 5)
-            rho_new = jnp.where(change & ~c_ok & ~inf_ok, rho_new, rho)
-            Kinv_new = jnp.where(change & ~c_ok & ~inf_ok, factor(rho_new), Kinv)
-        else:
-            rho_new, Kinv_new = rho, Kinv
-        keep = done  # finished problems keep their state (vmap runs every lane)
-        pick = lambda a, b: jnp.where(keep, a, b)
-        return (pick(zs, zn), pick(ws, wn), pick(ys, yn), pick(rho, rho_new), pick(Kinv, Kinv_new),
-                pick(it, it + config.check_every), done | c_ok | inf_ok, pick(conv, c_ok), pick(infeas, inf_ok))
-
-    n_blocks = max(config.max_iter // config.check_every, 1)
-
-    def cond(st):
-        return (~st[6]) & (st[5] < n_blocks * config.check_every)
-
-    st = (zs, ws, ys, rho0, factor(rho0), jnp.asarray(0, jnp.int32), jnp.asarray(False), jnp.asarray(False),
-          jnp.asarray(False))
-    zs, ws, ys, rho, _, it, _, conv, infeas = jax.lax.while_loop(cond, block, st)
+            rho = jnp.clip(rho * jnp.sqrt(ratio), 1e-6, 1e6)
+    zs, ws, ys, it, _, _, conv, infeas = st[:8]
     return d * zs, e * ys / c, conv, infeas, it, rho
+
+
+def state_matvec(ds, T):
+    """``x -> A x`` of ``state_problem`` in O(T) (the rows' structure), for ``admm_solve``."""
+
+    def mv(x):
+        l, dl, ddl = x[:T], x[T:2 * T], x[2 * T:]
+        jerk = (ddl[1:] - ddl[:-1]) / ds
+        pos = l[1:] - l[:-1] - ds * dl[:-1] - (ds ** 2 / 3) * ddl[:-1] - (ds ** 2 / 6) * ddl[1:]
+        vel = dl[1:] - dl[:-1] - (ds / 2) * (ddl[:-1] + ddl[1:])
+        return jnp.concatenate([x, jerk, pos, vel])
+
+    return mv
 
 
 def _frame(lower, upper, dl_lo, dl_hi, ddl_lo, ddl_hi, l_ref, init, ds, weights, config, z0, y0):
@@ -306,16 +379,16 @@ def _frame(lower, upper, dl_lo, dl_hi, ddl_lo, ddl_hi, l_ref, init, ds, weights,
     lo_s, up_s = fix(lower, upper)
     dlo, dhi = fix(dl_lo, dl_hi)
     alo, ahi = fix(ddl_lo, ddl_hi)
-    P, q, C, lo, hi, M, H = jerk_problem(ds, l_ref, lo_s, up_s, dlo, dhi, alo, ahi, config.jerk_max, init, weights)
-    z, y, conv, infeas, it, rho = admm_solve(P, q, C, lo, hi, config, z0, y0)
-    x = M @ z + H @ init
-    l, dl, ddl = x[:T], x[T:2 * T], x[2 * T:]
+    P, q, A, lo, hi = state_problem(ds, l_ref, lo_s, up_s, dlo, dhi, alo, ahi, config.jerk_max, init, weights)
+    z, y, conv, infeas, it, rho = admm_solve(P, q, A, lo, hi, config, z0, y0, state_matvec(ds, T))
+    l, dl, ddl = z[:T], z[T:2 * T], z[2 * T:]
     viol = jnp.maximum(jnp.max(jnp.maximum(l[1:] - upper[1:], lower[1:] - l[1:])), 0.0)
     feasible = ~bad_bounds & ~start_out & ~infeas
     ok = feasible & conv & (viol <= config.tol_violation)
     nan = jnp.asarray(jnp.nan, dtype)
     mask = lambda v: jnp.where(feasible, v, nan)
-    return PathQPResult(mask(l), mask(dl), mask(ddl), mask(z), feasible, infeas, conv, ok, viol, it, rho, z, y)
+    jerk = (ddl[1:] - ddl[:-1]) / ds
+    return PathQPResult(mask(l), mask(dl), mask(ddl), mask(jerk), feasible, infeas, conv, ok, viol, it, rho, z, y)
 
 
 def optimize_path(lower, upper, ds, l_ref=None, init=None, weights: PathWeights | None = None,
@@ -333,7 +406,7 @@ def optimize_path(lower, upper, ds, l_ref=None, init=None, weights: PathWeights 
         dl_bounds: ``(lo, hi)`` each ``(..., T)``; default ``+-config.dl_max``.
         ddl_bounds: ``(lo, hi)`` each ``(..., T)`` (e.g. ``curvature_bounds``); default
             ``+-config.ddl_max``.
-        warm: optional ``(z (..., T-1), y (..., 4(T-1)))`` from an earlier result.
+        warm: optional ``(z (..., 3T), y (..., 6T-3))`` from an earlier result.
 
     Returns:
         ``PathQPResult`` with leading dims ``...``.
@@ -359,7 +432,7 @@ def optimize_path(lower, upper, ds, l_ref=None, init=None, weights: PathWeights 
     if warm is None:
         fn = lambda *a: _frame(*a, weights, config, None, None)
     else:
-        args += [flat(warm[0], (T - 1,)), flat(warm[1], (4 * (T - 1),))]
+        args += [flat(warm[0], (3 * T,)), flat(warm[1], (6 * T - 3,))]
         fn = lambda *a: _frame(*a[:9], weights, config, a[9], a[10])
     out = jax.vmap(fn)(*args)
     return jax.tree_util.tree_map(lambda x: x.reshape(lead + x.shape[1:]), out)
