@@ -32,8 +32,7 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from jaxplan.bounds.distance import overlap_interval
-from jaxplan.geometry.boxes import box_corners
+from jaxplan.bounds.distance import box_overlap_interval
 
 LEFT, RIGHT, NONE = 1, -1, 0  # side of an obstacle seen from the car (as jaxplan.speed.nonblocking)
 _INF = jnp.inf
@@ -79,8 +78,9 @@ def obstacle_intervals(base_xy, ref_theta, car_theta, vehicle, boxes, valid, lat
         ref_theta: ``(N,)`` the reference line's heading there (its normal is the ``l`` axis).
         car_theta: ``(N,)`` the car's heading at each station.
         vehicle: ``VehicleParams``.
-        boxes: ``(K, 5)`` obstacle boxes (one footprint each over the horizon).
-        valid: ``(K,)`` bool.
+        boxes: ``(K, 5)`` obstacle boxes (one footprint each over the horizon), or
+            ``(N, K, 5)`` one per station (moving obstacles at the station's time).
+        valid: ``(K,)`` or ``(N, K)`` bool.
         lat_buffer: ``()`` or ``(N,)`` widening of each interval on both sides (m).
         lon_buffer: obstacles are lengthened by this on each end (m).
 
@@ -90,17 +90,19 @@ def obstacle_intervals(base_xy, ref_theta, car_theta, vehicle, boxes, valid, lat
         offset does (then lo = +inf, hi = -inf).
     """
     dtype = base_xy.dtype
-    b = boxes.at[:, 2].add(2 * lon_buffer)
-    obs = box_corners(b)  # (K, 4, 2)
+    N = base_xy.shape[0]
+    boxes = jnp.broadcast_to(boxes, (N,) + boxes.shape[-2:])
+    valid = jnp.broadcast_to(valid, (N, boxes.shape[1]))
+    unit = lambda h: jnp.stack([jnp.cos(h), jnp.sin(h)], -1)
     off = jnp.asarray(vehicle.center_offset, dtype)
-    ctr = base_xy + off * jnp.stack([jnp.cos(car_theta), jnp.sin(car_theta)], -1)
-    n_box = jnp.broadcast_to(jnp.asarray(vehicle.length, dtype), car_theta.shape)
-    w_box = jnp.broadcast_to(jnp.asarray(vehicle.width, dtype), car_theta.shape)
-    car = box_corners(jnp.stack([ctr[:, 0], ctr[:, 1], n_box, w_box, car_theta], -1))  # (N, 4, 2)
+    ctr = base_xy + off * unit(car_theta)
+    half_car = 0.5 * jnp.stack([jnp.asarray(vehicle.length, dtype), jnp.asarray(vehicle.width, dtype)])
+    half_obs = 0.5 * boxes[..., 2:4] + jnp.stack([lon_buffer, 0.0]).astype(dtype)
     nrm = jnp.stack([-jnp.sin(ref_theta), jnp.cos(ref_theta)], -1)
-    t_lo, t_hi, hit = overlap_interval(car[:, None], obs[None], nrm[:, None])
+    t_lo, t_hi, hit = box_overlap_interval(ctr[:, None], unit(car_theta)[:, None], half_car, boxes[..., :2],
+                                           unit(boxes[..., 4]), half_obs, nrm[:, None])
     buf = jnp.broadcast_to(jnp.asarray(lat_buffer, dtype), car_theta.shape)[:, None]
-    hit = hit & valid[None, :]
+    hit = hit & valid
     return jnp.where(hit, t_lo - buf, _INF), jnp.where(hit, t_hi + buf, -_INF), hit
 
 

@@ -197,12 +197,10 @@ def _frame(ref, s, l, vehicle, obs, valid, vmask, lane_lower, lane_upper, buffer
         reach_l = jnp.max(cl, -1) - l
         reach_r = l - jnp.min(cl, -1)
         block = (jnp.max(cs, -1)[:, None] > s_min) & (jnp.min(cs, -1)[:, None] < s_max)
-        left = 0.5 * (l_min + l_max) > lc
         upper_k = jnp.where(block, l_min - reach_l[:, None] - buffer, jnp.inf)
         lower_k = jnp.where(block, l_max + reach_r[:, None] + buffer, -jnp.inf)
     else:
         s_o, l_o = to_frenet(ref, centre)
-        left = l_o > lc
         L_o, W_o = _extents(obs, vmask)
         ctr = xy + jnp.asarray(vehicle.center_offset, dtype) * jnp.stack([jnp.cos(heading), jnp.sin(heading)], -1)
         s_c, _ = to_frenet(ref, ctr)

@@ -71,6 +71,9 @@ class PathQPConfig:
         max_iter: iteration cap (a multiple of ``check_every``).
         tol_violation: bound violation (m) above which a solution is not ``ok``.
         ruiz_iters: equilibration passes.
+        early_exit: stop when converged (``lax.while_loop``); False runs every iteration
+            (``fori_loop``), so that ``jax.grad`` can differentiate through the solve by
+            unrolling (solved problems keep their state).
     """
 
     dl_max: float = 2.0
@@ -83,6 +86,7 @@ class PathQPConfig:
     adaptive_rho: bool = True
     check_every: int = 25
     rho_updates: int = 3
+    early_exit: bool = True
     max_iter: int = 4000
     tol_violation: float = 1e-3
     ruiz_iters: int = 10
@@ -330,7 +334,9 @@ def admm_solve(P, q, C, lo, hi, config: PathQPConfig, z0=None, y0=None, matvec=N
                     pick(ps_, pscale), pick(ds_, dscale))
 
         st = st[:4] + (jnp.asarray(0, jnp.int32),) + st[5:]
-        return jax.lax.while_loop(lambda s: (~s[5]) & (s[4] < n_blocks_max), block, st)
+        if config.early_exit:
+            return jax.lax.while_loop(lambda s: (~s[5]) & (s[4] < n_blocks_max), block, st)
+        return jax.lax.fori_loop(0, n_blocks_max, lambda _, s: block(s), st)  # reverse-differentiable
 
     z0_ = jnp.asarray(0.0, dtype)
     st = (zs, ws, ys, jnp.asarray(0, jnp.int32), jnp.asarray(0, jnp.int32), jnp.asarray(False), jnp.asarray(False),

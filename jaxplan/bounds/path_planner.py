@@ -206,6 +206,99 @@ def _ego_frenet(ref, s0, l0, heading, kappa):
     return dth, dl0, ddl0
 
 
+def solve_path(ref, st, ds, boxes, blocking, edge_left, edge_right, l_pref, init, config: PathConfig):
+    """Decide, bound and optimise a path on route stations, recomputing at its heading.
+
+    The core of ``plan_path``, for any reference line and obstacle footprints.
+
+    Args:
+        ref: ``ReferenceLine``; st: ``(N,)`` stations on it (spacing ``ds ()``), the car at ``st[0]``.
+        boxes: ``(K, 5)`` blocking footprints, or ``(N, K, 5)`` per station.
+        blocking: ``(K,)`` or ``(N, K)`` bool, which boxes bound the path.
+        edge_left, edge_right: ``(N,)`` the corridor's edges the car body must stay inside.
+        l_pref: ``(N,)`` preferred offset (lane centre).
+        init: ``(3,)`` the car's ``(l, l', l'')`` at ``st[0]``.
+        config: ``PathConfig``.
+
+    Returns:
+        dict with ``corridor`` (``Corridor``), ``qp`` (``PathQPResult``), ``rounds``,
+        ``clear`` (the car's boxes at the path's poses, and between them, miss every blocking
+        box), ``xy (N, 2)``, ``theta (N,)``, ``kappa (N,)``, ``l, dl, ddl (N,)``
+        (the car's offset kept where the QP failed).
+    """
+    veh = config.vehicle
+    f = ref.xy.dtype
+    N = st.shape[0]
+    base, th_r, k_r, _ = ref_state(ref, st)
+    l0 = init[0]
+    k_max = jnp.tan(jnp.asarray(veh.max_steer, f)) / jnp.asarray(veh.wheelbase, f)
+    tan_h = jnp.tan(jnp.asarray(config.heading_max, f))
+    ddl_lo, ddl_hi = curvature_bounds(k_r, k_max, config.curvature_margin)
+    dth0 = jnp.arctan2(init[1], 1.0 - k_r[0] * l0)
+    dist = st - st[0]
+    lat_buf = config.lat_buffer * jnp.clip(dist / config.buffer_ramp, 0.0, 1.0)
+    lon_buf = config.lon_buffer + 0.5 * ds
+    reach = ds * tan_h * jnp.ones((N,), f)
+    w = PathWeights(*config.weights)
+    dl_b = (jnp.full((N,), -tan_h, f).at[0].min(init[1]), jnp.full((N,), tan_h, f).at[0].max(init[1]))
+    ddl_b = (ddl_lo.at[0].min(init[2]), ddl_hi.at[0].max(init[2]))
+    if boxes.ndim == 2:
+        box_n = jnp.broadcast_to(boxes, (N,) + boxes.shape)
+        blk_n = jnp.broadcast_to(blocking, (N,) + blocking.shape)
+    else:
+        box_n, blk_n = boxes, blocking
+
+    def bounds_at(car_dth, side):
+        lo, hi, hit = obstacle_intervals(base, th_r, th_r + car_dth, veh, box_n, blk_n, lat_buf, lon_buf)
+        rl, rr = car_reach(veh, car_dth)
+        road_hi = edge_left - rl - config.edge_buffer
+        road_lo = edge_right + rr + config.edge_buffer
+        return decide_corridor(lo, hi, hit, road_lo, road_hi, l0, reach, l_pref, side,
+                               room_cap=config.room_cap, min_gap=config.min_gap)
+
+    def solve(cor, warm):
+        lower = cor.lower.at[0].set(jnp.minimum(cor.lower[0], l0))
+        upper = cor.upper.at[0].set(jnp.maximum(cor.upper[0], l0))
+        return optimize_path(lower, upper, ds, l_pref, init, w, config.qp, dl_b, ddl_b, warm=warm)
+
+    def pose(l, dl, ddl):
+        xy, _, kap = frenet_to_cartesian_state(ref, st, l, dl, ddl)
+        return xy, th_r + jnp.arctan2(dl, 1.0 - k_r * l), kap
+
+    def clear(xy, th, valid):
+        car = poses_to_boxes(xy, th, veh)  # (N, 5)
+        hit = box_has_overlap(car[:, None], box_n) & blk_n & valid[:, None]
+        mid = poses_to_boxes(0.5 * (xy[1:] + xy[:-1]), 0.5 * (th[1:] + th[:-1]), veh)
+        vm = valid[1:] & valid[:-1]
+        hit_m = (box_has_overlap(mid[:, None], box_n[1:]) | box_has_overlap(mid[:, None], box_n[:-1])) \
+            & (blk_n[1:] | blk_n[:-1]) & vm[:, None]
+        return ~jnp.any(hit) & ~jnp.any(hit_m)
+
+    car_dth = jnp.zeros((N,), f).at[0].set(dth0)
+    cor = bounds_at(car_dth, None)
+    qp = solve(cor, None)
+    xy, th, _ = pose(qp.l, qp.dl, qp.ddl)
+    fine0 = qp.ok & clear(xy, th, cor.valid)
+
+    def body(state):
+        r, cor, qp, _ = state
+        _, th, _ = pose(qp.l, qp.dl, qp.ddl)
+        dth = jnp.where(qp.ok, th - th_r, car_dth)
+        cor2 = bounds_at(dth, cor.side)
+        qp2 = solve(cor2, (qp.z, qp.y))
+        xy2, th2, _ = pose(qp2.l, qp2.dl, qp2.ddl)
+        return r + 1, cor2, qp2, qp2.ok & clear(xy2, th2, cor2.valid)
+
+    rounds, cor, qp, fine = jax.lax.while_loop(lambda s: (s[0] < config.max_rounds) & ~s[3], body,
+                                               (jnp.asarray(1, jnp.int32), cor, qp, fine0))
+    l = jnp.where(qp.feasible, qp.l, l0)
+    dl = jnp.where(qp.feasible, qp.dl, 0.0)
+    ddl = jnp.where(qp.feasible, qp.ddl, 0.0)
+    xy, th, kap = pose(l, dl, ddl)
+    return dict(corridor=cor, qp=qp, rounds=rounds, clear=clear(xy, th, cor.valid), xy=xy, theta=th, kappa=kap,
+                l=l, dl=dl, ddl=ddl)
+
+
 def _plan(scene, ctx, config, ego):
     veh = config.vehicle
     ref = scene.route
@@ -216,14 +309,8 @@ def _plan(scene, ctx, config, ego):
     v0 = jnp.maximum(jnp.asarray(ego.v, f), 0.0)
     ds = jnp.clip(v0 * config.time_horizon / (N - 1), config.ds_min, config.ds_max)
     st = s0 + ds * jnp.arange(N, dtype=f)
-    base, th_r, k_r, _ = ref_state(ref, st)
-    dth0, dl0, ddl0 = _ego_frenet(ref, s0, l0, jnp.asarray(ego.heading, f), jnp.asarray(ego.kappa, f))
-    k_max = jnp.tan(jnp.asarray(veh.max_steer, f)) / jnp.asarray(veh.wheelbase, f)
-    tan_h = jnp.tan(jnp.asarray(config.heading_max, f))
-    dl0 = jnp.clip(dl0, -tan_h, tan_h)
-    ddl_lo, ddl_hi = curvature_bounds(k_r, k_max, config.curvature_margin)
-    ddl0 = jnp.clip(ddl0, ddl_lo[0], ddl_hi[0])
-    init = jnp.stack([l0, dl0, ddl0])
+    _, th_r, k_r, _ = ref_state(ref, st)
+    _, dl0, ddl0 = _ego_frenet(ref, s0, l0, jnp.asarray(ego.heading, f), jnp.asarray(ego.kappa, f))
     boxes, blocking = blocking_footprints(ctx.obstacles, config.static_speed, dt)
     left_e, right_e = corridor_edges(scene, config.opposite_lanes)
     front = veh.length - veh.rear_overhang if veh.reference == "rear_axle" else 0.5 * veh.length
@@ -233,83 +320,23 @@ def _plan(scene, ctx, config, ego):
     edge_r = jnp.maximum(jnp.maximum(_sample(scene, right_e, st), _sample(scene, right_e, st + front)),
                          _sample(scene, right_e, st + rear))
     l_pref = _sample(scene, scene.lane_offset[scene.own_lane], st)
-    dist = st - s0
-    lat_buf = config.lat_buffer * jnp.clip(dist / config.buffer_ramp, 0.0, 1.0)
-    lon_buf = config.lon_buffer + 0.5 * ds
-    reach = ds * tan_h * jnp.ones((N,), f)
-    w = PathWeights(*config.weights)
-    dl_b = (jnp.full((N,), -tan_h, f), jnp.full((N,), tan_h, f))
-    ddl_b = (ddl_lo.at[0].set(jnp.minimum(ddl_lo[0], ddl0)), ddl_hi.at[0].set(jnp.maximum(ddl_hi[0], ddl0)))
-
-    def bounds_at(car_dth, side):
-        car_th = th_r + car_dth
-        lo, hi, hit = obstacle_intervals(base, th_r, car_th, veh, boxes, blocking, lat_buf, lon_buf)
-        rl, rr = car_reach(veh, car_dth)
-        road_hi = edge_l - rl - config.edge_buffer
-        road_lo = edge_r + rr + config.edge_buffer
-        return decide_corridor(lo, hi, hit, road_lo, road_hi, l0, reach, l_pref, side,
-                               room_cap=config.room_cap, min_gap=config.min_gap)
-
-    def solve(cor, warm):
-        lower = cor.lower.at[0].set(jnp.minimum(cor.lower[0], l0))
-        upper = cor.upper.at[0].set(jnp.maximum(cor.upper[0], l0))
-        return optimize_path(lower, upper, ds, l_pref, init, w, config.qp, dl_b, ddl_b, warm=warm)
-
-    def pose(qp):
-        xy, th, kap = frenet_to_cartesian_state(ref, st, qp.l, qp.dl, qp.ddl)
-        return xy, th_r + jnp.arctan2(qp.dl, 1.0 - k_r * qp.l), kap
-
-    def clear(xy, th, valid):
-        car = poses_to_boxes(xy, th, veh)  # (N, 5)
-        hit = box_has_overlap(car[:, None], boxes[None]) & blocking[None] & valid[:, None]
-        # between stations: the mean pose of consecutive stations
-        mid = poses_to_boxes(0.5 * (xy[1:] + xy[:-1]), 0.5 * (th[1:] + th[:-1]), veh)
-        vm = valid[1:] & valid[:-1]
-        hit_m = box_has_overlap(mid[:, None], boxes[None]) & blocking[None] & vm[:, None]
-        return ~jnp.any(hit) & ~jnp.any(hit_m)
-
-    car_dth = jnp.zeros((N,), f).at[0].set(dth0)
-    cor = bounds_at(car_dth, None)
-    qp = solve(cor, None)
-
-    def body(state):
-        r, cor, qp, _ = state
-        xy, th, _ = pose(qp)
-        good = qp.ok
-        dth = jnp.where(good, th - th_r, car_dth)
-        cor2 = bounds_at(dth, cor.side)
-        qp2 = solve(cor2, (qp.z, qp.y))
-        xy2, th2, _ = pose(qp2)
-        fine = qp2.ok & clear(xy2, th2, cor2.valid)
-        return r + 1, cor2, qp2, fine
-
-    xy, th, _ = pose(qp)
-    fine0 = qp.ok & clear(xy, th, cor.valid)
-    rounds, cor, qp, fine = jax.lax.while_loop(lambda s: (s[0] < config.max_rounds) & ~s[3], body,
-                                               (jnp.asarray(1, jnp.int32), cor, qp, fine0))
+    res = solve_path(ref, st, ds, boxes, blocking, edge_l, edge_r, l_pref, jnp.stack([l0, dl0, ddl0]), config)
+    cor, qp = res["corridor"], res["qp"]
+    xy, th, kap, l = res["xy"], res["theta"], res["kappa"], res["l"]
     # Outputs on the path's own arc length.
-    l = jnp.where(qp.feasible, qp.l, l0)
-    dl = jnp.where(qp.feasible, qp.dl, 0.0)
-    ddl = jnp.where(qp.feasible, qp.ddl, 0.0)
-    xy, kap_th, kap = frenet_to_cartesian_state(ref, st, l, dl, ddl)
-    th = th_r + jnp.arctan2(dl, 1.0 - k_r * l)
     seg = jnp.linalg.norm(xy[1:] - xy[:-1], axis=-1)
     S = jnp.concatenate([jnp.zeros((1,), f), jnp.cumsum(seg)])
     s_out = ds * jnp.arange(N, dtype=f)
     S_end = S[-1]
-    x_o = _resample(S, xy[:, 0], s_out)
-    y_o = _resample(S, xy[:, 1], s_out)
-    th_o = _resample(S, th, s_out)
     past = jnp.maximum(s_out - S_end, 0.0)
-    x_o = x_o + past * jnp.cos(th[-1])
-    y_o = y_o + past * jnp.sin(th[-1])
+    x_o = _resample(S, xy[:, 0], s_out) + past * jnp.cos(th[-1])
+    y_o = _resample(S, xy[:, 1], s_out) + past * jnp.sin(th[-1])
     b = cor.blocked_index
     blocked_s = jnp.where(b < N, S[jnp.minimum(b, N - 1)], jnp.inf)
     valid_o = (s_out <= S_end + 1e-4) & (s_out < blocked_s)
     side = jnp.where(blocking, cor.side, NONE)
-    collision_free = clear(xy, th, cor.valid)
-    ok = qp.ok & collision_free & (b > 0)
-    del kap_th
-    return PathPlan(s_out, jnp.stack([x_o, y_o], -1), th_o, _resample(S, kap, s_out), _resample(S, l, s_out),
-                    _resample(S, st, s_out) + past, _resample(S, cor.lower, s_out), _resample(S, cor.upper, s_out),
-                    valid_o, blocked_s, ok, side, blocking, rounds, qp.ok, collision_free, ds)
+    ok = qp.ok & res["clear"] & (b > 0)
+    return PathPlan(s_out, jnp.stack([x_o, y_o], -1), _resample(S, th, s_out), _resample(S, kap, s_out),
+                    _resample(S, l, s_out), _resample(S, st, s_out) + past, _resample(S, cor.lower, s_out),
+                    _resample(S, cor.upper, s_out), valid_o, blocked_s, ok, side, blocking, res["rounds"], qp.ok,
+                    res["clear"], ds)
