@@ -118,6 +118,8 @@ def main(argv=None):
     ap.add_argument("--reps", type=int, default=3)
     ap.add_argument("--radius", type=float, default=12.0)
     ap.add_argument("--methods", nargs="+", default=["contour", "exact", "slbox", "centerline"])
+    ap.add_argument("--baseline-batches", type=int, nargs="+", default=[1, 100],
+                    help="batch sizes for the slow baselines (slbox, centerline: they project every corner)")
     ap.add_argument("--qp-frames", type=int, default=200)
     ap.add_argument("--qp-points", type=int, default=81)
     ap.add_argument("--qp-ds", type=float, default=1.0)
@@ -136,7 +138,7 @@ def main(argv=None):
     for method in args.methods:
         fn = jax.jit(lambda s, l, o, m=method: path_bounds(ref, s, l, CAR, o, lane_lower=-LANE, lane_upper=LANE,
                                                            method=m, rectangles=True))
-        for n in args.batches:
+        for n in (args.baseline_batches if method in ("slbox", "centerline") else args.batches):
             c = min(n, args.chunk)
             xs = (S[:c], L[:c], OBS[:c])
             t = time.perf_counter()

@@ -336,7 +336,7 @@ def test_path_qp_gradient_finite_difference():
     lo = np.full((3, T), -3.0, np.float32)
     up = np.full((3, T), 3.0, np.float32)
 
-    cfg = PathQPConfig(early_exit=False, max_iter=600)
+    cfg = PathQPConfig(early_exit=False, max_iter=400, rho_updates=1)
 
     def f(bound):
         r = optimize_path_jit(jnp.asarray(lo), jnp.asarray(up).at[0, 8:12].set(bound), 1.0,

@@ -135,8 +135,8 @@ def decide_corridor(lo, hi, hit, road_lo, road_hi, l0, reach, l_pref, side0=None
         dec_l = present & (side == LEFT)
         dec_r = present & (side == RIGHT)
         und = present & (side == NONE)
-        base_lo = jnp.maximum(rl, jnp.max(jnp.where(dec_r, b, -_INF)))
-        base_hi = jnp.minimum(rh, jnp.min(jnp.where(dec_l, a, _INF)))
+        base_lo = jnp.maximum(rl, jnp.max(jnp.where(dec_r, b, -_INF), initial=-_INF))
+        base_hi = jnp.minimum(rh, jnp.min(jnp.where(dec_l, a, _INF), initial=_INF))
         first = i == 0
         q_lo = jnp.where(first, l0 - start_tol, r_lo - rch)
         q_hi = jnp.where(first, l0 + start_tol, r_hi + rch)
@@ -144,7 +144,7 @@ def decide_corridor(lo, hi, hit, road_lo, road_hi, l0, reach, l_pref, side0=None
         e = jnp.concatenate([base_lo[None], jnp.where(und, b, _INF)])  # (K+1,)
         inside = und[None, :] & (a[None, :] < e[:, None]) & (e[:, None] < b[None, :])
         above = und[None, :] & (a[None, :] >= e[:, None])
-        top = jnp.minimum(base_hi, jnp.min(jnp.where(above, a[None, :], _INF), -1))
+        top = jnp.minimum(base_hi, jnp.min(jnp.where(above, a[None, :], _INF), -1, initial=_INF))
         width = top - e
         ok = ~jnp.any(inside, -1) & (e >= base_lo) & jnp.isfinite(e) & (width >= min_gap)
         c_lo = jnp.maximum(e, q_lo)

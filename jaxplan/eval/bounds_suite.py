@@ -136,17 +136,27 @@ def _one_radius(ref_xy, s, l, obs, boxes):
     k_max = jnp.tan(CAR.max_steer) / CAR.wheelbase
     _, _, k_r, _ = ref_state(ref, s)
     ddl = curvature_bounds(k_r, k_max)
+    bs = {}
     for m in METHODS:
         method = "contour" if m.startswith("contour") else m
         normal = "trajectory" if m == "contour_traj" else "frenet"
-        b = path_bounds(ref, s, l, CAR, obs, lane_lower=-LANE, lane_upper=LANE, method=method, normal=normal,
-                        rectangles=True)
+        bs[m] = path_bounds(ref, s, l, CAR, obs, lane_lower=-LANE, lane_upper=LANE, method=method, normal=normal,
+                            rectangles=True)
+    # One QP call for every method's bounds (one compiled solver).
+    M = len(METHODS)
+    init = jnp.stack([l[:, 0], jnp.zeros_like(l[:, 0]), jnp.zeros_like(l[:, 0])], -1)
+    rep = lambda x: jnp.concatenate([x] * M, 0)
+    qp_all = optimize_path(jnp.concatenate([bs[m].lower for m in METHODS]),
+                           jnp.concatenate([bs[m].upper for m in METHODS]), rep(ds), rep(l), rep(init), config=QP,
+                           ddl_bounds=(rep(ddl[0]), rep(ddl[1])))
+    F = s.shape[0]
+    for j, m in enumerate(METHODS):
+        b = bs[m]
+        qp = jax.tree_util.tree_map(lambda x: x[j * F:(j + 1) * F], qp_all)
         bound = jnp.where(b.left, b.obstacle_upper, b.obstacle_lower)  # (F, T, K)
         # 1 mm towards the safe side, so that touching is not counted as unsafe.
         safe = jnp.where(b.left, bound - 1e-3, bound + 1e-3)
         unsafe = _at_bound(ref, s, l, b.heading, safe, obs) | ~jnp.isfinite(bound)
-        init = jnp.stack([l[:, 0], jnp.zeros_like(l[:, 0]), jnp.zeros_like(l[:, 0])], -1)
-        qp = optimize_path(b.lower, b.upper, ds, l, init, config=QP, ddl_bounds=ddl)
         path = to_cartesian(ref, s, jnp.where(qp.ok[:, None], qp.l, l))
         cars = vehicle_corners(path, CAR, headings_from_path(path))  # (F, T, 4, 2)
         hit = has_overlap(cars[:, None], obs)  # (F, K, T)
