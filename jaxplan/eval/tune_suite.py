@@ -190,6 +190,16 @@ def plot_training(history: dict, path: str | None, title: str):
     return _finish(fig, path)
 
 
+def load_suite_weights(args: SuiteArgs):
+    """The cost in ``--weights`` (or None): an ``ImitationModel`` or the lattice rule's
+    weights; unknown names and weights of another planner are refused (``run.load_cost``)."""
+    if not args.weights:
+        return None
+    from jaxplan.tuning.run import load_cost
+
+    return load_cost(args.weights)
+
+
 LOCATION_GROUPS = [("all", ""), ("US-101", "us101."), ("Lankershim", "lankershim."),
                    ("German roads", "german_roads.")]
 
@@ -201,7 +211,12 @@ def tune_suite(args: SuiteArgs) -> dict:
                                     recorded_set, tune_speed)
 
     n = args.n or (24 if args.quick else 64)
-    train, val, source = demonstrations(args.scenarios, n_synthetic=n, seed=args.seed,
+    folder = None
+    if args.scenarios:
+        from jaxplan.scenarios.loader import load_folder
+
+        folder = load_folder(args.scenarios)
+    train, val, source = demonstrations(folder, n_synthetic=n, seed=args.seed,
                                         pattern="USA_US101-1[0-2]*" if args.quick and args.scenarios else None)
     quick = args.quick
     run = compare_lattice(train, val, steps=60 if quick else 400, seed=args.seed,
@@ -211,6 +226,8 @@ def tune_suite(args: SuiteArgs) -> dict:
                           n_boot=200 if quick else 1000)
     m = {f"lattice.{k}": v for k, v in run.metrics.items()}
     m["source_recorded"] = int(source == "recorded")
+    if folder is not None:
+        m["skipped_files"] = len(folder.skipped)
     run.model.save(os.path.join(args.out, "tune_lattice_model.json"))  # `jaxplan eval lattice --weights` reads it
     plot_learning_curve(run.history, run.metrics, os.path.join(args.out, "tune_learning_curve.png"))
     plot_heldout(run.metrics, os.path.join(args.out, "tune_heldout.png"), LOCATION_GROUPS,
@@ -218,7 +235,7 @@ def tune_suite(args: SuiteArgs) -> dict:
     plot_weights(run.model, os.path.join(args.out, "tune_weights.png"))
     plot_lattice_demos(run, os.path.join(args.out, "tune_lattice_demos.png"))
     if source == "recorded" and not quick:
-        loc = held_out_locations(recorded_set(args.scenarios), steps=400, seed=args.seed)
+        loc = held_out_locations(recorded_set(folder), steps=400, seed=args.seed)
         m.update({f"lattice.heldout_location.{k}": v for k, v in loc.items()})
         plot_heldout(loc, os.path.join(args.out, "tune_heldout_locations.png"),
                      [(g, p) for g, p in LOCATION_GROUPS if p], title="held-out locations: ADE at 3 s")

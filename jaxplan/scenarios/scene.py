@@ -504,8 +504,7 @@ def index_scene(batch: Scene, i: int) -> Scene:
 def load_records(paths: list, config: SceneConfig = SceneConfig(), horizon: float | None = None) -> list:
     """``SceneRecord``s from scenario files (``.json`` shared format, ``.xml`` CommonRoad).
 
-    Names are the scenario ids; where two files share an id, their file names (without
-    extension) are used instead, so no output overwrites another.
+    Names are the scenario ids; give several files to ``unique_names`` to make them unique.
 
     Raises:
         ValueError naming the file: unreadable files, scenarios without a planning problem,
@@ -526,8 +525,24 @@ def load_records(paths: list, config: SceneConfig = SceneConfig(), horizon: floa
         except RouteError as e:
             raise ScenarioError(f"{p}: {e}") from None
         recs.append(SceneRecord(sc.id, scene, sc, route, p))
-    ids = [r.name for r in recs]
+    return recs
+
+
+def unique_names(records: list) -> list:
+    """The records renamed as ``jaxplan.scenarios.files.scenario_keys`` keys files: the first of
+    each id keeps it, later ones become ``<id>@<file name>``."""
     import os
 
-    return [dataclasses.replace(r, name=os.path.splitext(os.path.basename(r.path))[0]) if ids.count(r.name) > 1 else r
-            for r in recs]
+    seen, out = set(), []
+    for r in records:
+        name = r.name if r.name not in seen else f"{r.name}@{os.path.basename(r.path)}"
+        seen.add(name)
+        out.append(dataclasses.replace(r, name=name))
+    return out
+
+
+def world_route(path: str) -> np.ndarray:
+    """The route a jaxplan planner drives on in scenario ``path``, in world coordinates ``(R, 2)``
+    (for other planners run on the same route, ``experiments/compare_peers.py``)."""
+    rec = load_records([path])[0]
+    return np.asarray(rec.scene.route.xy, float) + np.asarray(rec.scenario.origin, float)

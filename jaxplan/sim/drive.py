@@ -8,10 +8,12 @@ bird's-eye PNG (``--animate``: a GIF too) and, for CommonRoad input, a solution 
 ``metrics.json`` (summary figures ``drive.<planner>.<figure>`` and one row per drive under
 ``rows``) and ``report.md``.
 
-``driven.json``: ``{"scenario": id, "planner": name, "dt": 0.1, "vehicle": {"length": L,
+``driven.json``: ``{"scenario": key, "planner": name, "dt": 0.1, "vehicle": {"length": L,
 "width": W}, "states": [[t, x, y, theta, v, a], ...]}``, ``(x, y)`` the centre of the car's
 box in the scenario's own (world) coordinates, ``t`` from the scenario start, one row per
-``dt`` from ``t = 0`` to the end of the drive.
+``dt`` from ``t = 0`` to the end of the drive. ``key`` is the scenario id, made unique over the
+files of one run as ``jaxplan.scenarios.files.scenario_keys`` does (``<id>@<file name>`` for a
+later file with the same id); the folder is named by it too.
 
 With one planner the per-scenario folders are ``OUT/<scenario>/``; with several,
 ``OUT/<planner>/<scenario>/``.
@@ -20,7 +22,6 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-import glob
 import json
 import math
 import os
@@ -35,32 +36,7 @@ from jaxplan.planner import make_planner
 from jaxplan.sim.metrics.registry import evaluate_batch
 from jaxplan.sim.rollout import SimConfig, rollout
 
-SCENARIO_EXTENSIONS = (".json", ".xml")
 DEFAULT_MAX_STEPS = 200  # 20 s at dt 0.1
-
-
-def expand_paths(paths: list) -> tuple[list, list]:
-    """Scenario files from files and folders (sorted; folders give their ``*.json`` / ``*.xml``).
-
-    Returns:
-        (files, problems): ``problems`` names each argument that is not usable (missing, an
-        empty folder, a file of another type).
-    """
-    files, problems = [], []
-    for p in paths:
-        if os.path.isdir(p):
-            found = sorted(f for f in glob.glob(os.path.join(p, "*")) if f.lower().endswith(SCENARIO_EXTENSIONS))
-            if not found:
-                problems.append(f"{p}: folder has no scenario files (*.json, *.xml)")
-            files += found
-        elif os.path.isfile(p):
-            if not p.lower().endswith(SCENARIO_EXTENSIONS):
-                problems.append(f"{p}: not a scenario file (expected .json or .xml)")
-            else:
-                files.append(p)
-        else:
-            problems.append(f"{p}: no such file or folder")
-    return files, problems
 
 
 @dataclasses.dataclass
@@ -101,6 +77,7 @@ def summarize(rows: list) -> dict:
     out["time_to_goal_mean"] = float(np.mean(col("goal.time")[reached])) if reached.any() else float("nan")
     out["plan_not_ok_share"] = float(np.mean(col("plan_not_ok_share")))
     out["fallback_cycles"] = float(np.sum(col("fallback_cycles")))
+    out["replans_per_drive"] = float(np.mean(col("replans")))
     out["scenes"] = float(len(rows))
     return out
 
@@ -167,9 +144,10 @@ def _row(i, rec, planner_name, metrics, log) -> dict:
     for k, v in metrics.items():
         x = v[i]
         row[k] = bool(x) if x.dtype == bool else (int(x) if np.issubdtype(x.dtype, np.integer) else float(x))
-    ok = np.asarray(log.plan_ok[i] if hasattr(log, "plan_ok") else log["plan_ok"][i])
+    ok = np.asarray(log.plan_ok[i])
     row["plan_not_ok_share"] = float(1.0 - np.mean(ok))
-    row["fallback_cycles"] = int(np.sum(log.fallback[i] if hasattr(log, "fallback") else log["fallback"][i]))
+    row["fallback_cycles"] = int(np.sum(log.fallback[i]))
+    row["replans"] = int(np.sum(log.replanned[i]))
     row["end_time"] = float(np.asarray(log.t[i])[int(log.end_step[i])])
     return row
 
@@ -191,7 +169,7 @@ def write_drive(folder: str, rec, planner_name: str, vehicle, log_i: dict, row: 
     states = [[round(float(log_i["t"][k]), 6), float(log_i["x"][k]) + ox, float(log_i["y"][k]) + oy,
                float(log_i["heading"][k]), float(log_i["v"][k]), float(log_i["a"][k])] for k in range(n)]
     _write_json(os.path.join(folder, "driven.json"),
-                {"scenario": rec.scenario.id, "planner": planner_name, "dt": float(rec.scenario.dt),
+                {"scenario": rec.name, "planner": planner_name, "dt": float(rec.scenario.dt),
                  "vehicle": {"length": float(vehicle.length), "width": float(vehicle.width)}, "states": states})
     title = f"{rec.name}: {planner_name}"
     plot_drive(os.path.join(folder, "drive.png"), rec.scene, row, log_i, vehicle, title)
@@ -242,6 +220,7 @@ def drive(records, planners: list, out: str, config: SimConfig, animate: bool = 
         all_rows[name], summary[name] = rows, summ
     figures = {f"drive.{p}.{k}": v for p, s in summary.items() for k, v in s.items()}
     run = {"kind": "jaxplan drive", "planners": list(planners), "replan_every": config.replan_every,
+           "replan": config.replan,
            "tracking": config.tracking, "n_steps": config.n_steps, "dt": config.dt,
            "scenarios": [r.name for r in records], "skipped_files": list(skipped)}
     _write_json(os.path.join(out, "metrics.json"),

@@ -342,7 +342,7 @@ def synthetic_demos(n: int, seed: int = 0, cfg: DemoConfig = DemoConfig()) -> De
     v = np.repeat(sc.ego[:, 3:4], sc.t.shape[1], axis=1)
     f32 = lambda x: jnp.asarray(x, jnp.float32)
     return Demo(f32(sc.ego), f32(sc.ref_xy), f32(sc.boxes), jnp.asarray(sc.valid),
-                jnp.zeros(sc.valid.shape[:2], bool), f32(sc.cruise), f32(v), jnp.ones(v.shape, bool), f32(sc.t))
+                jnp.asarray(sc.static, bool), f32(sc.cruise), f32(v), jnp.ones(v.shape, bool), f32(sc.t))
 
 
 def synthetic_set(n: int, seed: int = 0, cfg: DemoConfig = DemoConfig(), per_scenario: int = 4) -> DemoSet:

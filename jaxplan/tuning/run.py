@@ -13,7 +13,7 @@ location. ``tune_speed``: the speed planner's weights through the soft DP.
 from __future__ import annotations
 
 import dataclasses
-import glob
+import fnmatch
 import os
 
 import jax
@@ -25,7 +25,8 @@ from jaxplan.tuning.baselines import (CHUNK, IDM_GRID, calibrate_idm, constant_a
 from jaxplan.tuning.demos import LOCATIONS, DemoConfig, DemoSet, demo_set, synthetic_set
 from jaxplan.tuning.imitation import ImitationModel, fit_model, random_search_model
 from jaxplan.tuning.lattice_tuning import (TUNING_CONFIG, TUNING_CONFIGS, LatticeData, choice_errors,
-                                           default_weights, lattice_data, nearest_eligible, rule_choice)
+                                           WEIGHT_NAMES, default_weights, lattice_data, nearest_eligible,
+                                           rule_choice)
 from jaxplan.tuning.metrics import bootstrap_ci, summary
 from jaxplan.tuning.traffic import IDMParams
 from jaxplan.tuning.vehicles import split_by_vehicle
@@ -45,37 +46,24 @@ def slug(location: str) -> str:
     return location.lower().replace(" ", "_").replace("-", "")
 
 
-def load_scenarios(directory: str, max_files: int | None = None, pattern: str = "*") -> tuple[list, list]:
-    """Every loadable scenario of a folder (sorted by name; file names matching ``pattern``.json)
-    and the files that failed (named)."""
-    from jaxplan.scenarios.loader import ScenarioError, load_scenario
-
-    if not os.path.isdir(directory):
-        raise ValueError(f"--scenarios {directory}: not a directory")
-    files = sorted(glob.glob(os.path.join(directory, pattern + ".json")))
-    if not files:
-        raise ValueError(f"--scenarios {directory}: no scenario JSON files" + (f" matching {pattern}" if
-                                                                              pattern != "*" else ""))
-    scs, bad = [], []
-    for f in files[:max_files] if max_files else files:
-        try:
-            scs.append(load_scenario(f))
-        except ScenarioError as e:
-            bad.append(f"{os.path.basename(f)}: {e}")
-    if not scs:
-        raise ValueError(f"--scenarios {directory}: no loadable scenario file ({len(bad)} failed)")
-    return scs, bad
-
-
-def recorded_set(directory: str, cfg: DemoConfig = DemoConfig(), max_files: int | None = None,
+def recorded_set(scenarios, cfg: DemoConfig = DemoConfig(), max_files: int | None = None,
                  pattern: str | None = None) -> DemoSet:
-    """Every demonstration of a scenario folder, with vehicle identities across its files."""
-    scs, _ = load_scenarios(directory, pattern=pattern or "*")
-    if max_files:
-        scs = scs[:max_files]
+    """Every demonstration of a scenario folder, with vehicle identities across its files.
+
+    Args:
+        scenarios: a folder (loaded by ``jaxplan.scenarios.loader.load_folder``: files that fail
+            are named on stderr and skipped) or the ``Folder`` it returned.
+        max_files: the first files only; pattern: file names ``pattern.json`` only.
+    """
+    from jaxplan.scenarios import loader
+
+    folder = scenarios if isinstance(scenarios, loader.Folder) else \
+        loader.load_folder(scenarios, pattern=(pattern or "*") + ".json", limit=max_files)
+    scs = [s for s, f in zip(folder.scenarios, folder.files)
+           if pattern is None or fnmatch.fnmatch(os.path.basename(f), pattern + ".json")][:max_files]
     ds = demo_set(scs, cfg)
     if ds is None or len(ds) < 2:
-        raise ValueError(f"--scenarios {directory}: too few demonstrations ({0 if ds is None else len(ds)})")
+        raise ValueError(f"--scenarios {folder.directory}: too few demonstrations ({0 if ds is None else len(ds)})")
     return ds
 
 
@@ -259,11 +247,7 @@ def load_cost(path: str):
         raise ValueError(f"{path}: not a weights file ({type(e).__name__}: {e})") from None
     if kind == MODEL_KIND:
         return ImitationModel.load(path)
-    w = load_weights(path)
-    unknown = [k for k in w if k not in default_weights()]
-    if unknown:
-        raise ValueError(f"{path}: unknown weights {unknown}; known: {', '.join(default_weights())}")
-    return w
+    return load_weights(path, allowed=WEIGHT_NAMES, planner="lattice")
 
 
 def demonstrations(scenarios: str | None, n_synthetic: int = CHUNK, seed: int = 0, max_files: int | None = None,
