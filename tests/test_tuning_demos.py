@@ -146,3 +146,23 @@ def test_demo_counts_per_location_of_the_shared_set():
 
     n = sum(len(scenario_demos(load_scenario(f), DemoConfig(n_obstacles=4, ref_points=16))[0]) for f in files)
     assert n >= 40  # the 3 Lankershim files long enough for 1 s past + 3 s future
+
+
+def test_speed_examples_keep_paths_the_speed_planner_accepts():
+    """A recorded path that jitters back and forth (a nearly stopped car) is left out of the
+    speed planner's examples; every kept path passes the planner's own input check."""
+    import jax.numpy as jnp
+
+    from jaxplan.geometry.frenet import ReferenceLine
+    from jaxplan.tuning.demos import synthetic_demos
+    from jaxplan.tuning.speed_tuning import speed_data
+
+    d = synthetic_demos(4, seed=0)
+    xy = np.array(d.human_xy)
+    t = np.arange(xy.shape[1]) * 0.1
+    xy[1] = np.stack([2.0 * t + 0.4 * (np.arange(len(t)) % 2), np.zeros_like(t)], -1)  # steps back every other sample
+    xy[2] = np.stack([0.05 * np.sin(t), np.zeros_like(t)], -1)                          # never moves 2 m
+    data, kept = speed_data(dataclasses.replace(d, human_xy=jnp.asarray(xy, jnp.float32)))
+    assert kept.tolist() == [0, 3] and data.path_xy.shape[0] == 2
+    for p in np.asarray(data.path_xy, np.float64):
+        ReferenceLine.from_polyline(p).validate()

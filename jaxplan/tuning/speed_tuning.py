@@ -74,11 +74,15 @@ class SpeedData:
 
 def speed_data(demos: Demo, config: SpeedConfig = SPEED_TUNING_CONFIG, points: int = 64,
                extend: float = 200.0) -> tuple[SpeedData, np.ndarray]:
-    """Examples from demonstrations whose human moved at least 2 m.
+    """Examples from demonstrations whose human moved at least 2 m along a path that does not
+    turn back on itself (recorded positions of a nearly stopped car jitter back and forth;
+    the speed planner refuses such a path, ``ReferenceLine.validate``).
 
     Returns:
         (data, kept) where ``kept`` indexes the demonstrations used.
     """
+    from jaxplan.geometry.frenet import _check_turns
+
     hxy = np.asarray(demos.human_xy, np.float64)
     hv = np.asarray(demos.human_valid, bool)
     seg = np.linalg.norm(np.diff(hxy, axis=1), axis=-1) * hv[:, 1:]       # (B, T-1), 0 past the recording
@@ -87,12 +91,18 @@ def speed_data(demos: Demo, config: SpeedConfig = SPEED_TUNING_CONFIG, points: i
     idx = np.arange(config.n_t + 1) * steps
     if idx[-1] >= s.shape[1]:
         raise ValueError(f"speed_data: demonstrations of {s.shape[1]} samples are shorter than the DP horizon")
-    kept = np.nonzero(s[:, -1] > 2.0)[0]
-    paths = []
-    for b in kept:
+    paths, kept = [], []
+    for b in np.nonzero(s[:, -1] > 2.0)[0]:
         keep = np.concatenate([[True], seg[b] > 1e-3])
         sb = s[b][keep]
-        paths.append(resample_polyline(hxy[b][keep], sb, np.linspace(0.0, sb[-1] + extend, points)))
+        path = resample_polyline(hxy[b][keep], sb, np.linspace(0.0, sb[-1] + extend, points))
+        try:
+            _check_turns(path)
+        except ValueError:
+            continue
+        paths.append(path)
+        kept.append(b)
+    kept = np.asarray(kept, int)
     pick = lambda x: jnp.asarray(np.asarray(x)[kept])
     obs = Obstacles(pick(demos.obstacles), pick(demos.obstacle_valid), pick(demos.t), pick(demos.obstacle_static))
     data = SpeedData(jnp.asarray(np.array(paths).reshape(len(kept), points, 2), jnp.float32), obs,
