@@ -21,7 +21,8 @@ def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("scenarios")
     p.add_argument("--out", required=True)
-    p.add_argument("--steps", type=int, default=400, help="optimiser steps of the imitation cost")
+    p.add_argument("--steps", type=int, help="optimiser steps of the imitation cost (default run.RECORDED_STEPS)")
+    p.add_argument("--lr", type=float, help="its learning rate (default run.RECORDED_LR)")
     p.add_argument("--speed-steps", type=int, default=40)
     p.add_argument("--skip", choices=("locations", "speed"), action="append", default=[])
     args = p.parse_args(argv)
@@ -37,7 +38,8 @@ def main(argv=None) -> int:
         print(f"speed done in {out['speed.wall_s']:.0f} s", file=sys.stderr, flush=True)
     if "locations" not in args.skip:
         t0 = time.time()
-        out.update({f"heldout_location.{k}": v for k, v in held_out_locations(ds, steps=args.steps).items()})
+        kw = {k: v for k, v in (("steps", args.steps), ("lr", args.lr)) if v is not None}
+        out.update({f"heldout_location.{k}": v for k, v in held_out_locations(ds, **kw).items()})
         out["heldout_location.wall_s"] = time.time() - t0
     out = {k: float(v) if hasattr(v, "__float__") else v for k, v in out.items()}
     with open(args.out, "w") as f:

@@ -55,7 +55,7 @@ def parser() -> argparse.ArgumentParser:
                    help="directory of recorded scenarios (default: synthetic demonstrations)")
     t.add_argument("--out", type=ca.output_file, default="weights.json",
                    help="weights file to write (default: weights.json)")
-    t.add_argument("--steps", type=ca.positive_int, help="optimiser steps (default: 400 lattice, 40 speed)")
+    t.add_argument("--steps", type=ca.positive_int, help="optimiser steps (default: 800 lattice on recorded scenarios, 400 synthetic; 40 speed)")
     t.add_argument("--seed", type=ca.nonnegative_int, default=0)
     r = sub.add_parser("report", help="write RESULTS_DIR/report.md from its metrics and plots")
     r.add_argument("results_dir", type=ca.existing_dir)
@@ -99,7 +99,8 @@ def _tune(args) -> int:
     import dataclasses
 
     from jaxplan.tuning.baselines import IDM_GRID
-    from jaxplan.tuning.run import SMALL_IDM_GRID, compare_lattice, demonstrations, tune_speed
+    from jaxplan.tuning.run import (RECORDED_LR, RECORDED_STEPS, SMALL_IDM_GRID, compare_lattice, demonstrations,
+                                    tune_speed)
     from jaxplan.tuning.train import save_weights
 
     folder = None
@@ -110,7 +111,8 @@ def _tune(args) -> int:
     train, val, source = demonstrations(folder, seed=args.seed)
     if args.planner == "lattice":
         recorded = source == "recorded"
-        res = compare_lattice(train, val, steps=args.steps or 400, seed=args.seed,
+        res = compare_lattice(train, val, steps=args.steps or (RECORDED_STEPS if recorded else 400),
+                              lr=RECORDED_LR if recorded else 0.05, seed=args.seed,
                               candidate_set="rich" if recorded else "small",
                               idm_grid=IDM_GRID if recorded else SMALL_IDM_GRID, ce_weight=0.0 if recorded else 1.0)
         model = dataclasses.replace(res.model, meta={**res.model.meta, "planner": "lattice", "source": source,

@@ -49,4 +49,11 @@ def test_tune_writes_a_model_that_eval_reads(tmp_path):
             assert m[f"imitation.{k}.{f}"] >= 0
         assert m[f"imitation.{k}.ade3_ci_lo"] <= m[f"imitation.{k}.ade3"] <= m[f"imitation.{k}.ade3_ci_hi"]
     assert os.path.exists(os.path.join(str(tmp_path), "lattice_imitation.png"))
+    # beside it the rule weights the closed-loop planner takes: drive reads them, and refuses the model
+    from jaxplan.tuning.lattice_tuning import WEIGHT_NAMES
+    from jaxplan.tuning.train import load_weights
+
+    rule = str(tmp_path / "w.rule.json")
+    assert set(load_weights(rule, allowed=WEIGHT_NAMES, planner="lattice")) == set(WEIGHT_NAMES)
+    assert main(["drive", "--builtin", "--planner", "lattice", "--weights", path, "--out", str(tmp_path / "d")]) == 2
     assert main(["tune", "lattice", "--steps", "-3", "--out", path]) == 2

@@ -207,8 +207,8 @@ LOCATION_GROUPS = [("all", ""), ("US-101", "us101."), ("Lankershim", "lankershim
 @register("tune")
 def tune_suite(args: SuiteArgs) -> dict:
     from jaxplan.tuning.baselines import IDM_GRID
-    from jaxplan.tuning.run import (SMALL_IDM_GRID, compare_lattice, demonstrations, held_out_locations,
-                                    recorded_set, tune_speed)
+    from jaxplan.tuning.run import (RECORDED_LR, RECORDED_STEPS, SMALL_IDM_GRID, compare_lattice, demonstrations,
+                                    held_out_locations, recorded_set, tune_speed)
 
     n = args.n or (24 if args.quick else 64)
     folder = None
@@ -219,7 +219,9 @@ def tune_suite(args: SuiteArgs) -> dict:
     train, val, source = demonstrations(folder, n_synthetic=n, seed=args.seed,
                                         pattern="USA_US101-1[0-2]*" if args.quick and args.scenarios else None)
     quick = args.quick
-    run = compare_lattice(train, val, steps=60 if quick else 400, seed=args.seed,
+    recorded = source == "recorded" and not quick
+    run = compare_lattice(train, val, steps=60 if quick else RECORDED_STEPS if recorded else 400,
+                          lr=RECORDED_LR if recorded else 0.05, seed=args.seed,
                           candidate_set="small" if quick or source == "synthetic" else "rich",
                           idm_grid=SMALL_IDM_GRID if quick or source == "synthetic" else IDM_GRID,
                           ce_weight=1.0 if source == "synthetic" else 0.0,
@@ -235,7 +237,7 @@ def tune_suite(args: SuiteArgs) -> dict:
     plot_weights(run.model, os.path.join(args.out, "tune_weights.png"))
     plot_lattice_demos(run, os.path.join(args.out, "tune_lattice_demos.png"))
     if source == "recorded" and not quick:
-        loc = held_out_locations(recorded_set(folder), steps=400, seed=args.seed)
+        loc = held_out_locations(recorded_set(folder), seed=args.seed)
         m.update({f"lattice.heldout_location.{k}": v for k, v in loc.items()})
         plot_heldout(loc, os.path.join(args.out, "tune_heldout_locations.png"),
                      [(g, p) for g, p in LOCATION_GROUPS if p], title="held-out locations: ADE at 3 s")

@@ -35,6 +35,10 @@ from jaxplan.tuning.vehicles import split_by_vehicle
 CANDIDATE_SETS = {"rich": TUNING_CONFIGS, "small": (TUNING_CONFIG,)}
 METHODS = ("constant_velocity", "constant_acceleration", "idm", "default", "grid", "random_search", "weights",
            "oracle")
+# Optimiser settings of recorded demonstrations: on the 896 training demonstrations of
+# commonroad2018a the expected-ADE3 loss reaches 0.928 m with 800 steps at lr 0.2 against
+# 0.965 m with 400 at 0.05 (the learned temperature keeps falling: the fit is still moving).
+RECORDED_STEPS, RECORDED_LR = 800, 0.2
 SMALL_IDM_GRID = {"v_ratio": (1.0, 1.1), "v_extra": (0.0, 3.0), "headway": (0.5, 1.2), "a_max": (0.6,),
                   "b_comf": (1.0, 2.0)}
 # Hidden "driver" of synthetic demonstrations: follows the desired progress, dislikes lane changes and jerk.
@@ -206,8 +210,9 @@ def compare_lattice(train: DemoSet, val: DemoSet, steps: int = 400, lr: float = 
     return ImitationRun(model, hist, m, errors, val, dva, idm_params, rule, rand)
 
 
-def held_out_locations(ds: DemoSet, steps: int = 400, seed: int = 0, candidate_set: str = "rich",
-                       idm_grid: dict = IDM_GRID, n_boot: int = 1000, min_demos: int = 10) -> dict:
+def held_out_locations(ds: DemoSet, steps: int = RECORDED_STEPS, seed: int = 0, candidate_set: str = "rich",
+                       idm_grid: dict = IDM_GRID, n_boot: int = 1000, min_demos: int = 10,
+                       lr: float = RECORDED_LR) -> dict:
     """``compare_lattice`` trained on every other location, figures on each held-out location:
     ``{location}.{method}.{metric}``."""
     out = {}
@@ -215,7 +220,7 @@ def held_out_locations(ds: DemoSet, steps: int = 400, seed: int = 0, candidate_s
         test = ds.index.location == loc
         if test.sum() < min_demos or (~test).sum() < min_demos:
             continue
-        run = compare_lattice(ds.take(~test), ds.take(test), steps, seed=seed, candidate_set=candidate_set,
+        run = compare_lattice(ds.take(~test), ds.take(test), steps, lr=lr, seed=seed, candidate_set=candidate_set,
                               idm_grid=idm_grid, n_boot=n_boot, log_every=max(1, steps), by_location=False)
         out.update({f"{slug(loc)}.{k}": v for k, v in run.metrics.items()
                     if not k.startswith(("train.", "weight."))})
