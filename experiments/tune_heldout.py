@@ -35,18 +35,23 @@ def main(argv=None) -> int:
         train, val = split(ds)
         out.update({f"speed.{k}": v for k, v in tune_speed(train, val, steps=args.speed_steps).metrics.items()})
         out["speed.wall_s"] = time.time() - t0
-        print(f"speed done in {out['speed.wall_s']:.0f} s", file=sys.stderr, flush=True)
+        _write(out, args.out)
     if "locations" not in args.skip:
         t0 = time.time()
         kw = {k: v for k, v in (("steps", args.steps), ("lr", args.lr)) if v is not None}
         out.update({f"heldout_location.{k}": v for k, v in held_out_locations(ds, **kw).items()})
         out["heldout_location.wall_s"] = time.time() - t0
+    _write(out, args.out)
+    return 0
+
+
+def _write(out: dict, path: str) -> None:
+    """Print the figures so far and write them to ``path`` (each part as soon as it is done)."""
     out = {k: float(v) if hasattr(v, "__float__") else v for k, v in out.items()}
-    with open(args.out, "w") as f:
+    with open(path, "w") as f:
         json.dump(out, f, indent=1, sort_keys=True)
     json.dump(out, sys.stdout, indent=1, sort_keys=True)
-    print(f"\nwrote {args.out}")
-    return 0
+    print(f"\nwrote {path}", flush=True)
 
 
 if __name__ == "__main__":
