@@ -741,7 +741,7 @@ def main(argv=None) -> dict:
         for name in args.jaxplan:
             folder = os.path.join(out, f"jaxplan-{name}")
             cmd = [sys.executable, "-m", "jaxplan", "drive", *args.scenarios, "--planner", name, "--out", folder,
-                   "--replan-every", str(args.replan)]
+                   "--replan-every", str(args.replan), "--max-steps", str(args.max_steps)]
             print("running", " ".join(cmd), flush=True)
             r = subprocess.run(cmd, cwd=ROOT)
             if r.returncode != 0:
