@@ -5,6 +5,8 @@ import argparse
 import json
 import sys
 
+from jaxplan.parking import cli as parkout_cli
+
 
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="jaxplan", description=__doc__)
@@ -25,6 +27,7 @@ def main(argv=None) -> int:
     t.add_argument("--seed", type=int, default=0)
     r = sub.add_parser("report", help="write RESULTS_DIR/report.md from its metrics and plots")
     r.add_argument("results_dir")
+    parkout_cli.add_parser(sub)
     args = p.parse_args(argv)
     if args.cmd == "report":
         from jaxplan.eval.report import write_report
@@ -37,6 +40,8 @@ def main(argv=None) -> int:
         return 0
     if args.cmd == "tune":
         return _tune(args)
+    if args.cmd == "parkout":
+        return parkout_cli.run(args)
     if args.cmd == "eval":
         from jaxplan.eval.registry import SuiteArgs, run_suite
 

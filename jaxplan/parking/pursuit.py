@@ -76,18 +76,24 @@ def bicycle_step(pose, steer, ds, vehicle):
     return _advance(pose, jnp.tan(steer) / vehicle.wheelbase, ds)
 
 
-def _project(samples, s_samples, p, s_min):
-    """Arc length of the point of a sampled curve nearest to ``p``, at least ``s_min - 0.3``."""
-    d2 = jnp.sum((samples[:, :2] - p) ** 2, -1)
-    d2 = jnp.where(s_samples >= s_min - 0.3, d2, jnp.inf)
+def _project(samples, s_samples, p, i_prev, window: int = 12):
+    """Arc length of the point of a sampled curve nearest to ``p``, searched in a window of
+    ``window`` samples from two before the previous projection ``i_prev`` (the rollout moves
+    at most a sample or two per step). Returns (arc length, sample index)."""
+    n = samples.shape[0]
+    w = min(window, n)
+    lo = jnp.clip(i_prev - 2, 0, n - w)
+    win = lax.dynamic_slice_in_dim(samples, lo, w)
+    d2 = jnp.sum((win[:, :2] - p) ** 2, -1)
     k = jnp.argmin(d2)
-    t = jnp.stack([jnp.cos(samples[k, 2]), jnp.sin(samples[k, 2])])
+    i = lo + k
+    t = jnp.stack([jnp.cos(win[k, 2]), jnp.sin(win[k, 2])])
     step = s_samples[1] - s_samples[0]
-    return s_samples[k] + jnp.clip(jnp.dot(p - samples[k, :2], t), -step, step)
+    return s_samples[i] + jnp.clip(jnp.dot(p - win[k, :2], t), -step, step), i
 
 
 def rollout(pose, curve: Curve, hits: Callable, vehicle, config: ParkoutConfig, stop_y=None,
-            stop_heading=0.0) -> Rollout:
+            stop_heading=0.0, steps: int | None = None) -> Rollout:
     """Drive one curve by pure pursuit and cut it at the first collision.
 
     Each step projects the rear axle onto the curve, aims at the point
@@ -105,9 +111,10 @@ def rollout(pose, curve: Curve, hits: Callable, vehicle, config: ParkoutConfig, 
         hits: ``poses (T, 3) -> (T,) bool`` footprint collision check.
         stop_y: if given and finite, the goal is this ``y`` (see above);
             stop_heading: its heading.
+        steps: points ``T`` (default ``config.steps``).
 
     Returns:
-        ``Rollout`` with ``T = config.steps`` points.
+        ``Rollout`` with ``T`` points.
     """
     dtype = pose.dtype
     n = config.ref_samples
@@ -117,9 +124,11 @@ def rollout(pose, curve: Curve, hits: Callable, vehicle, config: ParkoutConfig, 
     line = jnp.isfinite(jnp.inf if stop_y is None else stop_y)
     stop_y = jnp.inf if stop_y is None else stop_y
 
+    T = config.steps if steps is None else steps
+
     def step(state, i):
-        p, steer, s_prev, finished = state
-        s_p = _project(samples, s_samp, p[:2], s_prev)
+        p, steer, i_prev, finished = state
+        s_p, i_new = _project(samples, s_samp, p[:2], i_prev)
         level = jnp.abs(wrap_angle(p[2] - stop_heading)) < 0.5 * config.out_tol
         done = jnp.where(line, (p[1] >= stop_y) & (level | (s_p >= curve.end)), s_p >= curve.end)
         target = curve_point(curve, s_p + config.look_ahead)[:2]
@@ -129,16 +138,16 @@ def rollout(pose, curve: Curve, hits: Callable, vehicle, config: ParkoutConfig, 
         stop = finished | done
         nxt = jnp.where(stop, p, bicycle_step(p, new_steer, gear * config.dl, vehicle))
         out = (p, ~finished, done & ~finished, new_steer)
-        return (nxt, jnp.where(stop, steer, new_steer), jnp.maximum(s_prev, s_p), stop), out
+        return (nxt, jnp.where(stop, steer, new_steer), jnp.maximum(i_prev, i_new), stop), out
 
-    init = (pose, jnp.zeros((), dtype), jnp.asarray(-1e6, dtype), jnp.zeros((), bool))
-    _, (poses, exists, goal, steer) = lax.scan(step, init, jnp.arange(config.steps))
+    init = (pose, jnp.zeros((), dtype), jnp.zeros((), jnp.int32), jnp.zeros((), bool))
+    _, (poses, exists, goal, steer) = lax.scan(step, init, jnp.arange(T))
     collide = hits(poses)
     clear = jnp.cumprod(~collide) > 0
     valid = exists & clear
     nv = jnp.sum(valid)
-    k = jnp.arange(config.steps)
+    k = jnp.arange(T)
     s = gear * config.dl * jnp.minimum(k, jnp.maximum(nv - 1, 0)).astype(dtype)
-    return Rollout(poses=poses, gear=jnp.broadcast_to(gear, (config.steps,)), steer=steer, s=s,
+    return Rollout(poses=poses, gear=jnp.broadcast_to(gear, (T,)), steer=steer, s=s,
                    valid=valid, length=config.dl * jnp.maximum(nv - 1, 0).astype(dtype),
                    complete=jnp.any(goal & valid), cut=jnp.any(exists & ~clear))
