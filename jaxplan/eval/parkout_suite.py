@@ -68,6 +68,10 @@ def run_metrics(poses, valid, polygons, poly_valid, vehicle):
     return coll, clear
 
 
+def _judge(res, scene: ParkingScene, vehicle):
+    return run_metrics(res.poses, res.valid, scene.polygons, scene.valid, vehicle)
+
+
 def sweep(n_per_gap: int, gaps, seed: int, config: ParkoutConfig, vehicle: VehicleParams, noise: bool = True):
     """Scenes with equal front and rear gap ``g`` for each ``g`` in ``gaps``; both models, one batched call each."""
     rng = np.random.default_rng(seed)
@@ -246,12 +250,13 @@ def _plot(out_dir, scene, info, out, gaps, cfg, car, examples, side_data):
     polys = [p for p, v in zip(np.asarray(one.polygons[0]), np.asarray(one.valid[0])) if v]
     fig, ax = plt.subplots(figsize=(10, 5))
     plot_parkout(ax, polys, res, car, cfg, cells=cells, stop_y=float(stop_line(car, cfg.c)),
-                 title=f"park-out, gap {info['gap'][i]:.2f} m, {int(moves[i])} moves (grid read once at the start)")
+                 title=f"park-out, gap {info['gap'][i]:.2f} m, {int(moves[i])} moves (one grid read at the start; "
+                       f"noise drawn anew for the picture)")
     fig.tight_layout()
     fig.savefig(os.path.join(out_dir, "parkout_maneuvers.png"), dpi=90)
     plt.close(fig)
 
-    fig, axs = plt.subplots(2, 3, figsize=(16, 8.5))
+    fig, axs = plt.subplots(2, 3, figsize=(17, 5.6))
     for ax, (fam, (sc, res)) in zip(axs.ravel(), examples.items()):
         polys = [p for p, v in zip(sc.polygons, sc.valid) if v]
         sc1 = jax.tree_util.tree_map(lambda a: np.asarray(a)[None], sc)

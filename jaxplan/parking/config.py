@@ -90,8 +90,8 @@ class ParkoutConfig:
     min_progress: float = 0.05
     ref_samples: int = 160
     search: bool = True
-    steer_levels: tuple = (1.0, 0.5, 0.0, -0.5, -1.0)
-    arc_steps: int = 60
+    steer_levels: tuple = (1.0, 0.4, -0.4, -1.0)
+    arc_steps: int = 48
     beam: int = 8
     gear_penalty: float = 1.0
     v_forward: float = 1.0

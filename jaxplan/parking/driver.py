@@ -4,8 +4,8 @@
 ``slots`` parallel lanes inside one jitted ``lax.while_loop``; each time a scene
 finishes (out, stuck, out of moves or no progress) its lane takes the next
 scene from the queue, so a slow scene holds one lane, not the batch. Scenes the
-seed's two curves fail go to the search (``search.search``) in small padded
-groups. Each grid's cell table is computed once and shared by all lanes
+seed's two curves fail go to the search (``search``), which runs the same way:
+``SEARCH_SLOTS`` lanes, one depth per iteration, refilled as searches finish. Each grid's cell table is computed once and shared by all lanes
 (looked up by offset, never copied).
 
 ``park_out`` renders each scene's grid (once, at the start, in the slot frame)
@@ -28,12 +28,12 @@ from jaxplan.parking.parkout import (GridModel, ParkoutResult, PointModel, hits_
                                      seed_step)
 from jaxplan.parking.render import render_grids
 from jaxplan.parking.scenes import ParkingScene
-from jaxplan.parking.search import search_parkout
+from jaxplan.parking.search import search_steps
 from jaxplan.parking.two_corner import two_corner_points
 from jaxplan.types import VehicleParams, is_concrete
 
 CHUNKS = (8, 64, 512)  # scenes per jitted call (padded up to one of these: few compiles)
-SEARCH_GROUP = 8  # scenes per search call (padded)
+SEARCH_SLOTS = 8  # search lanes per call (at most; half the padded number of searches)
 
 
 def _bucket(n: int) -> int:
@@ -94,12 +94,55 @@ def _run_seed(starts, models, n_real, config, vehicle, slots):
     return outs
 
 
-@functools.partial(jax.jit, static_argnames=("config",))
-def _run_search(starts, models, idx, config, vehicle, table):
-    def one(s, i):
-        return search_parkout(s, _slot_model(models, i, config), config, vehicle, table)
+@functools.partial(jax.jit, static_argnames=("config", "slots"))
+def _run_search(starts, models, ids, n_ids, config, vehicle, table, slots):
+    """Searches for the scenes ``ids[:n_ids]`` (indices into the chunk) through ``slots`` lanes, one depth
+    per iteration; a lane whose search is done takes the next scene. Returns a ``ParkoutResult`` ``(Q, ...)``
+    in the order of ``ids``."""
+    Q, W, dtype = ids.shape[0], slots, starts.dtype
 
-    return jax.vmap(one)(starts[idx], idx)
+    def steps(q):
+        i = ids[jnp.clip(q, 0, Q - 1)]
+        check = hits_fn(_slot_model(models, i, config), vehicle, config)
+        return search_steps(check, config, vehicle, table, dtype), starts[i]
+
+    def start(q):
+        (init, _, _), s0 = steps(q)
+        c = init(s0)
+        return c._replace(done=c.done | (q < 0))
+
+    def finish(c, q):
+        (_, _, fin), s0 = steps(q)
+        return fin(c, s0)
+
+    qs = jnp.arange(Q)
+    outs = jax.vmap(finish)(jax.vmap(start)(jnp.full((Q,), -1)), qs)
+    lane_q = jnp.where(jnp.arange(W) < n_ids, jnp.arange(W), -1)
+    lanes = jax.vmap(start)(lane_q)
+
+    def harvest(c):
+        lanes, lane_q, nq, outs = c
+        fin = (lane_q >= 0) & lanes.done
+        res = jax.vmap(finish)(lanes, lane_q)
+        dest = jnp.where(fin, lane_q, Q)
+        outs = jax.tree_util.tree_map(lambda o, r: o.at[dest].set(r, mode="drop"), outs, res)
+        nxt = nq + jnp.cumsum(fin) - 1
+        take = fin & (nxt < n_ids)
+        new = jax.vmap(start)(jnp.where(take, nxt, -1))
+        lanes = jax.tree_util.tree_map(lambda a, b: jnp.where(take.reshape((-1,) + (1,) * (a.ndim - 1)), b, a),
+                                       lanes, new)
+        lane_q = jnp.where(take, nxt, jnp.where(fin, -1, lane_q))
+        return lanes, lane_q, nq + jnp.sum(fin), outs
+
+    def body(c):
+        lanes, lane_q, nq, outs = c
+        lanes = jax.vmap(lambda ln, q: steps(q)[0][1](ln))(lanes, lane_q)
+        fin = (lane_q >= 0) & lanes.done
+        return lax.cond(jnp.any(fin), harvest, lambda c: c, (lanes, lane_q, nq, outs))
+
+    nq0 = jnp.minimum(jnp.asarray(W, jnp.int32), n_ids)
+    _, _, _, outs = lax.while_loop(lambda c: jnp.any(c[1] >= 0), body, (lanes, lane_q, nq0, outs))
+    return outs
 
 
 @jax.jit
@@ -107,34 +150,50 @@ def _tables(cells):
     return cell_table(cells)
 
 
-def _plan_models(starts, models, config: ParkoutConfig, vehicle, slots=None, timing=None) -> ParkoutResult:
-    """Seed loops, then the search for the failures, of ``n`` scenes (host loop over chunks)."""
+def _plan_models(starts, models, config: ParkoutConfig, vehicle, slots=None) -> ParkoutResult:
+    """Seed loops, then the search for the failures, of ``n`` scenes (host loop over chunks).
+
+    Chunks go round-robin to the local devices (e.g. ``XLA_FLAGS=--xla_force_host_platform_device_count=2``
+    on a 2-core CPU) and run there concurrently: every kernel is dispatched before any result is read,
+    and a chunk's search starts as soon as its own seed loops are done.
+    """
     n = starts.shape[0]
-    parts = []
     table = cost_to_go(vehicle, config) if config.search else None
-    for lo in range(0, n, CHUNKS[-1]):
-        hi = min(n, lo + CHUNKS[-1])
+    devs = jax.local_devices()
+    size = min(CHUNKS[-1], _bucket(-(-n // len(devs))))
+    jobs = []
+    for ci, lo in enumerate(range(0, n, size)):
+        hi = min(n, lo + size)
         C = _bucket(hi - lo)
-        pad = lambda a: jnp.concatenate([a, jnp.broadcast_to(a[-1:], (C - (hi - lo),) + a.shape[1:])])  # noqa: E731
-        st = pad(starts[lo:hi])
+        dev = devs[ci % len(devs)]
+        idx = np.minimum(np.arange(lo, lo + C), hi - 1)
+        put = lambda a: jax.device_put(jnp.asarray(a)[idx], dev)  # noqa: E731
+        st = put(starts)
         if isinstance(models, GridModel):
-            m = GridModel(_tables(pad(models.table[lo:hi])), pad(models.pose[lo:hi]))
+            m = GridModel(_tables(put(models.table)), put(models.pose))
         else:
-            m = PointModel(pad(models.points[lo:hi]), pad(models.ok[lo:hi]))
-        W = min(C, 64) if slots is None else min(int(slots), C)
-        res = _run_seed(st, m, jnp.asarray(hi - lo, jnp.int32), config, vehicle, W)
-        if config.search:
-            failed = np.nonzero(~np.asarray(res.success)[: hi - lo])[0]
-            for g in range(0, len(failed), SEARCH_GROUP):
-                ids = failed[g:g + SEARCH_GROUP]
-                ids_p = np.concatenate([ids, np.full(SEARCH_GROUP - len(ids), ids[-1])]).astype(np.int32)
-                sr = _run_search(st, m, jnp.asarray(ids_p), config, vehicle, table)
-                keep = np.asarray(sr.success)[: len(ids)]
-                # a failed search keeps the seed's attempt (it drove something; the search drives nothing)
-                upd = jnp.asarray(ids[keep])
-                if len(upd):
-                    res = jax.tree_util.tree_map(lambda a, b: a.at[upd].set(b[: len(ids)][keep]), res, sr)
-        parts.append(jax.tree_util.tree_map(lambda a: np.asarray(a)[: hi - lo], res))
+            m = PointModel(put(models.points), put(models.ok))
+        W = max(1, min(C // 2, 64)) if slots is None else min(int(slots), C)
+        jobs.append((lo, hi, st, m, _run_seed(st, m, jnp.asarray(hi - lo, jnp.int32), config, vehicle, W)))
+    searches = []
+    for lo, hi, st, m, res in jobs:
+        failed = np.nonzero(~np.asarray(res.success)[: hi - lo])[0] if config.search else []
+        sr = None
+        if len(failed):
+            Q = _bucket(len(failed))
+            ids = jnp.asarray(np.concatenate([failed, np.zeros(Q - len(failed), int)]), jnp.int32)
+            sr = _run_search(st, m, ids, jnp.asarray(len(failed), jnp.int32), config, vehicle, table,
+                             min(SEARCH_SLOTS, max(1, Q // 2)))
+        searches.append((failed, sr))
+    parts = []
+    for (lo, hi, st, m, res), (failed, sr) in zip(jobs, searches):
+        res = jax.tree_util.tree_map(lambda a: np.array(a)[: hi - lo], res)
+        if sr is not None:
+            keep = np.asarray(sr.success)[: len(failed)]
+            # a failed search keeps the seed's attempt (it drove something; the search drives nothing)
+            for f, a, b in zip(res._fields, res, sr):
+                a[failed[keep]] = np.asarray(b)[: len(failed)][keep]
+        parts.append(res)
     return jax.tree_util.tree_map(lambda *a: np.concatenate(a), *parts)
 
 
@@ -145,7 +204,7 @@ def plan_grids(starts, grids: Grid, config: ParkoutConfig = ParkoutConfig(),
     Args:
         starts: ``(n, 3)`` rear-axle start poses in the slot frame.
         grids: ``Grid`` with ``cells (n, rows, cols)`` and frame poses ``(n, 3)``.
-        slots: parallel lanes of the seed loop (default ``min(64, chunk)``).
+        slots: parallel lanes of the seed loop (default half the chunk, at most 64).
 
     Returns:
         ``ParkoutResult`` of numpy arrays with leading ``n``.

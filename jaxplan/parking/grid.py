@@ -131,25 +131,25 @@ def footprint_boxes(poses, vehicle, margin=0.0):
 
 
 def cell_table(cells):
-    """Next occupied column per cell: ``(..., rows, cols + 1)`` int16.
+    """Next occupied column per cell, stored column-major: ``(..., cols + 1, rows)`` int16.
 
-    ``N[r, c]`` is the smallest ``c' >= c`` with cell ``[r, c']`` occupied, else
+    ``N[c, r]`` is the smallest ``c' >= c`` with cell ``[r, c']`` occupied, else
     ``cols`` (column ``cols`` is the sentinel). A row interval ``[a, b]`` holds an
-    occupied cell iff ``N[r, a] <= b``: one look-up per row.
+    occupied cell iff ``N[a, r] <= b``: one look-up per row. (Column-major
+    because the table is built by one pass over the columns.)
     """
     c = jnp.asarray(cells).astype(bool)
     cols = c.shape[-1]
-    lead = c.shape[:-1]
-    cm = jnp.moveaxis(c, -1, 0)  # (cols, ...) so that the scan runs over columns
+    lead = c.shape[:-2]
+    cm = jnp.moveaxis(c, -1, 0)  # (cols, ..., rows)
 
     def step(nxt, k):
         nxt = jnp.where(cm[k], k.astype(jnp.int16), nxt)
         return nxt, nxt
 
-    init = jnp.full(lead, cols, jnp.int16)
-    _, out = lax.scan(step, init, jnp.arange(cols - 1, -1, -1))
-    out = jnp.moveaxis(out[::-1], 0, -1)
-    return jnp.concatenate([out, jnp.full(lead + (1,), cols, jnp.int16)], axis=-1)
+    _, out = lax.scan(step, jnp.full(cm.shape[1:], cols, jnp.int16), jnp.arange(cols - 1, -1, -1))
+    out = jnp.concatenate([out[::-1], jnp.full((1,) + cm.shape[1:], cols, jnp.int16)], axis=0)
+    return jnp.moveaxis(out, 0, len(lead))
 
 
 def _rows_occupied(table, r, c_lo, c_hi, hit_row, config: ParkoutConfig, base=0):
@@ -157,12 +157,13 @@ def _rows_occupied(table, r, c_lo, c_hi, hit_row, config: ParkoutConfig, base=0)
     ``[c_lo, c_hi]`` (inside the grid); also which rows lie inside the grid.
 
     ``table`` may hold many grids' tables; ``base (...)`` is the flat offset of this one's.
+    
     """
     in_rows = (r >= 0) & (r < config.rows)
     a = jnp.clip(c_lo, 0, config.cols).astype(jnp.int32)
     rr = jnp.clip(r, 0, config.rows - 1)
     base = jnp.asarray(base, jnp.int32)[..., None]
-    nxt = table.reshape(-1)[base + rr * (config.cols + 1) + a]
+    nxt = table.reshape(-1)[base + a * config.rows + rr]
     return hit_row & in_rows & (nxt.astype(c_hi.dtype) <= jnp.minimum(c_hi, config.cols - 1.0)), in_rows
 
 
@@ -182,7 +183,7 @@ def polygon_covers_occupied(table, grid_pose, poly, config: ParkoutConfig):
     in the cell table. Cells beyond the grid read ``config.outside_occupied``.
 
     Args:
-        table: ``(rows, cols + 1)`` from ``cell_table`` of one grid.
+        table: ``(cols + 1, rows)`` from ``cell_table`` of one grid.
         grid_pose: ``(3,)`` pose of the grid's frame.
         poly: ``(..., N, 2)`` convex polygons in the world frame (any orientation).
 
@@ -255,12 +256,12 @@ def footprint_hits_grid(table, grid_pose, poses, vehicle, config: ParkoutConfig,
     """Whether the footprint inflated by ``margin`` (default ``config.margin``) covers an occupied cell centre.
 
     Args:
-        table: ``(rows, cols + 1)`` cell table of one grid (``cell_table``).
+        table: ``(cols + 1, rows)`` cell table of one grid (``cell_table``).
         grid_pose: ``(3,)`` the pose of that grid's frame.
         poses: ``(..., 3)`` rear-axle poses in the slot frame.
         margin: ``()`` or broadcastable to ``(..., 1)``.
         base: flat offset of this grid's table when ``table`` holds the tables of
-            many grids (``(n, rows, cols + 1)``, base ``= i * rows * (cols + 1)``).
+            many grids (``(n, cols + 1, rows)``, base ``= i * rows * (cols + 1)``).
 
     Returns:
         ``(...)`` bool.

@@ -26,9 +26,9 @@ from jaxplan.types import VehicleParams, is_concrete
 
 
 class GridModel(NamedTuple):
-    """Collision model of one occupancy grid: ``table (rows, cols + 1)`` (``cell_table``), frame ``pose (3,)``.
+    """Collision model of one occupancy grid: ``table (cols + 1, rows)`` (``cell_table``), frame ``pose (3,)``.
 
-    ``table`` may also hold many grids' tables ``(n, rows, cols + 1)`` shared by a
+    ``table`` may also hold many grids' tables ``(n, cols + 1, rows)`` shared by a
     batch, with ``base`` the flat offset of this grid's (``i * rows * (cols + 1)``).
     """
 
@@ -46,7 +46,8 @@ class PointModel(NamedTuple):
 
 def grid_model(grid: Grid) -> GridModel:
     """``GridModel`` of a grid (any leading dims)."""
-    return GridModel(cell_table(grid.cells), jnp.asarray(grid.pose))
+    pose = jnp.asarray(grid.pose)
+    return GridModel(cell_table(grid.cells), pose, jnp.zeros(pose.shape[:-1], jnp.int32))
 
 
 def hits_fn(model, vehicle, config: ParkoutConfig):
@@ -121,10 +122,7 @@ def _plan(pose, check, vehicle, config: ParkoutConfig) -> Plan:
                 config.out_heading, steps=config.steps)
     b = rollout(pose, backward_curve(pose, R, config.theta1, config.theta2, config.back_cap), hits, vehicle, config,
                 None, config.out_heading, steps=config.back_steps)
-    b = _pad(b, config.steps)
-    use = select_forward(f, b, d, config)
-    chosen = jax.tree_util.tree_map(lambda x, y: jnp.where(use, x, y), f, b)
-    return Plan(chosen, f, b, use, is_out(chosen.end_pose, d, config), margin)
+    return choose(f, _pad(b, config.steps), margin, vehicle, config)
 
 
 def _batched(fn, pose, *args):
@@ -244,7 +242,11 @@ def seed_step(st: LoopState, check, vehicle, config: ParkoutConfig) -> LoopState
     moves in a row gained neither lateral offset nor heading (the seed's moves
     only make progress by turning the nose out).
     """
-    plan = _plan(st.pose, check, vehicle, config)
+    return apply_plan(st, _plan(st.pose, check, vehicle, config), config)
+
+
+def apply_plan(st: LoopState, plan: Plan, config: ParkoutConfig) -> LoopState:
+    """Drive the chosen move of ``plan`` from ``st`` (the second half of ``seed_step``)."""
     tr = plan.trajectory
     go = ~st.done & (tr.length >= config.min_progress)
     now_stuck = ~st.done & ~go
@@ -266,9 +268,20 @@ def seed_step(st: LoopState, check, vehicle, config: ParkoutConfig) -> LoopState
         length=st.length.at[kk].set(jnp.where(go, tr.length, st.length[kk])))
 
 
+def choose(f: Rollout, b: Rollout, margin, vehicle, config: ParkoutConfig) -> Plan:
+    """The seed's ``Plan`` from its two candidates (``b`` padded to ``config.steps``)."""
+    d = stop_line(vehicle, config.c)
+    use = select_forward(f, b, d, config)
+    chosen = jax.tree_util.tree_map(lambda x, y: jnp.where(use, x, y), f, b)
+    return Plan(chosen, f, b, use, is_out(chosen.end_pose, d, config), margin)
+
+
 def loop_result(st: LoopState, searched=False) -> ParkoutResult:
-    """``ParkoutResult`` of a finished loop (undriven moves repeat the final pose)."""
-    poses = jnp.where(st.valid.any(-1)[:, None, None], st.poses, st.pose)
+    """``ParkoutResult`` of a finished loop (points after a move's end repeat it, undriven moves the final pose)."""
+    n = jnp.maximum(jnp.sum(st.valid, -1) - 1, 0)
+    ends = jnp.take_along_axis(st.poses, n[:, None, None], axis=1)  # (M, 1, 3)
+    poses = jnp.where(st.valid[..., None], st.poses, ends)
+    poses = jnp.where(st.valid.any(-1)[:, None, None], poses, st.pose)
     return ParkoutResult(poses, st.valid, st.gear, st.steer, st.success, st.stuck & ~st.success,
                          jnp.sum(st.gear != 0), jnp.sum(st.length), st.pose, jnp.asarray(searched))
 

@@ -116,34 +116,19 @@ def rollout(pose, curve: Curve, hits: Callable, vehicle, config: ParkoutConfig, 
     Returns:
         ``Rollout`` with ``T`` points.
     """
-    dtype = pose.dtype
-    n = config.ref_samples
-    s_samp = jnp.linspace(-0.5, curve.end + config.look_ahead + 0.5, n).astype(dtype)
-    samples = curve_point(curve, s_samp)
-    gear = curve.gear.astype(dtype)
-    line = jnp.isfinite(jnp.inf if stop_y is None else stop_y)
-    stop_y = jnp.inf if stop_y is None else stop_y
-
     T = config.steps if steps is None else steps
-
-    def step(state, i):
-        p, steer, i_prev, finished = state
-        s_p, i_new = _project(samples, s_samp, p[:2], i_prev)
-        level = jnp.abs(wrap_angle(p[2] - stop_heading)) < 0.5 * config.out_tol
-        done = jnp.where(line, (p[1] >= stop_y) & (level | (s_p >= curve.end)), s_p >= curve.end)
-        target = curve_point(curve, s_p + config.look_ahead)[:2]
-        want = pursuit_steer(p, target, vehicle)
-        free = (i == 0) & config.steer_in_place
-        new_steer = jnp.where(free, want, steer + jnp.clip(want - steer, -config.steer_rate, config.steer_rate))
-        stop = finished | done
-        nxt = jnp.where(stop, p, bicycle_step(p, new_steer, gear * config.dl, vehicle))
-        out = (p, ~finished, done & ~finished, new_steer)
-        return (nxt, jnp.where(stop, steer, new_steer), jnp.maximum(i_prev, i_new), stop), out
-
-    init = (pose, jnp.zeros((), dtype), jnp.zeros((), jnp.int32), jnp.zeros((), bool))
-    _, (poses, exists, goal, steer) = lax.scan(step, init, jnp.arange(T))
+    tr = track(curve, config, stop_y, stop_heading)
+    _, (poses, exists, goal, steer) = pursuit_steps(pursuit_start(pose), tr, vehicle, config, T)
     collide = hits(poses)
     clear = jnp.cumprod(~collide) > 0
+    return finish_rollout(poses, exists, goal, steer, clear, curve.gear.astype(pose.dtype), config)
+
+
+def finish_rollout(poses, exists, goal, steer, clear, gear, config: ParkoutConfig) -> Rollout:
+    """``Rollout`` from the pursuit's points ``(T, ...)`` and which of them are clear of collisions
+    up to the first one (``clear``, a prefix)."""
+    T = poses.shape[0]
+    dtype = poses.dtype
     valid = exists & clear
     nv = jnp.sum(valid)
     k = jnp.arange(T)
@@ -151,3 +136,66 @@ def rollout(pose, curve: Curve, hits: Callable, vehicle, config: ParkoutConfig, 
     return Rollout(poses=poses, gear=jnp.broadcast_to(gear, (T,)), steer=steer, s=s,
                    valid=valid, length=config.dl * jnp.maximum(nv - 1, 0).astype(dtype),
                    complete=jnp.any(goal & valid), cut=jnp.any(exists & ~clear))
+
+
+class Track(NamedTuple):
+    """What a pursuit rollout follows: the curve, its samples for the projection and the goal line.
+
+    ``stop_y`` is ``inf`` for a move that ends at the curve's end.
+    """
+
+    curve: Curve
+    samples: jnp.ndarray
+    s_samples: jnp.ndarray
+    stop_y: jnp.ndarray
+    stop_heading: jnp.ndarray
+
+
+class Pursuit(NamedTuple):
+    """A pursuit rollout's state between steps: pose, steering, projection index, finished, step count."""
+
+    pose: jnp.ndarray
+    steer: jnp.ndarray
+    i_prev: jnp.ndarray
+    finished: jnp.ndarray
+    step: jnp.ndarray
+
+
+def track(curve: Curve, config: ParkoutConfig, stop_y=None, stop_heading=0.0) -> Track:
+    """``Track`` of one curve (samples ``config.ref_samples`` points from 0.5 m before it to past its end)."""
+    dtype = curve.start.dtype
+    s_samp = jnp.linspace(-0.5, curve.end + config.look_ahead + 0.5, config.ref_samples).astype(dtype)
+    stop = jnp.asarray(jnp.inf if stop_y is None else stop_y, dtype)
+    return Track(curve, curve_point(curve, s_samp), s_samp, stop, jnp.asarray(stop_heading, dtype))
+
+
+def pursuit_start(pose) -> Pursuit:
+    z = jnp.zeros((), jnp.int32)
+    return Pursuit(pose, jnp.zeros((), pose.dtype), z, jnp.zeros((), bool), z)
+
+
+def pursuit_steps(state: Pursuit, tr: Track, vehicle, config: ParkoutConfig, n: int):
+    """``n`` pursuit steps (``lax.scan``): returns (state, (poses, exists, goal, steer), each ``(n, ...)``).
+
+    ``exists``: the point is part of the move (the goal was not reached before
+    it); ``goal``: the move reaches its goal at this point.
+    """
+    curve = tr.curve
+    gear = curve.gear.astype(state.pose.dtype)
+    line = jnp.isfinite(tr.stop_y)
+
+    def step(st: Pursuit, _):
+        p, steer, i_prev, finished, i = st
+        s_p, i_new = _project(tr.samples, tr.s_samples, p[:2], i_prev)
+        level = jnp.abs(wrap_angle(p[2] - tr.stop_heading)) < 0.5 * config.out_tol
+        done = jnp.where(line, (p[1] >= tr.stop_y) & (level | (s_p >= curve.end)), s_p >= curve.end)
+        target = curve_point(curve, s_p + config.look_ahead)[:2]
+        want = pursuit_steer(p, target, vehicle)
+        free = (i == 0) & config.steer_in_place
+        new_steer = jnp.where(free, want, steer + jnp.clip(want - steer, -config.steer_rate, config.steer_rate))
+        stop = finished | done
+        nxt = jnp.where(stop, p, bicycle_step(p, new_steer, gear * config.dl, vehicle))
+        out = (p, ~finished, done & ~finished, new_steer)
+        return Pursuit(nxt, jnp.where(stop, steer, new_steer), jnp.maximum(i_prev, i_new), stop, i + 1), out
+
+    return lax.scan(step, state, None, length=n)

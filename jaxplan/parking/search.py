@@ -13,7 +13,7 @@ within 10 cm and 3 degrees of a better child, or of any node of an earlier
 depth, are dropped (no cycles), and the best ``config.beam`` children form the
 next depth. The search stops at the first depth with a solution (the
 cheapest one is taken), when no child is left, when the best cost-to-go has
-not improved for ``PATIENCE`` depths, or after ``config.max_moves`` moves.
+not dropped by ``PROGRESS`` for ``PATIENCE`` depths, or after ``config.max_moves`` moves.
 Each arc is one move: the car stops at its end (to change gear or to turn the
 wheels at standstill).
 """
@@ -32,7 +32,8 @@ from jaxplan.parking.config import ParkoutConfig
 from jaxplan.parking.heuristic import CostToGo, lookup
 from jaxplan.parking.parkout import ParkoutResult, hits_fn, is_out, usable_margin
 
-PATIENCE = 4  # depths without a better cost-to-go before the search gives up
+PATIENCE = 3  # depths without a better cost-to-go before the search gives up
+PROGRESS = 0.05  # m: a smaller drop of the best cost-to-go does not count as better
 MOVE_COST = 0.25  # metres of driving charged per move (prefers fewer, longer moves)
 ENDS = (1.0, 0.5)  # each arc ends at the last free point or halfway to it
 G_WEIGHT = 0.1  # weight of the cost so far against the cost-to-go in the ranking
@@ -86,8 +87,14 @@ def search_parkout(start, model, config: ParkoutConfig, vehicle, table: CostToGo
         ``ParkoutResult`` (one scene) with ``searched = True``; a failed search
         returns no moves and the start pose.
     """
-    check = hits_fn(model, vehicle, config)
-    dtype = start.dtype
+    init, depth, finish = search_steps(hits_fn(model, vehicle, config), config, vehicle, table, start.dtype)
+    return finish(lax.while_loop(lambda c: ~c.done, depth, init(start)), start)
+
+
+def search_steps(check, config: ParkoutConfig, vehicle, table: CostToGo, dtype):
+    """The search in three parts, for drivers that interleave scenes: ``init(start) -> carry``,
+    ``depth(carry) -> carry`` (one depth; ``carry.done`` when finished) and ``finish(carry, start) ->
+    ParkoutResult``. ``check`` is the scene's ``hits_fn``."""
     B, M, T, TA = config.beam, config.max_moves, config.steps, config.arc_steps
     kap, gp, steer_p = primitives(config, vehicle, dtype)
     P, E = kap.shape[0], len(ENDS)
@@ -138,7 +145,7 @@ def search_parkout(start, model, config: ParkoutConfig, vehicle, table: CostToGo
         pick = order[sel]
         alive = jnp.isfinite(fs[sel])
         best = jnp.min(jnp.where(alive, h[pick], jnp.inf))
-        better = best < c.best_h - 1e-3
+        better = best < c.best_h - PROGRESS
         wait = jnp.where(better, 0, c.wait + 1)
         k = c.depth
         dead = ~jnp.any(alive) | (wait >= PATIENCE) | (k + 1 >= M)
@@ -150,15 +157,25 @@ def search_parkout(start, model, config: ParkoutConfig, vehicle, table: CostToGo
             h_key=c.h_key.at[k + 1].set(key[pick]), h_alive=c.h_alive.at[k + 1].set(alive),
             sol=jnp.where(found, jnp.stack([node[i_sol], prim[i_sol], ends[i_sol]]), c.sol))
 
-    pose0 = jnp.broadcast_to(start, (B, 3))
-    alive0 = jnp.arange(B) == 0
-    zi = jnp.zeros((M, B), jnp.int32)
-    init = _Carry(jnp.zeros((), jnp.int32), jnp.zeros((), bool), jnp.zeros((), bool), pose0, jnp.zeros((B,), dtype),
-                  jnp.zeros((B,), jnp.int32), alive0, jnp.asarray(jnp.inf, dtype), jnp.zeros((), jnp.int32),
-                  jnp.zeros((M + 1, B, 3), dtype).at[0].set(pose0), zi, zi, zi,
-                  jnp.zeros((M + 1, B), jnp.int32).at[0].set(_key(pose0)),
-                  jnp.zeros((M + 1, B), bool).at[0].set(alive0), jnp.zeros((3,), jnp.int32))
-    c = lax.while_loop(lambda c: ~c.done, body, init)
+    def init(start):
+        pose0 = jnp.broadcast_to(start, (B, 3))
+        alive0 = jnp.arange(B) == 0
+        zi = jnp.zeros((M, B), jnp.int32)
+        return _Carry(jnp.zeros((), jnp.int32), jnp.zeros((), bool), jnp.zeros((), bool), pose0,
+                      jnp.zeros((B,), dtype), jnp.zeros((B,), jnp.int32), alive0, jnp.asarray(jnp.inf, dtype),
+                      jnp.zeros((), jnp.int32), jnp.zeros((M + 1, B, 3), dtype).at[0].set(pose0), zi, zi, zi,
+                      jnp.zeros((M + 1, B), jnp.int32).at[0].set(_key(pose0)),
+                      jnp.zeros((M + 1, B), bool).at[0].set(alive0), jnp.zeros((3,), jnp.int32))
+
+    def depth(c):
+        return jax.tree_util.tree_map(lambda a, b: jnp.where(c.done, a, b), c, body(c))
+
+    return init, depth, functools.partial(_finish, kap=kap, gp=gp, steer_p=steer_p, config=config, dtype=dtype)
+
+
+def _finish(c: _Carry, start, kap, gp, steer_p, config: ParkoutConfig, dtype) -> ParkoutResult:
+    """Backtrack the solving moves of a finished search and lay them out as a ``ParkoutResult``."""
+    M, T, TA, dl = config.max_moves, config.steps, config.arc_steps, config.dl
     j = c.depth - 1  # index of the solving move
 
     def back(n_next, i):
@@ -179,6 +196,7 @@ def search_parkout(start, model, config: ParkoutConfig, vehicle, table: CostToGo
     n = jnp.maximum(jnp.sum(valid, -1) - 1, 0)
     endp = jnp.take_along_axis(poses, n[:, None, None], axis=1)[:, 0]
     final = jnp.where(c.found, endp[jnp.clip(j, 0, M - 1)], start)
+    poses = jnp.where(valid[..., None], poses, endp[:, None])
     poses = jnp.where(valid.any(-1)[:, None, None], poses, final)
     gear = jnp.where(use, gp[prim], 0).astype(jnp.int32)
     steer = jnp.broadcast_to(jnp.where(use, steer_p[prim], 0.0)[:, None], (M, T)).astype(dtype)
