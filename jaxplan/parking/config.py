@@ -48,7 +48,6 @@ class ParkoutConfig:
             the inflated footprint's diagonal (``hypot(L + 2m, W + 2m) / cell + 3``).
         max_moves: moves of a whole park-out (seed loop and search alike).
         min_progress: a chosen move shorter than this counts as stuck.
-        ref_samples: samples of the reference curve used for the projection.
         search: when the seed's two curves fail (stuck, out of moves or no
             progress), search over moves at several steering levels (a beam
             search, ``jaxplan.parking.search``).
@@ -86,9 +85,8 @@ class ParkoutConfig:
     shrink_margin: bool = True
     min_margin: float = 0.05
     scan_rows: int = 112
-    max_moves: int = 12
+    max_moves: int = 16
     min_progress: float = 0.05
-    ref_samples: int = 160
     search: bool = True
     steer_levels: tuple = (1.0, 0.4, -0.4, -1.0)
     arc_steps: int = 48
@@ -100,7 +98,7 @@ class ParkoutConfig:
     steer_speed: float = 0.4
 
     def __post_init__(self):
-        for f in ("rows", "cols", "steps", "back_steps", "max_moves", "ref_samples", "arc_steps", "beam"):
+        for f in ("rows", "cols", "steps", "back_steps", "max_moves", "arc_steps", "beam"):
             if int(getattr(self, f)) < 1:
                 raise ValueError(f"ParkoutConfig.{f} must be >= 1")
         for f in ("cell", "dl", "look_ahead", "steer_rate", "back_cap", "v_forward", "v_reverse", "accel",

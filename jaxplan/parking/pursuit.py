@@ -76,20 +76,49 @@ def bicycle_step(pose, steer, ds, vehicle):
     return _advance(pose, jnp.tan(steer) / vehicle.wheelbase, ds)
 
 
-def _project(samples, s_samples, p, i_prev, window: int = 12):
-    """Arc length of the point of a sampled curve nearest to ``p``, searched in a window of
-    ``window`` samples from two before the previous projection ``i_prev`` (the rollout moves
-    at most a sample or two per step). Returns (arc length, sample index)."""
-    n = samples.shape[0]
-    w = min(window, n)
-    lo = jnp.clip(i_prev - 2, 0, n - w)
-    win = lax.dynamic_slice_in_dim(samples, lo, w)
-    d2 = jnp.sum((win[:, :2] - p) ** 2, -1)
-    k = jnp.argmin(d2)
-    i = lo + k
-    t = jnp.stack([jnp.cos(win[k, 2]), jnp.sin(win[k, 2])])
-    step = s_samples[1] - s_samples[0]
-    return s_samples[i] + jnp.clip(jnp.dot(p - win[k, :2], t), -step, step), i
+def project(curve: Curve, p, s_min):
+    """Arc length of the point of one curve nearest to ``p (2,)`` among those at or after ``s_min``.
+
+    Closed form on each piece: the line before the curve, its two arcs and the
+    straight extension (the projection onto a circle is along the radius). The
+    pursuit passes ``s_min`` = the previous projection less ``BACKTRACK`` so the
+    projection cannot jump back along the curve.
+    """
+    dtype = p.dtype
+    l0, l1 = curve.length[0], curve.length[1]
+    s_start = jnp.stack([jnp.zeros((), dtype), l0, l0 + l1])
+    best_s, best_d = jnp.zeros((), dtype), jnp.asarray(jnp.inf, dtype)
+
+    def line(st, lo, hi, s_off):
+        t = jnp.stack([jnp.cos(st[2]), jnp.sin(st[2])])
+        lo = jnp.maximum(lo, s_min - s_off)
+        u = jnp.clip(jnp.dot(p - st[:2], t), lo, jnp.maximum(hi, lo))
+        d = jnp.sum((p - st[:2] - u * t) ** 2)
+        return s_off + u, jnp.where(lo <= hi, d, jnp.inf)
+
+    def arc(st, k, length, s_off):
+        small = jnp.abs(k) < 1e-6
+        ks = jnp.where(small, 1.0, k)
+        c = st[:2] + jnp.stack([-jnp.sin(st[2]), jnp.cos(st[2])]) / ks
+        r0, r = st[:2] - c, p - c
+        phi = jnp.arctan2(r0[0] * r[1] - r0[1] * r[0], jnp.dot(r0, r))
+        lo = jnp.maximum(0.0, s_min - s_off)
+        u = jnp.clip(phi / ks, lo, jnp.maximum(length, lo))
+        d = jnp.where(lo <= length, jnp.sum((p - _advance(st, k, u)[:2]) ** 2), jnp.inf)
+        su, du = line(st, 0.0, length, s_off)
+        return jnp.where(small, su, s_off + u), jnp.where(small, du, d)
+
+    pieces = [line(curve.start[0], -jnp.inf, 0.0, 0.0 * l0),
+              arc(curve.start[0], curve.kappa[0], l0, s_start[0]),
+              arc(curve.start[1], curve.kappa[1], l1, s_start[1]),
+              line(curve.start[2], 0.0, jnp.inf, s_start[2])]
+    for sp, dp in pieces:
+        better = dp < best_d
+        best_s, best_d = jnp.where(better, sp, best_s), jnp.where(better, dp, best_d)
+    return best_s
+
+
+BACKTRACK = 0.1  # m the projection may move back along the curve between steps
 
 
 def rollout(pose, curve: Curve, hits: Callable, vehicle, config: ParkoutConfig, stop_y=None,
@@ -139,39 +168,33 @@ def finish_rollout(poses, exists, goal, steer, clear, gear, config: ParkoutConfi
 
 
 class Track(NamedTuple):
-    """What a pursuit rollout follows: the curve, its samples for the projection and the goal line.
-
-    ``stop_y`` is ``inf`` for a move that ends at the curve's end.
-    """
+    """What a pursuit rollout follows: the curve and the goal line (``stop_y = inf``: the curve's end)."""
 
     curve: Curve
-    samples: jnp.ndarray
-    s_samples: jnp.ndarray
     stop_y: jnp.ndarray
     stop_heading: jnp.ndarray
 
 
 class Pursuit(NamedTuple):
-    """A pursuit rollout's state between steps: pose, steering, projection index, finished, step count."""
+    """A pursuit rollout's state between steps: pose, steering, furthest projection, finished, step count."""
 
     pose: jnp.ndarray
     steer: jnp.ndarray
-    i_prev: jnp.ndarray
+    s_prev: jnp.ndarray
     finished: jnp.ndarray
     step: jnp.ndarray
 
 
 def track(curve: Curve, config: ParkoutConfig, stop_y=None, stop_heading=0.0) -> Track:
-    """``Track`` of one curve (samples ``config.ref_samples`` points from 0.5 m before it to past its end)."""
+    """``Track`` of one curve."""
     dtype = curve.start.dtype
-    s_samp = jnp.linspace(-0.5, curve.end + config.look_ahead + 0.5, config.ref_samples).astype(dtype)
     stop = jnp.asarray(jnp.inf if stop_y is None else stop_y, dtype)
-    return Track(curve, curve_point(curve, s_samp), s_samp, stop, jnp.asarray(stop_heading, dtype))
+    return Track(curve, stop, jnp.asarray(stop_heading, dtype))
 
 
 def pursuit_start(pose) -> Pursuit:
     z = jnp.zeros((), jnp.int32)
-    return Pursuit(pose, jnp.zeros((), pose.dtype), z, jnp.zeros((), bool), z)
+    return Pursuit(pose, jnp.zeros((), pose.dtype), jnp.asarray(-1e6, pose.dtype), jnp.zeros((), bool), z)
 
 
 def pursuit_steps(state: Pursuit, tr: Track, vehicle, config: ParkoutConfig, n: int):
@@ -185,8 +208,8 @@ def pursuit_steps(state: Pursuit, tr: Track, vehicle, config: ParkoutConfig, n: 
     line = jnp.isfinite(tr.stop_y)
 
     def step(st: Pursuit, _):
-        p, steer, i_prev, finished, i = st
-        s_p, i_new = _project(tr.samples, tr.s_samples, p[:2], i_prev)
+        p, steer, s_prev, finished, i = st
+        s_p = project(curve, p[:2], s_prev - BACKTRACK)
         level = jnp.abs(wrap_angle(p[2] - tr.stop_heading)) < 0.5 * config.out_tol
         done = jnp.where(line, (p[1] >= tr.stop_y) & (level | (s_p >= curve.end)), s_p >= curve.end)
         target = curve_point(curve, s_p + config.look_ahead)[:2]
@@ -196,6 +219,6 @@ def pursuit_steps(state: Pursuit, tr: Track, vehicle, config: ParkoutConfig, n: 
         stop = finished | done
         nxt = jnp.where(stop, p, bicycle_step(p, new_steer, gear * config.dl, vehicle))
         out = (p, ~finished, done & ~finished, new_steer)
-        return Pursuit(nxt, jnp.where(stop, steer, new_steer), jnp.maximum(i_prev, i_new), stop, i + 1), out
+        return Pursuit(nxt, jnp.where(stop, steer, new_steer), jnp.maximum(s_prev, s_p), stop, i + 1), out
 
     return lax.scan(step, state, None, length=n)

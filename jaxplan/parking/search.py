@@ -32,8 +32,8 @@ from jaxplan.parking.config import ParkoutConfig
 from jaxplan.parking.heuristic import CostToGo, lookup
 from jaxplan.parking.parkout import ParkoutResult, hits_fn, is_out, usable_margin
 
-PATIENCE = 3  # depths without a better cost-to-go before the search gives up
-PROGRESS = 0.05  # m: a smaller drop of the best cost-to-go does not count as better
+PATIENCE = 6  # depths without a better cost-to-go before the search gives up
+PROGRESS = 0.02  # m: a smaller drop of the best cost-to-go does not count as better
 MOVE_COST = 0.25  # metres of driving charged per move (prefers fewer, longer moves)
 ENDS = (1.0, 0.5)  # each arc ends at the last free point or halfway to it
 G_WEIGHT = 0.1  # weight of the cost so far against the cost-to-go in the ranking
@@ -103,8 +103,8 @@ def search_steps(check, config: ParkoutConfig, vehicle, table: CostToGo, dtype):
     ends_frac = jnp.asarray(ENDS, dtype)
 
     def expand(c: _Carry):
-        margin = jax.vmap(lambda p: usable_margin(check, p, config))(c.pose)  # (B,)
-        poses = arc_poses(c.pose[:, None, :], kap[None, :], gp[None, :], TA, dl)  # (B, P, TA, 3)
+        margin = jax.vmap(lambda p: usable_margin(check, p, config))(c.pose)  # (b,) nodes
+        poses = arc_poses(c.pose[:, None, :], kap[None, :], gp[None, :], TA, dl)  # (b, P, TA, 3)
         hit = check(poses, margin=margin[:, None, None, None])
         clear = jnp.cumprod(~hit, axis=-1).astype(bool)
         nfree = jnp.sum(clear, -1)  # (B, P)
@@ -123,11 +123,13 @@ def search_steps(check, config: ParkoutConfig, vehicle, table: CostToGo, dtype):
         return endpose, ends, cost, h, ok, succ
 
     def body(c: _Carry) -> _Carry:
+        """One depth from ``b`` nodes (``B``, or 1 at the root) to the next ``B``."""
+        b = c.pose.shape[0]
         endpose, ends, cost, h, ok, succ = expand(c)
-        flat = lambda x: x.reshape((B * P * E,) + x.shape[3:])  # noqa: E731
+        flat = lambda x: x.reshape((b * P * E,) + x.shape[3:])  # noqa: E731
         endpose, ends, cost, h, ok, succ = map(flat, (endpose, ends, cost, h, ok, succ))
-        node = jnp.repeat(jnp.arange(B), P * E)
-        prim = jnp.tile(jnp.repeat(jnp.arange(P), E), B)
+        node = jnp.repeat(jnp.arange(b), P * E)
+        prim = jnp.tile(jnp.repeat(jnp.arange(P), E), b)
         # a solution at this depth: the cheapest one
         sc = jnp.where(ok & succ, cost, jnp.inf)
         i_sol = jnp.argmin(sc)
@@ -158,14 +160,17 @@ def search_steps(check, config: ParkoutConfig, vehicle, table: CostToGo, dtype):
             sol=jnp.where(found, jnp.stack([node[i_sol], prim[i_sol], ends[i_sol]]), c.sol))
 
     def init(start):
+        """The root alone (one node, not a beam of copies) expanded to the first depth."""
         pose0 = jnp.broadcast_to(start, (B, 3))
         alive0 = jnp.arange(B) == 0
         zi = jnp.zeros((M, B), jnp.int32)
-        return _Carry(jnp.zeros((), jnp.int32), jnp.zeros((), bool), jnp.zeros((), bool), pose0,
-                      jnp.zeros((B,), dtype), jnp.zeros((B,), jnp.int32), alive0, jnp.asarray(jnp.inf, dtype),
-                      jnp.zeros((), jnp.int32), jnp.zeros((M + 1, B, 3), dtype).at[0].set(pose0), zi, zi, zi,
+        root = _Carry(jnp.zeros((), jnp.int32), jnp.zeros((), bool), jnp.zeros((), bool), start[None],
+                      jnp.zeros((1,), dtype), jnp.zeros((1,), jnp.int32), jnp.ones((1,), bool),
+                      jnp.asarray(jnp.inf, dtype), jnp.zeros((), jnp.int32),
+                      jnp.zeros((M + 1, B, 3), dtype).at[0].set(pose0), zi, zi, zi,
                       jnp.zeros((M + 1, B), jnp.int32).at[0].set(_key(pose0)),
                       jnp.zeros((M + 1, B), bool).at[0].set(alive0), jnp.zeros((3,), jnp.int32))
+        return body(root)
 
     def depth(c):
         return jax.tree_util.tree_map(lambda a, b: jnp.where(c.done, a, b), c, body(c))
