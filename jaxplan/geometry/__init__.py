@@ -24,6 +24,8 @@ from jaxplan.geometry.lines import (
     perpendicular,
     point_on_segment,
     project_point,
+    safe_norm,
+    safe_sqrt,
     segment_point_distance,
 )
 from jaxplan.geometry.polygons import (
@@ -36,6 +38,7 @@ from jaxplan.geometry.polygons import (
     overlap_polygon,
     overlap_polygon_tagged,
     points_in_polygon,
+    points_in_simple_polygon,
     polygon_area,
     polygon_edges,
     separation,

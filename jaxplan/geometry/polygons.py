@@ -313,3 +313,45 @@ def polygon_area(vertices, valid=None):
     cr = v[..., 0] * nxt[..., 1] - v[..., 1] * nxt[..., 0]
     area = 0.5 * jnp.sum(jnp.where(m, cr, 0.0), axis=-1)
     return jnp.where(jnp.sum(m, axis=-1) >= 3, area, 0.0)
+
+
+def points_in_simple_polygon(points, poly, valid=None, tol=0.0):
+    """Whether points lie inside a simple (possibly non-convex) polygon, or within ``tol`` of its boundary.
+
+    The even-odd (crossing-number) rule with half-open edges, so a point on an edge shared
+    by two polygons that list it with the same vertices is inside exactly one of them.
+
+    Args:
+        points: ``(..., P, 2)``.
+        poly: ``(..., N, 2)`` vertices in either orientation; valid: ``(..., N)`` prefix mask.
+        tol: metres; points this close to an edge count as inside (seams between polygons
+            whose shared edge is not vertex-identical).
+
+    Returns:
+        ``(..., P)`` bool.
+    """
+    poly = jnp.asarray(poly)
+    points = jnp.asarray(points, poly.dtype)
+    n = poly.shape[-2]
+    valid = jnp.ones(poly.shape[:-1], bool) if valid is None else jnp.asarray(valid, bool)
+    k = jnp.sum(valid, axis=-1, keepdims=True)  # (..., 1)
+    idx = jnp.arange(n)
+    nxt = jnp.where(idx + 1 < k, idx + 1, 0)
+    a = poly
+    b = jnp.take_along_axis(poly, nxt[..., None], axis=-2)
+    a, b, ok = a[..., None, :, :], b[..., None, :, :], valid[..., None, :]  # (..., 1, N, 2)
+    p = points[..., :, None, :]  # (..., P, 1, 2)
+    ay, by = a[..., 1], b[..., 1]
+    straddle = (ay > p[..., 1]) != (by > p[..., 1])
+    dy = jnp.where(by == ay, 1.0, by - ay)
+    xc = a[..., 0] + (p[..., 1] - ay) * (b[..., 0] - a[..., 0]) / dy
+    cross = ok & straddle & (xc > p[..., 0])
+    inside = (jnp.sum(cross, axis=-1) % 2) == 1
+    if tol:
+        d = b - a
+        L2 = jnp.maximum(jnp.sum(d * d, -1), 1e-12)
+        u = jnp.clip(jnp.sum((p - a) * d, -1) / L2, 0.0, 1.0)
+        dist = jnp.linalg.norm(p - (a + u[..., None] * d), axis=-1)
+        near = jnp.any(ok & (dist <= tol), axis=-1)
+        inside = inside | near
+    return inside

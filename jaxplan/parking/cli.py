@@ -9,6 +9,8 @@ from __future__ import annotations
 import os
 import sys
 
+from jaxplan import cli_args as ca
+
 
 def add_parser(subparsers):
     """Register the ``parkout`` command on an ``argparse`` sub-parser set."""
@@ -16,7 +18,8 @@ def add_parser(subparsers):
                                               "and OUT/parkout.png",
                               description=__doc__.split("\n\n")[0])
     p.add_argument("scene", help="scene JSON file (format: see the README, section 'Park-out scene files')")
-    p.add_argument("--out", default="results/parkout", help="output directory (default: results/parkout)")
+    p.add_argument("--out", type=ca.output_dir, default="results/parkout",
+                   help="output directory (default: results/parkout)")
     p.add_argument("--no-plot", action="store_true", help="skip the PNG")
     return p
 
@@ -30,8 +33,6 @@ def run(args) -> int:
     """Run the command; returns the exit status (0 planned, also when no way out was found; 2 bad input)."""
     from jaxplan.parking.scene_file import SceneError, load_problem
 
-    if os.path.exists(args.out) and not os.path.isdir(args.out):
-        return _fail(f"--out {args.out}: exists and is not a directory")
     try:
         problem = load_problem(args.scene)
     except SceneError as err:

@@ -31,7 +31,11 @@ class ScenarioError(ValueError):
 
 @dataclasses.dataclass(frozen=True)
 class Lane:
-    """A lanelet: bounds and centre line ``(P, 2)`` in the local frame."""
+    """A lanelet: bounds and centre line ``(P, 2)`` in the local frame.
+
+    ``adjacent_left`` / ``adjacent_right``: the neighbour driven the same way (a lane one
+    may change into); ``opposite_left`` / ``opposite_right``: a neighbour driven the other way.
+    """
 
     id: int
     left: np.ndarray
@@ -42,6 +46,8 @@ class Lane:
     adjacent_left: int | None
     adjacent_right: int | None
     speed_limit: float | None
+    opposite_left: int | None = None  # the neighbour on the left driven the other way
+    opposite_right: int | None = None
 
 
 @dataclasses.dataclass(frozen=True)
@@ -151,6 +157,12 @@ def load_scenario(path: str, horizon: float | None = None) -> Scenario:
     try:
         with open(path) as f:
             d = json.load(f)
+    except FileNotFoundError:
+        raise ScenarioError(f"{path}: no such file") from None
+    except IsADirectoryError:
+        raise ScenarioError(f"{path}: is a folder, not a scenario file") from None
+    except PermissionError:
+        raise ScenarioError(f"{path}: not readable (permission denied)") from None
     except json.JSONDecodeError as e:
         raise ScenarioError(f"{path}: not valid JSON ({e.msg} at line {e.lineno})") from None
     except UnicodeDecodeError:
@@ -175,14 +187,17 @@ def _ids(obj, key, where, path) -> tuple:
     return tuple(_int({key: x}, key, where, path) for x in v)
 
 
-def _adjacent(ln: dict, key: str, where: str, path: str) -> int | None:
-    """Id of a same-direction neighbour lanelet, or None."""
+def _adjacent(ln: dict, key: str, where: str, path: str, same: bool = True) -> int | None:
+    """Id of the neighbour lanelet driven the same way (``same``) or the other way, or None."""
     v = ln.get(key)
     if v is None:
         return None
     if not isinstance(v, dict):
         raise ScenarioError(f"{path}: field {where}.{key} should be an object")
-    if v.get("drivingDir", "same") != "same":
+    direction = v.get("drivingDir", "same")
+    if direction not in ("same", "opposite"):
+        raise ScenarioError(f"{path}: field {where}.{key}.drivingDir should be 'same' or 'opposite', got {direction!r}")
+    if (direction == "same") != same:
         return None
     return _int(v, "ref", f"{where}.{key}", path)
 
@@ -207,19 +222,64 @@ def _states(o, where, path) -> np.ndarray:
     return st
 
 
-def _goal(problem: dict, origin: np.ndarray, path: str) -> dict:
+GOAL_POSITIONS = ("rectangle", "polygon", "circle", "lanelets")  # goal regions the loaders understand
+GOAL_INTERVALS = ("time", "velocity", "orientation")
+
+
+def _interval(goal: dict, key: str, where: str, path: str) -> list:
+    v = goal[key]
+    ok = isinstance(v, (list, tuple)) and len(v) == 2 and all(
+        isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) for x in v)
+    if not ok or v[0] > v[1]:
+        raise ScenarioError(f"{path}: field {where}.{key} should be an interval [low, high] of finite numbers, "
+                            f"got {v!r}")
+    return [float(v[0]), float(v[1])]
+
+
+def _goal(problem: dict, origin: np.ndarray, path: str, t0: float = 0.0) -> dict:
+    """The first goal, in the local frame, its time interval relative to the start time ``t0``.
+
+    A goal's position is a rectangle or a list of lanelets (CommonRoad's goal regions), or
+    absent (any position). Other position kinds are refused, naming the field."""
     goals = _field(problem, "goals", "planning_problems[0]", path, list)
     goal = goals[0] if goals else {}
+    where = "planning_problems[0].goals[0]"
     if not isinstance(goal, dict):
-        raise ScenarioError(f"{path}: field planning_problems[0].goals[0] should be an object")
+        raise ScenarioError(f"{path}: field {where} should be an object")
     goal = dict(goal)
+    for key in ("position", "shape", "point"):
+        if key in goal:
+            raise ScenarioError(f"{path}: field {where}.{key}: a goal region must be one of "
+                                f"{', '.join(GOAL_POSITIONS)}")
+    for key in GOAL_INTERVALS:
+        if goal.get(key) is not None:
+            goal[key] = _interval(goal, key, where, path)
+        else:
+            goal.pop(key, None)
+    if "time" in goal:
+        goal["time"] = [goal["time"][0] - t0, goal["time"][1] - t0]
     if "rectangle" in goal:
-        r = _field(goal, "rectangle", "planning_problems[0].goals[0]", path, dict)
-        where = "planning_problems[0].goals[0].rectangle"
-        c = _points([_field(r, "center", where, path)], f"{where}.center", path)[0]
-        goal["rectangle"] = {"center": (c - origin).tolist(), "length": _number(r, "length", where, path),
-                             "width": _number(r, "width", where, path),
+        r = _field(goal, "rectangle", where, path, dict)
+        rw = f"{where}.rectangle"
+        c = _points([_field(r, "center", rw, path)], f"{rw}.center", path)[0]
+        length, width = _number(r, "length", rw, path), _number(r, "width", rw, path)
+        if length <= 0 or width <= 0:
+            raise ScenarioError(f"{path}: field {rw}.length/width must be positive")
+        goal["rectangle"] = {"center": (c - origin).tolist(), "length": length, "width": width,
                              "orientation": float(r.get("orientation", 0.0) or 0.0)}
+    if "polygon" in goal:
+        goal["polygon"] = (_points(goal["polygon"], f"{where}.polygon", path, 3) - origin).tolist()
+    if "circle" in goal:
+        r = _field(goal, "circle", where, path, dict)
+        c = _points([_field(r, "center", f"{where}.circle", path)], f"{where}.circle.center", path)[0]
+        radius = _number(r, "radius", f"{where}.circle", path)
+        if radius <= 0:
+            raise ScenarioError(f"{path}: field {where}.circle.radius must be positive")
+        goal["circle"] = {"center": (c - origin).tolist(), "radius": radius}
+    if "lanelets" in goal:
+        if not isinstance(goal["lanelets"], list) or not goal["lanelets"]:
+            raise ScenarioError(f"{path}: field {where}.lanelets should be a non-empty list of lanelet ids")
+        goal["lanelets"] = list(_ids(goal, "lanelets", where, path))
     return goal
 
 
@@ -261,7 +321,8 @@ def parse_scenario(d: Any, path: str, horizon: float | None = None) -> Scenario:
         lanes.append(Lane(_int(ln, "id", where, path), left, right, 0.5 * (left + right),
                           _ids(ln, "successors", where, path), _ids(ln, "predecessors", where, path),
                           _adjacent(ln, "adjacentLeft", where, path), _adjacent(ln, "adjacentRight", where, path),
-                          limit))
+                          limit, _adjacent(ln, "adjacentLeft", where, path, same=False),
+                          _adjacent(ln, "adjacentRight", where, path, same=False)))
 
     obstacles = _field(d, "obstacles", "scenario", path, list)
     for i, o in enumerate(obstacles):
@@ -325,17 +386,98 @@ def parse_scenario(d: Any, path: str, horizon: float | None = None) -> Scenario:
     tags = d.get("tags") or []
     return Scenario(str(d.get("id", os.path.basename(path))), str(d.get("source", "")),
                     tuple(map(str, tags)) if isinstance(tags, list) else (), dt, tuple(lanes), obs,
-                    np.asarray(ids), tuple(types), ego, _goal(problems[0], origin, path), origin,
+                    np.asarray(ids), tuple(types), ego, _goal(problems[0], origin, path, t0), origin,
                     tuple(skipped), _int(problems[0], "id", "planning_problems[0]", path)
                     if "id" in problems[0] else 0)
 
 
-def load_dir(directory: str, pattern: str = "*.json", **kw) -> list[Scenario]:
-    """Load every scenario file in ``directory`` (sorted by name)."""
-    files = sorted(glob.glob(os.path.join(directory, pattern)))
+def scenario_files(directory: str, pattern: str = "*.json") -> list[str]:
+    """The scenario files of a folder (sorted by name); a ``ScenarioError`` names a folder
+    that does not exist, is a file, or holds no file matching ``pattern``."""
+    if not os.path.exists(directory):
+        raise ScenarioError(f"{directory}: no such folder")
+    if not os.path.isdir(directory):
+        raise ScenarioError(f"{directory}: is a file, not a folder of scenarios")
+    files = sorted(f for f in glob.glob(os.path.join(directory, pattern)) if os.path.isfile(f))
     if not files:
         raise ScenarioError(f"{directory}: no scenario files matching {pattern}")
-    return [load_scenario(f, **kw) for f in files]
+    return files
+
+
+def load_dir(directory: str, pattern: str = "*.json", **kw) -> list[Scenario]:
+    """Load every scenario file in ``directory`` (sorted by name); the first bad file raises.
+
+    Suites use ``load_folder``, which skips bad files and names them."""
+    return [load_scenario(f, **kw) for f in scenario_files(directory, pattern)]
+
+
+@dataclasses.dataclass(frozen=True)
+class Folder:
+    """Scenarios loaded from a folder by ``load_folder``.
+
+    Attributes:
+        directory: the folder.
+        scenarios: the scenarios that loaded, in file-name order.
+        files: their files.
+        skipped: ``(file, reason)`` of every file that did not load.
+    """
+
+    directory: str
+    scenarios: tuple
+    files: tuple
+    skipped: tuple
+
+    def __len__(self) -> int:
+        return len(self.scenarios)
+
+
+def load_folder(directory: str, pattern: str = "*.json", horizon: float | None = None,
+                limit: int | None = None, stderr=None) -> Folder:
+    """Every loadable scenario of a folder; each file that fails is named on stderr and counted.
+
+    The one loading path of every suite that reads ``--scenarios DIR`` (their metrics
+    report ``skipped_files = len(folder.skipped)``).
+
+    Args:
+        directory: folder of scenario files.
+        pattern: file-name pattern.
+        horizon: keep obstacle predictions up to this time (s); default all.
+        limit: read at most this many files (the first by name).
+        stderr: where skipped files are named (default ``sys.stderr``).
+
+    Raises:
+        ScenarioError: the folder does not exist, holds no matching file, or none of them loads.
+    """
+    import sys
+
+    out = sys.stderr if stderr is None else stderr
+    files = scenario_files(directory, pattern)[:limit]
+    scenarios, loaded, skipped = [], [], []
+    for f in files:
+        try:
+            scenarios.append(load_scenario(f, horizon=horizon))
+            loaded.append(f)
+        except ScenarioError as e:
+            skipped.append((f, str(e)))
+            print(f"jaxplan: skipping {e}", file=out)
+    if not scenarios:
+        raise ScenarioError(f"{directory}: none of its {len(files)} scenario files could be loaded "
+                            f"(first: {skipped[0][1]})")
+    return Folder(directory, tuple(scenarios), tuple(loaded), tuple(skipped))
+
+
+def first_loadable(directory: str, pattern: str = "*.json") -> str:
+    """The first file of a folder that loads (a cheap check before heavy work); a
+    ``ScenarioError`` names the folder when none does."""
+    files = scenario_files(directory, pattern)
+    first = None
+    for f in files:
+        try:
+            load_scenario(f)
+            return f
+        except ScenarioError as e:
+            first = first or str(e)
+    raise ScenarioError(f"{directory}: none of its {len(files)} scenario files could be loaded (first: {first})")
 
 
 def lane_at(scenario: Scenario, xy, heading: float | None = None) -> Lane:

@@ -1,0 +1,104 @@
+"""``idm``: lane keeping with the Intelligent Driver Model (Treiber et al. 2000).
+
+Along the route at the car's lateral offset, the speed follows IDM towards the set speed
+(the speed limit ahead) behind the nearest predicted obstacle in the car's corridor at
+each future step, and stops before the end of the mapped road. The same IDM law
+(``idm_accel``) is the imitation baseline of the tuning suite.
+"""
+from __future__ import annotations
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+from jax import lax
+
+from jaxplan.baselines.brake import SIM_VEHICLE
+from jaxplan.baselines.route_follow import follow_route
+from jaxplan.geometry.frenet import ref_state
+from jaxplan.plan_context import NO_LEADER, road_context
+from jaxplan.planner import EgoState, PlanOutput
+from jaxplan.types import VehicleParams
+
+
+@dataclasses.dataclass(frozen=True)
+class IDMParams:
+    """IDM parameters: desired time gap (s), minimum gap (m), maximum acceleration and
+    comfortable deceleration (m/s^2), acceleration exponent, and the braking limit (m/s^2)."""
+
+    time_gap: float = 1.5
+    min_gap: float = 2.0
+    a_max: float = 1.5
+    b_comf: float = 2.0
+    delta: float = 4.0
+    b_max: float = 8.0
+
+
+def idm_accel(v, v_set, gap, dv, p: IDMParams = IDMParams()):
+    """IDM acceleration ``(...)`` for speed ``v``, desired speed ``v_set``, bumper gap ``gap``
+    (m, > 0 or large without a leader) and approach rate ``dv = v - v_leader``; clipped to
+    ``[-b_max, a_max]``. Finite gradients (the gap is floored at 0.1 m)."""
+    s_star = p.min_gap + jnp.maximum(0.0, v * p.time_gap + v * dv / (2.0 * jnp.sqrt(p.a_max * p.b_comf)))
+    free = 1.0 - (jnp.maximum(v, 0.0) / jnp.maximum(v_set, 0.1)) ** p.delta
+    a = p.a_max * (free - (s_star / jnp.maximum(gap, 0.1)) ** 2)
+    return jnp.clip(a, -p.b_max, p.a_max)
+
+
+def _extents(boxes, route_heading):
+    """Half extents ``(..., 2)`` (along, across the route) of boxes ``(..., 5)``."""
+    d = boxes[..., 4] - route_heading
+    c, s = jnp.abs(jnp.cos(d)), jnp.abs(jnp.sin(d))
+    return jnp.stack([0.5 * (boxes[..., 2] * c + boxes[..., 3] * s), 0.5 * (boxes[..., 2] * s + boxes[..., 3] * c)], -1)
+
+
+@dataclasses.dataclass(frozen=True)
+class IDMPlanner:
+    """Lane-keeping IDM over ``horizon`` seconds (see the module docstring)."""
+
+    vehicle: VehicleParams = SIM_VEHICLE
+    dt: float = 0.1
+    horizon: float = 5.0
+    params: IDMParams = IDMParams()
+
+    @property
+    def horizon_steps(self) -> int:
+        return int(round(self.horizon / self.dt)) + 1
+
+    def plan(self, scene, ego: EgoState, step) -> PlanOutput:
+        H = self.horizon_steps
+        ctx = road_context(scene, ego, step, H, self.vehicle)
+        f = scene.route.xy.dtype
+        veh = self.vehicle
+        front = jnp.asarray(veh.length - veh.rear_overhang if veh.reference == "rear_axle" else 0.5 * veh.length, f)
+        half_w = 0.5 * jnp.asarray(veh.width, f)
+        obs = ctx.obstacles
+        hdg = ref_state(scene.route, ctx.obstacle_s)[1]
+        ext = _extents(obs.boxes, hdg)  # (K, H, 2)
+        dt = self.dt
+        # obstacle speed along the route, from consecutive predicted positions
+        ds_obs = jnp.diff(ctx.obstacle_s, axis=1) / dt
+        v_obs = jnp.concatenate([ds_obs, ds_obs[:, -1:]], axis=1)
+        ok_v = obs.valid & jnp.concatenate([obs.valid[:, 1:], obs.valid[:, -1:]], axis=1)
+        v_obs = jnp.where(ok_v, v_obs, 0.0)
+
+        def step_fn(carry, k):
+            s, v = carry
+            in_lane = jnp.abs(ctx.obstacle_l[:, k] - ctx.l) < ext[:, k, 1] + half_w
+            gap = ctx.obstacle_s[:, k] - ext[:, k, 0] - (s + front)
+            cand = obs.valid[:, k] & in_lane & (ctx.obstacle_s[:, k] + ext[:, k, 0] > s)
+            gap = jnp.where(cand, gap, NO_LEADER)
+            j = jnp.argmin(gap)
+            g, vl = gap[j], v_obs[j, k]
+            end_gap = ctx.route_end_s - (s + front)  # the road's end: a stopped leader
+            use_end = end_gap < g
+            g, vl = jnp.where(use_end, end_gap, g), jnp.where(use_end, 0.0, vl)
+            a = idm_accel(v, ctx.v_set, g, v - vl, self.params)
+            a = jnp.maximum(a, -v / dt)  # stop, never reverse
+            v1 = v + a * dt
+            s1 = s + 0.5 * (v + v1) * dt
+            return (s1, v1), (s, v, a)
+
+        _, (s, v, a) = lax.scan(step_fn, (ctx.s, jnp.asarray(ego.v, f)), jnp.arange(H))
+        t = jnp.arange(H, dtype=f) * dt
+        traj = follow_route(scene.route, ego, s - ctx.s, v, a, t)
+        return PlanOutput(traj, jnp.asarray(True), {})

@@ -1,0 +1,126 @@
+"""What a road planner reads off a ``Scene`` at one planning cycle (jittable, one scene).
+
+``road_context(scene, ego, step, horizon_steps, vehicle)`` gathers, once per cycle, the
+quantities every road planner needs, so that no planner recomputes them its own way:
+
+- the obstacle predictions from ``step`` on (``Obstacles.window``: static obstacles held,
+  dynamic ones gone when their recording ends) and their Frenet coordinates on the route;
+- the car's Frenet state on the route; the lanes beside the route and the road's edges
+  at the car; the set speed (the lowest speed limit over the distance ahead the car covers
+  in ``SPEED_LOOKAHEAD`` seconds, at least 30 m: a car slows before a lower limit);
+- the goal in route coordinates with its time window relative to now;
+- the leader: the nearest obstacle ahead whose box overlaps the car's lane corridor now.
+"""
+from __future__ import annotations
+
+from typing import Any
+
+import jax.numpy as jnp
+
+from jaxplan.geometry.frenet import to_frenet
+from jaxplan.planner import EgoState
+from jaxplan.types import Obstacles, VehicleParams, _pytree
+
+SPEED_LOOKAHEAD = 3.0  # s
+NO_LEADER = 1e4  # gap (m) reported when nothing is ahead
+
+
+def route_sample(scene, values, s):
+    """Linear interpolation of per-route-point ``values (..., R)`` at arc lengths ``s (...)``
+    (clamped to the route's ends)."""
+    return jnp.vectorize(lambda v, q: jnp.interp(q, scene.route.s, v), signature="(r),()->()")(values, s)
+
+
+@_pytree(data_fields=("obstacles", "obstacle_s", "obstacle_l", "s", "l", "v_set", "lane_offset", "lane_width",
+                      "lane_valid", "lane_same_dir", "road_left", "road_right", "t_now", "goal_t", "goal_s",
+                      "goal_l", "goal_v", "route_end_s", "leader_gap", "leader_v", "leader_index"))
+class RoadContext:
+    """One planning cycle's view of the scene (``K`` obstacles, ``H`` steps, ``L`` lanes).
+
+    Attributes:
+        obstacles: ``Obstacles`` ``(K, H, 5)`` at ``t = 0, dt, ...`` from now.
+        obstacle_s, obstacle_l: ``(K, H)`` Frenet coordinates of their centres on the route.
+        s, l: ``()`` the car's reference point on the route.
+        v_set: ``()`` set speed (m/s) from the speed limits ahead.
+        lane_offset, lane_width, lane_valid, lane_same_dir: ``(L,)`` lanes at the car's ``s``.
+        road_left, road_right: ``()`` the drivable corridor's edges at ``s``.
+        t_now: ``()`` time of this cycle from the scenario start.
+        goal_t: ``(2,)`` the goal's time window from now (s); goal_s, goal_l, goal_v: ``(2,)``.
+        route_end_s: ``()`` where the mapped road ends on the route.
+        leader_gap: ``()`` bumper-to-bumper distance (m) along the route to the leader now
+            (``NO_LEADER`` without one); leader_v: ``()`` its speed along the route;
+            leader_index: ``()`` its obstacle index (-1 without one).
+    """
+
+    obstacles: Any
+    obstacle_s: Any
+    obstacle_l: Any
+    s: Any
+    l: Any
+    v_set: Any
+    lane_offset: Any
+    lane_width: Any
+    lane_valid: Any
+    lane_same_dir: Any
+    road_left: Any
+    road_right: Any
+    t_now: Any
+    goal_t: Any
+    goal_s: Any
+    goal_l: Any
+    goal_v: Any
+    route_end_s: Any
+    leader_gap: Any
+    leader_v: Any
+    leader_index: Any
+
+
+def road_context(scene, ego: EgoState, step, horizon_steps: int, vehicle: VehicleParams) -> RoadContext:
+    """The ``RoadContext`` of one scene at simulation step ``step`` (see the module docstring)."""
+    obs: Obstacles = scene.obstacles.window(step, horizon_steps)
+    dt = scene.dt
+    ref = scene.route
+    f = ref.xy.dtype
+    s, l = to_frenet(ref, jnp.stack([ego.x, ego.y]).astype(f))
+    sl = scene.obstacles.window_of(scene.obstacle_sl, step, horizon_steps)
+    os_, ol = sl[..., 0], sl[..., 1]
+    ahead = jnp.maximum(30.0, ego.v * SPEED_LOOKAHEAD)
+    probe = s + jnp.linspace(0.0, 1.0, 16, dtype=f) * ahead
+    v_set = jnp.min(route_sample(scene, scene.speed_limit, probe))
+    at = lambda v: route_sample(scene, v, s)
+    lane_valid = route_sample(scene, scene.lane_valid.astype(f), s) > 0.5
+    same = route_sample(scene, scene.lane_same_dir.astype(f), s) > 0.5
+    t_now = jnp.asarray(step, f) * dt
+    # the leader: nearest obstacle ahead (now) whose lateral extent overlaps the car's
+    half_w = 0.5 * jnp.asarray(vehicle.width, f)
+    b0 = obs.boxes[:, 0]
+    ext = 0.5 * (jnp.abs(b0[:, 2] * jnp.sin(b0[:, 4] - _heading_at(ref, os_[:, 0])))
+                 + jnp.abs(b0[:, 3] * jnp.cos(b0[:, 4] - _heading_at(ref, os_[:, 0]))))
+    ext_s = 0.5 * (jnp.abs(b0[:, 2] * jnp.cos(b0[:, 4] - _heading_at(ref, os_[:, 0])))
+                   + jnp.abs(b0[:, 3] * jnp.sin(b0[:, 4] - _heading_at(ref, os_[:, 0]))))
+    front = s + jnp.asarray(vehicle.length - vehicle.rear_overhang if vehicle.reference == "rear_axle"
+                            else 0.5 * vehicle.length, f)
+    gap = os_[:, 0] - ext_s - front
+    in_lane = jnp.abs(ol[:, 0] - l) < ext + half_w
+    cand = obs.valid[:, 0] & in_lane & (os_[:, 0] > s)
+    gap = jnp.where(cand, gap, NO_LEADER)
+    k = jnp.argmin(gap)
+    has = gap[k] < NO_LEADER
+    hdg = _heading_at(ref, os_[:, 0])
+    if obs.boxes.shape[1] > 1:
+        vel = (obs.boxes[:, 1, :2] - obs.boxes[:, 0, :2]) / dt
+        ok1 = obs.valid[:, 1] & obs.valid[:, 0]
+    else:
+        vel, ok1 = jnp.zeros_like(b0[:, :2]), obs.valid[:, 0]
+    v_along = jnp.where(ok1, vel[:, 0] * jnp.cos(hdg) + vel[:, 1] * jnp.sin(hdg), 0.0)
+    return RoadContext(obs, os_, ol, s, l, v_set, at(scene.lane_offset), at(scene.lane_width), lane_valid, same,
+                       at(scene.road_left), at(scene.road_right), t_now, scene.goal.time - t_now, scene.goal.s_range,
+                       scene.goal.l_range, scene.goal.speed, scene.route_end_s,
+                       jnp.where(has, gap[k], NO_LEADER), jnp.where(has, v_along[k], 0.0),
+                       jnp.where(has, k, -1))
+
+
+def _heading_at(ref, s):
+    from jaxplan.geometry.frenet import ref_state
+
+    return ref_state(ref, s)[1]

@@ -1,0 +1,148 @@
+"""The one interface every road planner implements, and the registry of planners by name.
+
+A planner is a frozen, hashable config object (static under ``jax.jit``) with
+
+- ``vehicle``: the ``VehicleParams`` it plans for (the simulator drives that car);
+- ``dt`` and ``horizon_steps``: its trajectory's time step and length;
+- ``plan(scene, ego, step) -> PlanOutput``: jittable, for one scene (``jax.vmap`` batches
+  it). ``scene`` is a ``jaxplan.scenarios.scene.Scene``; ``ego`` an ``EgoState`` (the car's
+  reference point, as ``vehicle.reference`` says); ``step`` the simulation step (time
+  ``step * scene.dt``), so the planner reads obstacle predictions from that step on
+  (``scene.obstacles.window(step, horizon_steps)``) and the goal's time window relative to now.
+
+``PlanOutput.trajectory`` holds ``horizon_steps`` points at ``t = 0, dt, ...`` from now,
+starting at the ego state; ``ok`` is False when the planner knows its plan is not good
+(no feasible candidate, NaN); ``info`` is a small pytree of per-plan figures.
+
+Planners register by name (``register_planner``); the built-in ones are imported on first
+use (``make_planner("lattice")``). Nothing in the simulator knows a planner's internals.
+"""
+from __future__ import annotations
+
+import importlib
+import importlib.util
+from typing import Any, Callable, Protocol
+
+import jax.numpy as jnp
+
+from jaxplan.types import Trajectory, VehicleParams, _pytree
+
+
+@_pytree(data_fields=("x", "y", "heading", "v", "a", "kappa"))
+class EgoState:
+    """The car's state, each field ``(...)``: position of its reference point (m), heading
+    (rad), speed (m/s, >= 0 forward), acceleration (m/s^2), curvature (1/m)."""
+
+    x: Any
+    y: Any
+    heading: Any
+    v: Any
+    a: Any = 0.0
+    kappa: Any = 0.0
+
+    @classmethod
+    def from_box_centre(cls, start, vehicle: VehicleParams) -> "EgoState":
+        """From a box-centre state ``start (..., 5)`` = [x, y, heading, v, a] (a ``Scene``'s start)."""
+        start = jnp.asarray(start)
+        h = start[..., 2]
+        off = jnp.asarray(vehicle.center_offset, start.dtype)
+        return cls(start[..., 0] - off * jnp.cos(h), start[..., 1] - off * jnp.sin(h), h, start[..., 3],
+                   start[..., 4], jnp.zeros_like(h))
+
+    def box_centre(self, vehicle: VehicleParams):
+        """``(..., 2)`` centre of the car's box."""
+        off = jnp.asarray(vehicle.center_offset, jnp.result_type(self.x))
+        return jnp.stack([self.x + off * jnp.cos(self.heading), self.y + off * jnp.sin(self.heading)], -1)
+
+    @classmethod
+    def at(cls, traj: Trajectory, k) -> "EgoState":
+        """The state at index ``k`` of a trajectory ``(..., T)``."""
+        f = lambda a: jnp.take(a, k, axis=-1)
+        return cls(f(traj.x), f(traj.y), f(traj.theta), f(traj.v), f(traj.a), f(traj.kappa))
+
+
+@_pytree(data_fields=("trajectory", "ok", "info"))
+class PlanOutput:
+    """A plan: ``trajectory`` (``Trajectory`` with fields ``(..., H)``, t from now), ``ok (...)``
+    bool, ``info``: a dict of ``(...)`` arrays (e.g. mode, candidates rejected)."""
+
+    trajectory: Any
+    ok: Any
+    info: Any
+
+
+class Planner(Protocol):
+    """What the simulator needs of a planner (see the module docstring)."""
+
+    vehicle: VehicleParams
+    dt: float
+
+    @property
+    def horizon_steps(self) -> int: ...
+
+    def plan(self, scene, ego: EgoState, step) -> PlanOutput: ...
+
+
+# name -> "module:attribute" of a factory (a class, or a function) taking keyword options
+_BUILTIN = {
+    "lattice": "jaxplan.lattice.planner:LatticePlanner",
+    "pathspeed": "jaxplan.speed.planner:PathSpeedPlanner",
+    "brake": "jaxplan.baselines:BrakePlanner",
+    "idm": "jaxplan.baselines:IDMPlanner",
+}
+PLANNERS: dict[str, Callable[..., Any]] = {}
+# The road planners; the baselines (brake, idm) are the references they are read against.
+ROAD_PLANNERS = ("lattice", "pathspeed")
+BASELINES = ("idm", "brake")
+
+
+def register_planner(name: str):
+    """Decorator: a planner factory (``**options -> Planner``) becomes planner ``name``."""
+
+    def wrap(factory):
+        PLANNERS[name] = factory
+        return factory
+
+    return wrap
+
+
+def planner_names() -> list[str]:
+    """Every planner that can be made: the registered ones and the built-in ones that import."""
+    names = set(PLANNERS)
+    for name, target in _BUILTIN.items():
+        mod = target.split(":")[0]
+        if importlib.util.find_spec(mod) is not None:
+            names.add(name)
+    return sorted(names)
+
+
+def loadable_planners() -> list[str]:
+    """Road planners, then baselines, then other registered planners: every one whose module imports."""
+    out = []
+    for name in list(ROAD_PLANNERS) + list(BASELINES) + sorted(PLANNERS):
+        if name in out:
+            continue
+        try:
+            get_factory(name)
+        except ValueError:
+            continue
+        out.append(name)
+    return out
+
+
+def get_factory(name: str):
+    """The factory of planner ``name`` (imports a built-in planner on first use)."""
+    if name not in PLANNERS and name in _BUILTIN:
+        mod, attr = _BUILTIN[name].split(":")
+        try:
+            PLANNERS[name] = getattr(importlib.import_module(mod), attr)
+        except (ImportError, AttributeError):
+            pass
+    if name not in PLANNERS:
+        raise ValueError(f"unknown planner {name!r}; known: {', '.join(planner_names())}")
+    return PLANNERS[name]
+
+
+def make_planner(name: str, **options) -> Planner:
+    """A planner by name, with keyword options for its config (e.g. ``vehicle=...``)."""
+    return get_factory(name)(**options)

@@ -1,0 +1,184 @@
+"""Closed-loop log replay: any ``Planner`` drives a batch of ``Scene``s.
+
+Recorded traffic moves as recorded (non-reactive); the planner sees the obstacles'
+recorded futures as predictions (as CommonRoad benchmarks do) and static obstacles at
+every time. Every ``replan_every`` steps the planner plans from the car's state; between
+re-plans the car follows the plan through the tracking model (``exact`` or ``bicycle``,
+``jaxplan.sim.tracking``). A plan with a NaN or inf in the steps the car would follow is
+not followed: the car brakes at ``a_fallback`` along its heading instead (counted).
+
+A drive ends at the first step where the goal is reached (``stop_at_goal``), after the
+goal's time interval ends, or at ``n_steps``; its log is valid up to that step. One
+``lax.scan`` over planning cycles (each plans once and tracks ``replan_every`` steps),
+``jax.vmap`` over scenes, jitted with the planner as a static argument.
+"""
+from __future__ import annotations
+
+import dataclasses
+import functools
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+from jax import lax
+
+from jaxplan.planner import EgoState, Planner
+from jaxplan.sim.metrics.goal import goal_reached
+from jaxplan.sim.tracking import TRACKERS
+from jaxplan.types import _pytree
+
+
+@dataclasses.dataclass(frozen=True)
+class SimConfig:
+    """Static settings of a closed-loop run (hashable).
+
+    Attributes:
+        n_steps: steps of ``dt`` simulated (the log has ``n_steps + 1`` states).
+        replan_every: steps between re-plans (3 = 0.3 s at dt 0.1).
+        tracking: ``"exact"`` or ``"bicycle"``.
+        dt: the step (s); must equal the scenes' and the planner's.
+        stop_at_goal: end the drive at the first step that meets the goal.
+        a_fallback: braking (m/s^2) when a plan is not finite.
+        lookahead_time, min_lookahead, speed_gain, substeps: the bicycle tracker (pure
+            pursuit look-ahead ``max(min_lookahead, lookahead_time * v)`` m, speed feedback
+            gain 1/s, Euler substeps per step).
+    """
+
+    n_steps: int = 150
+    replan_every: int = 3
+    tracking: str = "exact"
+    dt: float = 0.1
+    stop_at_goal: bool = True
+    a_fallback: float = -8.0
+    lookahead_time: float = 0.8
+    min_lookahead: float = 3.0
+    speed_gain: float = 1.0
+    substeps: int = 4
+
+    def validate(self, planner: Planner | None = None) -> "SimConfig":
+        if self.n_steps < 1 or self.replan_every < 1:
+            raise ValueError(f"SimConfig: n_steps and replan_every must be >= 1, got {self.n_steps}, {self.replan_every}")
+        if self.tracking not in TRACKERS:
+            raise ValueError(f"SimConfig.tracking must be one of {', '.join(TRACKERS)}, got {self.tracking!r}")
+        if planner is not None:
+            if abs(planner.dt - self.dt) > 1e-9:
+                raise ValueError(f"planner dt {planner.dt} differs from the simulation's dt {self.dt}")
+            if planner.horizon_steps < self.replan_every + 1:
+                raise ValueError(f"the planner's horizon ({planner.horizon_steps} steps) is shorter than the "
+                                 f"re-plan period ({self.replan_every} steps)")
+        return self
+
+    @property
+    def n_cycles(self) -> int:
+        return -(-self.n_steps // self.replan_every)
+
+
+@_pytree(data_fields=("t", "x", "y", "heading", "v", "a", "kappa", "valid", "end_step", "plan_ok", "fallback",
+                      "info"))
+class DriveLog:
+    """A drive (add leading batch axes for batches): ``N = n_steps + 1`` states at
+    ``t = k dt``, positions of the car's **box centre**.
+
+    Attributes:
+        t, x, y, heading, v, a, kappa: ``(N,)``.
+        valid: ``(N,)`` bool, True up to the drive's end.
+        end_step: ``()`` the last valid step.
+        plan_ok: ``(C,)`` the planner's ``ok`` at each cycle (C = cycles); fallback: ``(C,)``
+            the plan was not finite and the car braked instead.
+        info: the planner's info pytree, ``(C, ...)``.
+    """
+
+    t: Any
+    x: Any
+    y: Any
+    heading: Any
+    v: Any
+    a: Any
+    kappa: Any
+    valid: Any
+    end_step: Any
+    plan_ok: Any
+    fallback: Any
+    info: Any
+
+
+def _brake(ego: EgoState, n: int, dt: float, a: float) -> EgoState:
+    """States ``(n,)`` braking at ``a`` along the current heading."""
+    k = jnp.arange(1, n + 1, dtype=jnp.result_type(ego.x))
+    tc = jnp.minimum(k * dt, ego.v / -a)
+    d = ego.v * tc + 0.5 * a * tc ** 2
+    v = jnp.maximum(ego.v + a * k * dt, 0.0)
+    c, s = jnp.cos(ego.heading), jnp.sin(ego.heading)
+    z = jnp.zeros_like(k)
+    return EgoState(ego.x + c * d, ego.y + s * d, ego.heading + z, v, jnp.where(v > 0, a, 0.0), z)
+
+
+def _finite(tree) -> Any:
+    return jnp.all(jnp.stack([jnp.all(jnp.isfinite(x)) for x in jax.tree_util.tree_leaves(tree)]))
+
+
+def drive_one(planner: Planner, scene, config: SimConfig) -> DriveLog:
+    """One scene's drive (unbatched; ``rollout`` batches it)."""
+    veh = planner.vehicle
+    K = config.replan_every
+    C = config.n_cycles
+    track = TRACKERS[config.tracking]
+    ego0 = EgoState.from_box_centre(scene.start, veh)
+    f = jnp.result_type(float)
+    ego0 = jax.tree_util.tree_map(lambda a: jnp.asarray(a, f), ego0)
+    dt = jnp.asarray(config.dt, f)
+    t_end = scene.goal.time[1]
+
+    def reached(ego, t):
+        c = ego.box_centre(veh)
+        return goal_reached(scene.goal, c, ego.heading, ego.v, t)
+
+    def cycle(carry, c):
+        ego, done = carry
+        step = c * K
+        out = planner.plan(scene, ego, step)
+        traj = out.trajectory
+        head = jax.tree_util.tree_map(lambda a: a[..., :K + 1], traj)
+        finite = _finite(head)
+        safe = jax.tree_util.tree_map(lambda a: jnp.where(finite, a, 0.0), traj)
+        nxt = jax.lax.cond(finite, lambda: track(safe, ego, K, veh, config),
+                           lambda: _brake(ego, K, config.dt, config.a_fallback))
+        # freeze once the drive has ended; the end is checked at every tracked step
+        def step_fn(c2, j):
+            e, d = c2
+            new = jax.tree_util.tree_map(lambda a: a[j], nxt)
+            t = (step + j + 1) * dt
+            e = jax.tree_util.tree_map(lambda a, b: jnp.where(d, a, b), e, new)
+            end_now = (config.stop_at_goal & reached(e, t)) | (t >= t_end - 1e-6)
+            return (e, d | end_now), (e, d)
+
+        (ego_n, done_n), (states, was_done) = lax.scan(step_fn, (ego, done), jnp.arange(K))
+        return (ego_n, done_n), (states, was_done, out.ok, ~finite, out.info)
+
+    done0 = (config.stop_at_goal & reached(ego0, 0.0)) | (t_end <= 1e-6)
+    _, (states, was_done, ok, fallback, info) = lax.scan(cycle, (ego0, done0), jnp.arange(C))
+    flat = jax.tree_util.tree_map(lambda a: a.reshape((C * K,) + a.shape[2:])[:config.n_steps], states)
+    was_done = was_done.reshape(C * K)[:config.n_steps]
+    seq = jax.tree_util.tree_map(lambda a0, a: jnp.concatenate([jnp.reshape(a0, (1,)), a]), ego0, flat)
+    valid = jnp.concatenate([jnp.ones((1,), bool), ~was_done])  # the step that ends the drive is part of it
+    centre = seq.box_centre(veh)
+    n = config.n_steps + 1
+    t = jnp.arange(n, dtype=f) * dt
+    end_step = jnp.max(jnp.where(valid, jnp.arange(n), 0))
+    return DriveLog(t, centre[:, 0], centre[:, 1], seq.heading, seq.v, seq.a, seq.kappa, valid, end_step, ok,
+                    fallback, info)
+
+
+@functools.partial(jax.jit, static_argnames=("planner", "config"))
+def rollout(planner: Planner, scenes, config: SimConfig = SimConfig()) -> DriveLog:
+    """Drive every scene of a batch (leading axis) with ``planner``.
+
+    Args:
+        planner: a ``Planner`` (hashable; static).
+        scenes: a batched ``Scene`` (``jaxplan.scenarios.scene.stack_scenes``).
+        config: ``SimConfig``.
+
+    Returns:
+        ``DriveLog`` with a leading scene axis.
+    """
+    return jax.vmap(lambda s: drive_one(planner, s, config))(scenes)
