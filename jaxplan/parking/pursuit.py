@@ -4,9 +4,9 @@ from __future__ import annotations
 from typing import Callable, NamedTuple
 
 import jax.numpy as jnp
+import numpy as np
 from jax import lax
 
-from jaxplan.geometry import wrap_angle
 from jaxplan.parking.circles import Curve, _advance, curve_point
 from jaxplan.parking.config import ParkoutConfig
 from jaxplan.parking.grid import to_frame
@@ -76,42 +76,38 @@ def bicycle_step(pose, steer, ds, vehicle):
     return _advance(pose, jnp.tan(steer) / vehicle.wheelbase, ds)
 
 
-def project(curve: Curve, p, s_min):
-    """Arc length of the point of one curve nearest to ``p (2,)`` among those at or after ``s_min``.
+def project(tr: "Track", p, s_min):
+    """Arc length of the point of a track's curve nearest to ``p (2,)`` among those at or after ``s_min``.
 
     Closed form on each piece: the line before the curve, its two arcs and the
-    straight extension (the projection onto a circle is along the radius). The
-    pursuit passes ``s_min`` = the previous projection less ``BACKTRACK`` so the
+    straight extension (onto a circle the nearest point is along the radius;
+    a piece's clamped end by the law of cosines). The pursuit passes
+    ``s_min`` = the furthest projection so far less ``BACKTRACK``, so the
     projection cannot jump back along the curve.
     """
-    dtype = p.dtype
-    l0, l1 = curve.length[0], curve.length[1]
-    s_start = jnp.stack([jnp.zeros((), dtype), l0, l0 + l1])
-    best_s, best_d = jnp.zeros((), dtype), jnp.asarray(jnp.inf, dtype)
+    g = tr.geometry
+    best_s, best_d = jnp.zeros((), p.dtype), jnp.asarray(jnp.inf, p.dtype)
 
-    def line(st, lo, hi, s_off):
-        t = jnp.stack([jnp.cos(st[2]), jnp.sin(st[2])])
+    def line(o, t, lo, hi, s_off):
         lo = jnp.maximum(lo, s_min - s_off)
-        u = jnp.clip(jnp.dot(p - st[:2], t), lo, jnp.maximum(hi, lo))
-        d = jnp.sum((p - st[:2] - u * t) ** 2)
-        return s_off + u, jnp.where(lo <= hi, d, jnp.inf)
+        u = jnp.clip(jnp.dot(p - o, t), lo, jnp.maximum(hi, lo))
+        return s_off + u, jnp.where(lo <= hi, jnp.sum((p - o - u * t) ** 2), jnp.inf)
 
-    def arc(st, k, length, s_off):
-        small = jnp.abs(k) < 1e-6
-        ks = jnp.where(small, 1.0, k)
-        c = st[:2] + jnp.stack([-jnp.sin(st[2]), jnp.cos(st[2])]) / ks
-        r0, r = st[:2] - c, p - c
+    pieces = [line(g.origin[0], g.direction[0], -jnp.inf, 0.0, 0.0)]
+    for i in range(2):
+        k, length, s_off = tr.curve.kappa[i], tr.curve.length[i], g.s_start[i]
+        r0, r = g.radius[i], p - g.centre[i]
+        rad = jnp.abs(g.inv_k[i])
         phi = jnp.arctan2(r0[0] * r[1] - r0[1] * r[0], jnp.dot(r0, r))
         lo = jnp.maximum(0.0, s_min - s_off)
-        u = jnp.clip(phi / ks, lo, jnp.maximum(length, lo))
-        d = jnp.where(lo <= length, jnp.sum((p - _advance(st, k, u)[:2]) ** 2), jnp.inf)
-        su, du = line(st, 0.0, length, s_off)
-        return jnp.where(small, su, s_off + u), jnp.where(small, du, d)
-
-    pieces = [line(curve.start[0], -jnp.inf, 0.0, 0.0 * l0),
-              arc(curve.start[0], curve.kappa[0], l0, s_start[0]),
-              arc(curve.start[1], curve.kappa[1], l1, s_start[1]),
-              line(curve.start[2], 0.0, jnp.inf, s_start[2])]
+        u = jnp.clip(phi * g.inv_k[i], lo, jnp.maximum(length, lo))
+        nr = jnp.sqrt(jnp.sum(r * r))
+        d = nr * nr + rad * rad - 2.0 * nr * rad * jnp.cos(phi - k * u)
+        d = jnp.where(lo <= length, d, jnp.inf)
+        sl, dl_ = line(g.origin[i], g.direction[i], 0.0, length, s_off)
+        straight = g.straight[i]
+        pieces.append((jnp.where(straight, sl, s_off + u), jnp.where(straight, dl_, d)))
+    pieces.append(line(g.origin[2], g.direction[2], 0.0, jnp.inf, g.s_start[2]))
     for sp, dp in pieces:
         better = dp < best_d
         best_s, best_d = jnp.where(better, sp, best_s), jnp.where(better, dp, best_d)
@@ -167,10 +163,42 @@ def finish_rollout(poses, exists, goal, steer, clear, gear, config: ParkoutConfi
                    complete=jnp.any(goal & valid), cut=jnp.any(exists & ~clear))
 
 
+class CurveGeometry(NamedTuple):
+    """Per-piece constants of a curve for ``project`` (computed once per move, not per step).
+
+    ``origin (3, 2)`` and ``direction (3, 2)``: start point and unit heading of each
+    segment; ``centre (2, 2)``, ``radius (2, 2)`` (start point minus centre),
+    ``inv_k (2,)`` (signed radius) and ``straight (2,)`` of the two arcs;
+    ``s_start (3,)``: arc length at each segment's start.
+    """
+
+    origin: jnp.ndarray
+    direction: jnp.ndarray
+    centre: jnp.ndarray
+    radius: jnp.ndarray
+    inv_k: jnp.ndarray
+    straight: jnp.ndarray
+    s_start: jnp.ndarray
+
+
+def curve_geometry(curve: Curve) -> CurveGeometry:
+    st = curve.start  # (3, 3)
+    direction = jnp.stack([jnp.cos(st[:, 2]), jnp.sin(st[:, 2])], -1)
+    k = curve.kappa[:2]
+    straight = jnp.abs(k) < 1e-6
+    inv_k = 1.0 / jnp.where(straight, 1.0, k)
+    normal = jnp.stack([-direction[:2, 1], direction[:2, 0]], -1)
+    centre = st[:2, :2] + normal * inv_k[:, None]
+    s_start = jnp.concatenate([jnp.zeros((1,), st.dtype), jnp.cumsum(curve.length[:2])])
+    return CurveGeometry(st[:, :2], direction, centre, st[:2, :2] - centre, inv_k, straight, s_start)
+
+
 class Track(NamedTuple):
-    """What a pursuit rollout follows: the curve and the goal line (``stop_y = inf``: the curve's end)."""
+    """What a pursuit rollout follows: the curve, its ``CurveGeometry`` and the goal line
+    (``stop_y = inf``: the curve's end)."""
 
     curve: Curve
+    geometry: CurveGeometry
     stop_y: jnp.ndarray
     stop_heading: jnp.ndarray
 
@@ -189,7 +217,7 @@ def track(curve: Curve, config: ParkoutConfig, stop_y=None, stop_heading=0.0) ->
     """``Track`` of one curve."""
     dtype = curve.start.dtype
     stop = jnp.asarray(jnp.inf if stop_y is None else stop_y, dtype)
-    return Track(curve, stop, jnp.asarray(stop_heading, dtype))
+    return Track(curve, curve_geometry(curve), stop, jnp.asarray(stop_heading, dtype))
 
 
 def pursuit_start(pose) -> Pursuit:
@@ -209,8 +237,8 @@ def pursuit_steps(state: Pursuit, tr: Track, vehicle, config: ParkoutConfig, n: 
 
     def step(st: Pursuit, _):
         p, steer, s_prev, finished, i = st
-        s_p = project(curve, p[:2], s_prev - BACKTRACK)
-        level = jnp.abs(wrap_angle(p[2] - tr.stop_heading)) < 0.5 * config.out_tol
+        s_p = project(tr, p[:2], s_prev - BACKTRACK)
+        level = jnp.cos(p[2] - tr.stop_heading) > np.cos(0.5 * config.out_tol)
         done = jnp.where(line, (p[1] >= tr.stop_y) & (level | (s_p >= curve.end)), s_p >= curve.end)
         target = curve_point(curve, s_p + config.look_ahead)[:2]
         want = pursuit_steer(p, target, vehicle)
