@@ -1,4 +1,5 @@
 """Closed-loop driving: Scene building, metrics against independent oracles, the rollout."""
+import dataclasses
 import functools
 import json
 import math
@@ -11,6 +12,7 @@ from shapely.geometry import Point, Polygon
 from shapely.ops import unary_union
 
 from jaxplan.baselines import BrakePlanner, IDMPlanner
+from jaxplan.planner import EgoState
 from jaxplan.scenarios import builtin
 from jaxplan.scenarios.loader import parse_scenario
 from jaxplan.scenarios.scene import SceneRecord, build_scene, stack_scenes
@@ -73,7 +75,7 @@ def _log(xy, heading, v, dt=0.1, valid=None):
     z = np.zeros(n)
     return DriveLog(jnp.arange(n) * dt, jnp.asarray(xy[:, 0]), jnp.asarray(xy[:, 1]), jnp.asarray(heading),
                     jnp.asarray(v), jnp.asarray(z), jnp.asarray(z), jnp.ones(n, bool) if valid is None else valid,
-                    jnp.asarray(n - 1), jnp.ones(1, bool), jnp.zeros(1, bool), {})
+                    jnp.asarray(n - 1), jnp.ones(1, bool), jnp.zeros(1, bool), jnp.ones(1, bool), {})
 
 
 def _box_poly(x, y, L, W, h):
@@ -194,6 +196,26 @@ def test_brake_rollout_is_analytic_and_batched_equals_single():
     one = rollout(BrakePlanner(decel=5.0), jax.tree_util.tree_map(lambda a: a[2:3], batch), cfg)
     np.testing.assert_allclose(np.asarray(one.x[0]), log.x[2], atol=1e-5)
     np.testing.assert_allclose(np.asarray(one.y[0]), log.y[2], atol=1e-5)
+    # lazy re-planning keeps the installed plan while it is long enough and free: braking at a
+    # constant deceleration is the same drive either way, with a fraction of the re-plans
+    lazy = rollout(BrakePlanner(decel=5.0), jax.tree_util.tree_map(lambda a: a[2:3], batch),
+                   dataclasses.replace(cfg, replan="lazy"))
+    np.testing.assert_allclose(np.asarray(lazy.x[0]), log.x[2], atol=1e-3)
+    np.testing.assert_allclose(np.asarray(lazy.v[0]), log.v[2], atol=1e-4)
+    assert int(one.replanned[0].sum()) == 40 and 1 <= int(lazy.replanned[0].sum()) <= 8
+
+
+def test_lazy_policy_sees_a_conflict_on_the_installed_plan():
+    from jaxplan.sim.rollout import plan_conflicts
+
+    recs, _ = _brake_case()
+    scene = jax.tree_util.tree_map(jnp.asarray, recs[0].scene)  # a stopped car 9 m ahead
+    ego = EgoState.from_box_centre(scene.start, CAR)
+    cruise = IDMPlanner().plan(scene, dataclasses.replace(ego, v=jnp.asarray(0.0)), 0).trajectory
+    through = dataclasses.replace(cruise, x=cruise.x + jnp.cos(ego.heading) * jnp.arange(51) * 1.5,
+                                  y=cruise.y + jnp.sin(ego.heading) * jnp.arange(51) * 1.5)
+    assert bool(plan_conflicts(through, 0, scene, 0, CAR, 0.2))
+    assert not bool(plan_conflicts(cruise, 0, scene, 0, CAR, 0.2))  # standing still behind it
 
 
 def test_drive_idm_stops_reaches_goals_writes_the_format_and_bicycle_tracks(tmp_path):

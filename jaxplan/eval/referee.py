@@ -14,8 +14,16 @@ jaxplan's geometry:
   ``create_collision_checker`` at that time step (every obstacle, static ones at every step,
   dynamic ones while their recording lasts); the obstacle(s) hit are named by testing each
   obstacle's own collision object at the first colliding step;
-* off road: the same box against ``create_road_boundary_obstacle`` (oriented rectangles along
-  the road edges, as the reactive planner and Frenetix use it);
+* off road: the same box is not enclosed by the union of the lanelets
+  (``obb_enclosure_polygons_static`` over ``create_road_polygons(method="lanelet_polygons")``,
+  buffered by ``ROAD_TOL`` = 1 cm so that neighbouring lanelets whose shared bound has
+  different vertices leave no sliver between them);
+* road boundary contact (``boundary_contact``, reported beside it): the box against
+  ``create_road_boundary_obstacle`` (oriented rectangles along the contours of the lanelets'
+  union, open at lane ends without successor or predecessor, as the reactive planner and
+  Frenetix use it). It differs from "off road" where the map's lanes end (open there) and where
+  a shared bound's vertices differ (a sliver hole whose contour counts as road boundary, e.g.
+  ``DEU_Muc-2_1``'s two lanes);
 * goal: ``PlanningProblem.goal.is_reached`` on every row (time step, position, orientation,
   velocity; the goal's own rule), first time reached.
 
@@ -33,6 +41,7 @@ import os
 import numpy as np
 
 EXTRA = "referee"
+ROAD_TOL = 0.01  # m: lanelet polygons are buffered by this (jaxplan's off-road metric uses the same tolerance)
 
 
 def _require():
@@ -141,8 +150,13 @@ class Referee:
 
         self.scenario, self.problem, self.id_map = scenario, planning_problem, dict(id_map or {})
         self.dt = float(scenario.dt)
+        from commonroad_dc.boundary.boundary import create_road_polygons
+
         self.cc = create_collision_checker(scenario)
         _, self.road = create_road_boundary_obstacle(scenario, method="obb_rectangles")
+        # triangulated: without, pycrcc stands each polygon in for its bounding box
+        self.lanelets = create_road_polygons(scenario, method="lanelet_polygons", buffer=1, buf_width=ROAD_TOL,
+                                             triangulate=True)
         self.objects = [(int(self.id_map.get(o.obstacle_id, o.obstacle_id)), create_collision_object(o), False)
                         for o in scenario.static_obstacles]
         self.objects += [(int(self.id_map.get(o.obstacle_id, o.obstacle_id)), create_collision_object(o), True)
@@ -187,14 +201,18 @@ class Referee:
 
         st = np.asarray(states, np.float64)
         ks = np.rint(st[:, 0] / self.dt).astype(int)
-        first_col = first_off = goal = None
+        from commonroad_dc.collision.trajectory_queries.trajectory_queries import obb_enclosure_polygons_static
+
+        first_col = first_off = first_edge = goal = None
         hit: list[int] = []
         for k, (_t, x, y, th, v, _a) in zip(ks, st):
             box = self._box(x, y, th, length, width)
             if first_col is None and self.cc.time_slice(int(k)).collide(box):
                 first_col, hit = int(k), self.hit(int(k), box)
-            if first_off is None and self.road.collide(box):
+            if first_off is None and not obb_enclosure_polygons_static(self.lanelets, box):
                 first_off = int(k)
+            if first_edge is None and self.road.collide(box):
+                first_edge = int(k)
             if goal is None and self.problem.goal.is_reached(KSState(
                     time_step=int(k), position=np.array([x, y]), orientation=float(math.remainder(th, 2 * math.pi)),
                     velocity=float(v), steering_angle=0.0)):
@@ -202,6 +220,7 @@ class Referee:
         t = lambda k: None if k is None else round(k * self.dt, 6)  # noqa: E731
         return {"collided": first_col is not None, "first_collision_time": t(first_col), "collision_obstacles": hit,
                 "off_road": first_off is not None, "first_off_road_time": t(first_off),
+                "boundary_contact": first_edge is not None, "first_boundary_contact_time": t(first_edge),
                 "goal_reached": goal is not None, "goal_time": t(goal), "steps": int(len(st) - 1),
                 "end_time": t(int(ks[-1]))}
 

@@ -17,6 +17,9 @@ def add_parser(sub) -> None:
     d.add_argument("--out", required=True, type=ca.output_dir, help="output folder")
     d.add_argument("--replan-every", type=ca.positive_int, default=3, help="steps between re-plans (default 3 = 0.3 s)")
     d.add_argument("--tracking", choices=("exact", "bicycle"), default="exact", help="tracking model (default exact)")
+    d.add_argument("--replan", choices=("periodic", "lazy"), default="periodic",
+                   help="re-plan every --replan-every steps (periodic), or only when the installed plan is short, "
+                        "abnormal or in conflict (lazy)")
     d.add_argument("--max-steps", type=ca.positive_int, default=None, help="step cap of a drive (default 200 = 20 s)")
     d.add_argument("--animate", action="store_true", help="also write a GIF per drive")
     d.add_argument("--quick", action="store_true", help="fewer built-in scenes")
@@ -80,7 +83,8 @@ def run(args) -> int:
     from jaxplan.sim.rollout import SimConfig
 
     cap = args.max_steps or DEFAULT_MAX_STEPS
-    config = SimConfig(n_steps=n_steps_for(records, 0.1, cap), replan_every=args.replan_every, tracking=args.tracking)
+    config = SimConfig(n_steps=n_steps_for(records, 0.1, cap), replan_every=args.replan_every, tracking=args.tracking,
+                       replan=args.replan)
     res = drive(records, names, args.out, config, animate=args.animate, planner_options=options, skipped=skipped)
     from jaxplan.sim.report import headline_table
 

@@ -77,6 +77,7 @@ def summarize(rows: list) -> dict:
     out["time_to_goal_mean"] = float(np.mean(col("goal.time")[reached])) if reached.any() else float("nan")
     out["plan_not_ok_share"] = float(np.mean(col("plan_not_ok_share")))
     out["fallback_cycles"] = float(np.sum(col("fallback_cycles")))
+    out["replans_per_drive"] = float(np.mean(col("replans")))
     out["scenes"] = float(len(rows))
     return out
 
@@ -143,9 +144,10 @@ def _row(i, rec, planner_name, metrics, log) -> dict:
     for k, v in metrics.items():
         x = v[i]
         row[k] = bool(x) if x.dtype == bool else (int(x) if np.issubdtype(x.dtype, np.integer) else float(x))
-    ok = np.asarray(log.plan_ok[i] if hasattr(log, "plan_ok") else log["plan_ok"][i])
+    ok = np.asarray(log.plan_ok[i])
     row["plan_not_ok_share"] = float(1.0 - np.mean(ok))
-    row["fallback_cycles"] = int(np.sum(log.fallback[i] if hasattr(log, "fallback") else log["fallback"][i]))
+    row["fallback_cycles"] = int(np.sum(log.fallback[i]))
+    row["replans"] = int(np.sum(log.replanned[i]))
     row["end_time"] = float(np.asarray(log.t[i])[int(log.end_step[i])])
     return row
 
@@ -218,6 +220,7 @@ def drive(records, planners: list, out: str, config: SimConfig, animate: bool = 
         all_rows[name], summary[name] = rows, summ
     figures = {f"drive.{p}.{k}": v for p, s in summary.items() for k, v in s.items()}
     run = {"kind": "jaxplan drive", "planners": list(planners), "replan_every": config.replan_every,
+           "replan": config.replan,
            "tracking": config.tracking, "n_steps": config.n_steps, "dt": config.dt,
            "scenarios": [r.name for r in records], "skipped_files": list(skipped)}
     _write_json(os.path.join(out, "metrics.json"),
