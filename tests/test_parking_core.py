@@ -323,3 +323,36 @@ def test_margin_shrinks_next_to_the_curb():
     # turning out swings the rear-right corner ~9 cm towards the curb: forward is cut at once, backward runs
     assert bool(plan.forward.cut[0]) and float(plan.forward.length[0]) < 0.2
     assert not bool(plan.use_forward[0]) and float(plan.backward.length[0]) > 1.9
+
+
+@jax.jit
+def _project_vs_dense(curves, p, s_min):
+    """Closed-form projection and the brute-force nearest point on 1 mm samples (s >= s_min)."""
+    from jaxplan.parking.pursuit import project, track
+
+    def one(c, q, lo):
+        s = project(track(c, CFG), q, lo)
+        grid = jnp.maximum(lo, -40.0) + 1e-3 * jnp.arange(80000, dtype=q.dtype)
+        d = jnp.linalg.norm(pk.curve_point(c, grid)[:, :2] - q, axis=-1)
+        return jnp.linalg.norm(pk.curve_point(c, s)[:2] - q), d.min(), s
+
+    return jax.vmap(one)(curves, p, s_min)
+
+
+def test_projection_matches_dense_samples(rng):
+    n = 64
+    poses = _random_poses(rng, n, (1.0, 0.8, 0.6))
+    poses[n // 2:, :2] += rng.uniform(-1, 1, (n // 2, 2)) * 2  # backward curves: line and O2 cases
+    fw = _forward(jnp.asarray(poses[: n // 2]))
+    bw = jax.vmap(lambda p: pk.backward_curve(p, R, CFG.theta1, CFG.theta2, CFG.back_cap))(jnp.asarray(poses[n // 2:]))
+    curves = jax.tree_util.tree_map(lambda a, b: jnp.concatenate([a, b]), fw, bw)
+    ends = np.asarray(curves.end)
+    # points near the curve (at a random arc length, pushed off sideways) and far from it
+    s_at = rng.uniform(-1.0, ends + 2.0)
+    on = np.asarray(_points(curves, jnp.asarray(s_at, jnp.float32)))
+    off = rng.normal(0, 1.0, (n, 2)) * np.where(rng.random(n) < 0.25, 6.0, 1.0)[:, None]
+    q = (on[:, :2] + off).astype(np.float32)
+    s_min = np.where(rng.random(n) < 0.5, -1e3, rng.uniform(-0.5, ends)).astype(np.float32)
+    d, d_ref, s = (np.asarray(a) for a in _project_vs_dense(curves, jnp.asarray(q), jnp.asarray(s_min)))
+    assert np.all(s >= np.maximum(s_min, -1e3) - 1e-5)
+    assert np.all(np.abs(d - d_ref) < 2e-3), np.abs(d - d_ref).max()
