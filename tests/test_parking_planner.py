@@ -285,3 +285,21 @@ def test_readme_scene_example_is_valid():
     block = re.search(r"### Park-out scene files.*?```json\n(.*?)```", text, re.S).group(1)
     p = problem_from_dict(json.loads(block), "README.md")
     assert len(p.polygons) == 2 and p.frame.sign == 1
+
+
+def test_search_with_a_beam_wider_than_the_first_depth():
+    """The root has 2 x len(steer_levels) x 2 children; a wider beam pads them (it failed with a shape
+    error before). The plan is judged by shapely."""
+    from jaxplan.parking.heuristic import cost_to_go
+    from jaxplan.parking.parkout import GridModel
+    from jaxplan.parking.search import search_parkout
+
+    cfg = pk.ParkoutConfig(steer_levels=(1.0, -1.0), beam=12)
+    scene, _ = pk.make_scenes(np.random.default_rng(5), 1, CAR, front_gap=0.8, rear_gap=0.8)
+    cells = pk.render_scenes(scene, 0, cfg, CAR).cells[0]
+    tab = cost_to_go(CAR, cfg)
+    res = jax.jit(lambda c, s: search_parkout(s, GridModel(pk.cell_table(c), jnp.zeros(3)), cfg, CAR, tab))(
+        cells, jnp.asarray(scene.start[0]))
+    assert bool(res.success) and int(res.moves) >= 2
+    assert not collisions(np.asarray(res.poses)[None], np.asarray(res.valid)[None], scene.polygons, scene.valid,
+                          CAR).any()

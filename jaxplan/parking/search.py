@@ -130,6 +130,10 @@ def search_steps(check, config: ParkoutConfig, vehicle, table: CostToGo, dtype):
         endpose, ends, cost, h, ok, succ = map(flat, (endpose, ends, cost, h, ok, succ))
         node = jnp.repeat(jnp.arange(b), P * E)
         prim = jnp.tile(jnp.repeat(jnp.arange(P), E), b)
+        if b * P * E < B:  # fewer children than beam slots (the root with few primitives): pad, not alive
+            pad = lambda x: jnp.concatenate([x, jnp.repeat(x[-1:], B - b * P * E, 0)])  # noqa: E731
+            endpose, ends, cost, h, succ, node, prim = map(pad, (endpose, ends, cost, h, succ, node, prim))
+            ok = jnp.concatenate([ok, jnp.zeros((B - b * P * E,), bool)])
         # a solution at this depth: the cheapest one
         sc = jnp.where(ok & succ, cost, jnp.inf)
         i_sol = jnp.argmin(sc)
