@@ -5,8 +5,8 @@
 finishes (out, stuck, out of moves or no progress) its lane takes the next
 scene from the queue, so a slow scene holds one lane, not the batch. Scenes the
 seed's two curves fail go to the search (``search``), which runs the same way:
-``SEARCH_SLOTS`` lanes, one depth per iteration, refilled as searches finish. Each grid's cell table is computed once and shared by all lanes
-(looked up by offset, never copied).
+``SEARCH_SLOTS`` lanes, one depth per iteration, refilled as searches finish. Each grid's cell
+table is computed once and shared by all lanes (looked up by offset, never copied).
 
 ``park_out`` renders each scene's grid (once, at the start, in the slot frame)
 and calls ``plan_grids``; the two-corner baseline uses points instead of grids.
