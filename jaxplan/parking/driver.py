@@ -225,9 +225,10 @@ def render_scenes(scene: ParkingScene, seed: int, config, vehicle) -> Grid:
     """The grids of ``n`` scenes ``(n,)`` (``render_grids`` in chunks padded to ``CHUNKS`` sizes: a few compiles
     for any batch size); scene ``i`` gets the noise of key ``(seed, i)``."""
     n = scene.batch_shape[0]
+    size = CHUNKS[-1] if n >= CHUNKS[-1] else CHUNKS[1]  # a batch of 100 renders 128 grids, not 512
     cells = []
-    for lo in range(0, n, CHUNKS[-1]):
-        hi = min(n, lo + CHUNKS[-1])
+    for lo in range(0, n, size):
+        hi = min(n, lo + size)
         C = _bucket(hi - lo)
         idx = np.minimum(np.arange(lo, lo + C), hi - 1)
         part = jax.tree_util.tree_map(lambda a: jnp.asarray(a)[idx], scene)
