@@ -741,7 +741,7 @@ def main(argv=None) -> dict:
         for name in args.jaxplan:
             folder = os.path.join(out, f"jaxplan-{name}")
             cmd = [sys.executable, "-m", "jaxplan", "drive", *args.scenarios, "--planner", name, "--out", folder,
-                   "--replan-every", str(args.replan)]
+                   "--replan-every", str(args.replan), "--max-steps", str(args.max_steps)]
             print("running", " ".join(cmd), flush=True)
             r = subprocess.run(cmd, cwd=ROOT)
             if r.returncode != 0:
@@ -892,9 +892,9 @@ def _median_over_cycles(t: dict, key: str = "plan_ms_median"):
 def render_report(res: dict) -> str:
     fmt = lambda v, f: "-" if v is None else format(v, f)  # noqa: E731
     lines = ["# Peers in jaxplan's closed-loop harness", "",
-             f"{len(res['scenarios'])} scenarios, re-plan every {res['args']['replan']} steps (0.1 s), perfect tracking, "
+             f"{len(res['scenarios'])} scenarios, re-plan every {res['args']['replan']} steps of 0.1 s, perfect tracking, "
              f"route: {res['route_source']}. Referee: commonroad-drivability-checker (collision with every obstacle, "
-             "road boundary) and commonroad-io's goal check, on every driven state.", "",
+             "the box inside the lanelets) and commonroad-io's goal check, on every driven state.", "",
              "| planner | goal share (CommonRoad rule) | goals | collisions | off road | judged drives | "
              "plan time per cycle, median (ms) | CPU per cycle, median (ms) |",
              "| --- | --- | --- | --- | --- | --- | --- | --- |"]
@@ -904,7 +904,8 @@ def render_report(res: dict) -> str:
                      f"{fmt(s['cpu_ms_median'], '.1f')} |")
     lines += ["", "Goal share: drives whose state reached the goal (position, time, orientation, speed) at some step, "
               "over all scenarios (no drive = not reached). Collisions, off road: judged drives with a collision / "
-              "with the car's box touching the road boundary. Plan time: median over scenarios of each drive's "
+              "with the car's box not inside the union of the lanelets (buffered 5 cm: map seams are road). "
+              "Plan time: median over scenarios of each drive's "
               "median wall time of one planning call (CPU: process time); shared 2-core machine, rough.", ""]
     for label, s in res["summary"].items():
         if s["not_judged"]:

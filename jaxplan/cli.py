@@ -1,5 +1,5 @@
-"""Command line: ``jaxplan drive PATHS``, ``jaxplan eval SUITE``, ``jaxplan tune PLANNER``, ``jaxplan report DIR``
-(also ``python -m jaxplan``).
+"""Command line: ``jaxplan drive PATHS``, ``jaxplan eval SUITE``, ``jaxplan tune PLANNER``, ``jaxplan report DIR``,
+``jaxplan parkout SCENE`` (also ``python -m jaxplan``).
 
 Every argument is checked before any heavy work (``jaxplan.cli_args``); a bad one gets one
 line ``jaxplan: error: ...`` naming it, and exit status 2.
@@ -63,6 +63,9 @@ def parser() -> argparse.ArgumentParser:
     from jaxplan.sim import cli as drive_cli
 
     drive_cli.add_parser(sub)
+    from jaxplan.parking import cli as parkout_cli
+
+    parkout_cli.add_parser(sub)
     return p
 
 
@@ -74,6 +77,10 @@ def main(argv=None) -> int:
         from jaxplan.sim import cli as drive_cli
 
         return drive_cli.run(args)
+    if args.cmd == "parkout":
+        from jaxplan.parking import cli as parkout_cli
+
+        return parkout_cli.run(args)
     try:
         if args.cmd == "report":
             from jaxplan.eval.report import write_report

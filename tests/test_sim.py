@@ -150,6 +150,23 @@ def test_offroad_matches_shapely(rng):
     np.testing.assert_array_equal(ours[keep], ref[keep])
 
 
+def test_offroad_sees_a_road_edge_dipping_between_outline_samples():
+    """A notch in the road edge narrower than the outline's sample spacing: the box is off the road
+    wherever shapely says so (the rule on road-edge vertices; outline samples alone miss most of them).
+    Seen failing with the outline samples alone: 24 of the 41 poses wrong."""
+    road = np.array([[0.0, -2.0], [100.0, -2.0], [100.0, 2.0], [50.7, 2.0], [50.2, 1.5], [49.7, 2.0], [0.0, 2.0]])
+    rec = _record(_road_dict())
+    scene = dataclasses.replace(rec.scene, drivable=road[None], drivable_valid=np.ones((1, len(road)), bool))
+    scene = jax.tree_util.tree_map(jnp.asarray, scene)
+    x = np.linspace(47.0, 53.4, 41)
+    xy = np.stack([x, np.full_like(x, 0.8)], -1)  # the box's side at y = 1.6, where the notch is 0.2 m wide
+    ours = np.asarray(jax.jit(lambda lg: offroad_steps(lg, scene, CAR))(_log(xy, np.zeros(len(x)), np.zeros(len(x)))))
+    ref = np.array([_box_poly(p[0], p[1], CAR.length, CAR.width, 0.0).difference(Polygon(road)).area > 1e-6
+                    for p in xy])
+    assert 10 < ref.sum() < len(x) - 10
+    np.testing.assert_array_equal(ours, ref)
+
+
 def test_goal_predicate_against_shapely_and_heading_intervals(rng):
     rec = _record(_road_dict())
     goal = jax.tree_util.tree_map(jnp.asarray, rec.scene.goal)
@@ -240,6 +257,15 @@ def test_drive_idm_stops_reaches_goals_writes_the_format_and_bicycle_tracks(tmp_
     metrics = json.loads((tmp_path / "metrics.json").read_text())
     assert metrics["drive.idm.goal_share"] == 0.5 and len(metrics["rows"]) == 2
     assert "\n| idm | 2 | 50% |" in (tmp_path / "report.md").read_text()  # the headline row
+    # the results folder's report opens with the closed-loop headline of a drive in a sub-folder
+    from jaxplan.eval.report import write_report
+
+    top = tmp_path / "top"
+    (top / "drive").mkdir(parents=True)
+    (top / "metrics.json").write_text(json.dumps({"tiny.n": 1}))
+    (top / "drive" / "metrics.json").write_text((tmp_path / "metrics.json").read_text())
+    text = open(write_report(str(top))).read()
+    assert text.index("## Closed loop: `drive/` (2 scenes") < text.index("## tiny") and "\n| idm | 2 | 50% |" in text
     # the same drives through the bicycle tracker stay within 0.5 m of the exact ones
     batch = stack_scenes([stop.scene, free.scene], min_steps=cfg.n_steps + 1)
     exact = rollout(IDMPlanner(), batch, cfg)

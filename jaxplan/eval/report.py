@@ -30,6 +30,35 @@ def _ours(path: str) -> bool:
     return last.startswith(MARK) and last == f"{MARK}{hashlib.sha256(body.encode()).hexdigest()} -->"
 
 
+def _drive_summary(metrics: dict) -> dict:
+    """``{planner: {figure: value}}`` from a drive's ``metrics.json`` (figures ``drive.<planner>.<figure>``)."""
+    out: dict = {}
+    for k, v in metrics.items():
+        head, _, rest = k.partition(".")
+        planner, _, fig = rest.partition(".")
+        if head == "drive" and fig:
+            out.setdefault(planner, {})[fig] = v
+    return {p: out[p] for p in metrics.get("run", {}).get("planners", sorted(out)) if p in out}
+
+
+def _drive_headlines(results_dir: str) -> list:
+    """The headline: one table per closed-loop run (``jaxplan drive``) in a sub-folder, a line per planner."""
+    from jaxplan.sim.report import headline_table
+
+    lines = []
+    for name in sorted(os.listdir(results_dir)):
+        path = os.path.join(results_dir, name, METRICS)
+        if not os.path.isfile(path):
+            continue
+        m = read_json(path)
+        summary = _drive_summary(m) if isinstance(m, dict) and "rows" in m else {}
+        if summary:
+            n = len({r.get("scenario") for r in m["rows"]})
+            lines += [f"## Closed loop: `{name}/` ({n} scenes; per-scene lines in `{name}/report.md`)", ""]
+            lines += headline_table(summary) + [""]
+    return lines
+
+
 def write_report(results_dir: str, filename: str = "report.md", force: bool = False) -> str:
     """Write ``RESULTS_DIR/report.md`` from ``metrics.json`` and the plots listed in ``run.json``.
 
@@ -65,6 +94,7 @@ def write_report(results_dir: str, filename: str = "report.md", force: bool = Fa
     recorded = [] if run is None else [p for p in run.get("outputs", []) if isinstance(p, str)]
     pngs = sorted(p for p in recorded if p.endswith(".png") and os.path.isfile(os.path.join(results_dir, p)))
     lines = ["# jaxplan evaluation report", "", f"Results folder: `{os.path.abspath(results_dir)}`", ""]
+    lines += _drive_headlines(results_dir)
     if run is None:
         lines += [f"No `{RUN}` in this folder (not written by `jaxplan eval`): its plots are not shown.", ""]
     else:

@@ -1,4 +1,5 @@
-"""Parallel park-out on an occupancy grid: frames, grids, reference circles, pure pursuit, the maneuver loop."""
+"""Parallel park-out on an occupancy grid: frames, grids, reference circles, pure pursuit, the seed's
+maneuver loop, the search fallback, the batch driver, scene files and the ``jaxplan parkout`` command."""
 from jaxplan.parking.circles import (
     Curve,
     backward_curve,
@@ -13,10 +14,12 @@ from jaxplan.parking.circles import (
     turning_radius,
 )
 from jaxplan.parking.config import ParkoutConfig
+from jaxplan.parking.driver import park_out, plan_grids, render_scenes
 from jaxplan.parking.grid import (
     Grid,
     box_covers_occupied,
     cell_centres,
+    cell_table,
     cell_to_world,
     compose,
     footprint_boxes,
@@ -25,11 +28,25 @@ from jaxplan.parking.grid import (
     occupied_at,
     polygon_covers_occupied,
     relative,
-    row_prefix,
     to_frame,
     world_to_cell,
 )
-from jaxplan.parking.parkout import ParkoutResult, Plan, is_out, park_out, plan_parkout, select_forward
+from jaxplan.parking.heuristic import CostToGo, cost_to_go
+from jaxplan.parking.parkout import (
+    GridModel,
+    ParkoutResult,
+    Plan,
+    PointModel,
+    grid_model,
+    hits_fn,
+    is_out,
+    park_out_grid,
+    plan_parkout,
+    seed_loop,
+    select_forward,
+)
 from jaxplan.parking.pursuit import Rollout, bicycle_step, pursuit_steer, rollout
-from jaxplan.parking.scenes import Scene, box_gap, make_scenes, render_grid
+from jaxplan.parking.render import Layers, render_grid, render_grids, render_layers, sensor_poses
+from jaxplan.parking.scenes import ParkingScene, box_gap, boxes_to_polygons, make_scenes
+from jaxplan.parking.search import arc_poses, primitives, search_parkout
 from jaxplan.parking.two_corner import footprint_hits_points, two_corner_points

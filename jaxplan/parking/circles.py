@@ -134,12 +134,15 @@ def curve_point(curve: Curve, s):
         ``(..., 3)`` [x, y, travel heading].
     """
     s = jnp.asarray(s)
-    s0 = jnp.cumsum(curve.length) - curve.length  # (3,) segment start arc lengths
-    i = (s >= s0[1]).astype(jnp.int32) + (s >= s0[2]).astype(jnp.int32)
+    s1 = curve.length[0]
+    s2 = s1 + curve.length[1]
+    seg1, seg2 = s >= s1, s >= s2
     before = s < 0
-    st = jnp.where(before[..., None], curve.start[0], curve.start[i])
-    k = jnp.where(before | (i == 2), 0.0, curve.kappa[i])
-    local = jnp.where(before, s, s - s0[i])
+    # selects rather than indexing by segment (no gathers: this runs at every pursuit step)
+    pick = lambda a: jnp.where(seg2[..., None], a[2], jnp.where(seg1[..., None], a[1], a[0]))  # noqa: E731
+    st = pick(curve.start)
+    k = jnp.where(before | seg2, 0.0, jnp.where(seg1, curve.kappa[1], curve.kappa[0]))
+    local = s - jnp.where(seg2, s2, jnp.where(seg1, s1, 0.0))
     return _advance(st, k, local)
 
 

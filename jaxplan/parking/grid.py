@@ -1,11 +1,15 @@
-"""Occupancy grid in the car's frame, frame transforms, footprint collision check.
+"""Occupancy grid in the slot frame, frame transforms, exact footprint collision check.
 
-Frames: the *initial world frame* sits at the car's starting rear-axle centre,
-X along the body towards the front, Y to the left (out of the slot). A grid is
-read in the car's *current* frame (rear-axle centre, heading) and carries that
-pose, so a world point is looked up by transforming it into the grid's frame.
-Cell ``[r, c]`` has its centre at ``((c + 0.5) * cell - cols * cell / 2,
-(r + 0.5) * cell - rows * cell / 2)`` in the grid's frame.
+Frames: the *slot frame* sits at the car's starting rear-axle centre, X along
+the road in the direction the car faces, Y towards the road. A grid carries the
+pose of its own frame (usually the slot frame itself, pose 0); cell ``[r, c]``
+has its centre at ``(x_min + (c + 0.5) cell, y_min + (r + 0.5) cell)`` in the
+grid's frame (``ParkoutConfig``). Cells beyond the grid count as occupied
+(``config.outside_occupied``): a plan never leaves the space the grid covers.
+
+The collision check works on a *cell table*: for every row and column the
+column of the next occupied cell at or right of it (``cell_table``), so a row
+interval is one look-up.
 """
 from __future__ import annotations
 
@@ -15,6 +19,7 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jax import lax
 
 from jaxplan.geometry import poses_to_boxes
 from jaxplan.parking.config import ParkoutConfig
@@ -23,12 +28,12 @@ from jaxplan.parking.config import ParkoutConfig
 @jax.tree_util.register_dataclass
 @dataclasses.dataclass(frozen=True)
 class Grid:
-    """An occupancy grid and the car pose it was read at.
+    """An occupancy grid and the pose of its frame.
 
     Attributes:
-        cells: ``(..., rows, cols)`` bool (or 0/1), True = occupied.
-        pose: ``(..., 3)`` = [x, y, heading] of the rear-axle centre in the
-            initial world frame when the grid was read.
+        cells: ``(..., rows, cols)`` bool (or 0/1), True = blocked: occupied, or
+            unknown to the sensors (both are obstacles for the planner).
+        pose: ``(..., 3)`` = [x, y, heading] of the grid's frame in the slot frame.
     """
 
     cells: Any
@@ -43,6 +48,8 @@ class Grid:
         p = np.asarray(self.pose)
         if p.shape[-1:] != (3,) or not np.all(np.isfinite(p)):
             raise ValueError(f"Grid.pose: expected finite (..., 3), got shape {p.shape}")
+        if p.shape[:-1] != c.shape[:-2]:
+            raise ValueError(f"Grid.pose: batch shape {p.shape[:-1]} != cells batch shape {c.shape[:-2]}")
         return self
 
 
@@ -77,8 +84,8 @@ def relative(pose, other):
 def cell_centres(config: ParkoutConfig, dtype=jnp.float32):
     """Centres of all cells in the grid's own frame, ``(rows, cols, 2)``."""
     h = config.cell
-    u = (jnp.arange(config.cols, dtype=dtype) + 0.5) * h - 0.5 * config.cols * h
-    v = (jnp.arange(config.rows, dtype=dtype) + 0.5) * h - 0.5 * config.rows * h
+    u = config.x_min + (jnp.arange(config.cols, dtype=dtype) + 0.5) * h
+    v = config.y_min + (jnp.arange(config.rows, dtype=dtype) + 0.5) * h
     uu, vv = jnp.meshgrid(u, v)
     return jnp.stack([uu, vv], axis=-1)
 
@@ -90,17 +97,13 @@ def world_to_cell(grid_pose, xy, config: ParkoutConfig):
     """
     uv = to_frame(grid_pose, xy)
     h = config.cell
-    col = (uv[..., 0] + 0.5 * config.cols * h) / h
-    row = (uv[..., 1] + 0.5 * config.rows * h) / h
-    return jnp.stack([row, col], axis=-1)
+    return jnp.stack([(uv[..., 1] - config.y_min) / h, (uv[..., 0] - config.x_min) / h], axis=-1)
 
 
 def cell_to_world(grid_pose, rc, config: ParkoutConfig):
     """Inverse of ``world_to_cell``: (row, col) ``(..., 2)`` to world points ``(..., 2)``."""
     h = config.cell
-    u = rc[..., 1] * h - 0.5 * config.cols * h
-    v = rc[..., 0] * h - 0.5 * config.rows * h
-    return from_frame(grid_pose, jnp.stack([u, v], axis=-1))
+    return from_frame(grid_pose, jnp.stack([config.x_min + rc[..., 1] * h, config.y_min + rc[..., 0] * h], axis=-1))
 
 
 def occupied_at(grid: Grid, xy, config: ParkoutConfig):
@@ -127,41 +130,61 @@ def footprint_boxes(poses, vehicle, margin=0.0):
     return b.at[..., 2:4].add(2 * margin)
 
 
-def row_prefix(cells):
-    """Occupied-cell counts per row prefix: ``(..., rows, cols + 1)`` int32.
+def cell_table(cells):
+    """Next occupied column per cell, stored column-major: ``(..., cols + 1, rows)`` int16.
 
-    ``P[r, c]`` = number of occupied cells ``[r, 0..c-1]``; any cell range of a row
-    is then two look-ups.
+    ``N[c, r]`` is the smallest ``c' >= c`` with cell ``[r, c']`` occupied, else
+    ``cols`` (column ``cols`` is the sentinel). A row interval ``[a, b]`` holds an
+    occupied cell iff ``N[a, r] <= b``: one look-up per row. (Column-major
+    because the table is built by one pass over the columns.)
     """
-    c = jnp.asarray(cells).astype(jnp.int32)
-    z = jnp.zeros(c.shape[:-1] + (1,), jnp.int32)
-    return jnp.concatenate([z, jnp.cumsum(c, axis=-1)], axis=-1)
+    c = jnp.asarray(cells).astype(bool)
+    cols = c.shape[-1]
+    lead = c.shape[:-2]
+    cm = jnp.moveaxis(c, -1, 0)  # (cols, ..., rows)
+
+    def step(nxt, k):
+        nxt = jnp.where(cm[k], k.astype(jnp.int16), nxt)
+        return nxt, nxt
+
+    _, out = lax.scan(step, jnp.full(cm.shape[1:], cols, jnp.int16), jnp.arange(cols - 1, -1, -1))
+    out = jnp.concatenate([out[::-1], jnp.full((1,) + cm.shape[1:], cols, jnp.int16)], axis=0)
+    return jnp.moveaxis(out, 0, len(lead))
 
 
-def _rows_occupied(prefix, r, c_lo, c_hi, hit_row, config: ParkoutConfig):
-    """Whether scanned rows ``r`` ``(..., R)`` hold an occupied cell centre in columns
-    ``[c_lo, c_hi]`` (row prefix counts); also which rows lie inside the grid."""
+def _rows_occupied(table, r, c_lo, c_hi, hit_row, config: ParkoutConfig, base=0):
+    """Whether scanned rows ``r (..., R)`` hold an occupied cell centre in columns
+    ``[c_lo, c_hi]`` (inside the grid); also which rows lie inside the grid.
+
+    ``table`` may hold many grids' tables; ``base (...)`` is the flat offset of this one's.
+    
+    """
     in_rows = (r >= 0) & (r < config.rows)
     a = jnp.clip(c_lo, 0, config.cols).astype(jnp.int32)
-    b = jnp.clip(c_hi + 1, 0, config.cols).astype(jnp.int32)
     rr = jnp.clip(r, 0, config.rows - 1)
-    flat = prefix.reshape(-1)
-    w = config.cols + 1
-    count = flat[rr * w + jnp.maximum(b, a)] - flat[rr * w + a]
-    return hit_row & in_rows & (count > 0), in_rows
+    base = jnp.asarray(base, jnp.int32)[..., None]
+    nxt = table.reshape(-1)[base + a * config.rows + rr]
+    return hit_row & in_rows & (nxt.astype(c_hi.dtype) <= jnp.minimum(c_hi, config.cols - 1.0)), in_rows
 
 
-def polygon_covers_occupied(prefix, grid_pose, poly, config: ParkoutConfig):
+def _beyond(hit_row, in_rows, c_lo, c_hi, config: ParkoutConfig):
+    """Rows whose interval of cell centres ``[c_lo, c_hi]`` (unclipped) holds one beyond the grid."""
+    some = hit_row & (c_hi >= c_lo)
+    left = c_lo <= jnp.minimum(c_hi, -1.0)
+    right = jnp.maximum(c_lo, float(config.cols)) <= c_hi
+    return some & (~in_rows | left | right)
+
+
+def polygon_covers_occupied(table, grid_pose, poly, config: ParkoutConfig):
     """Whether a convex polygon contains the centre of an occupied cell.
 
     Exact scan conversion: for each of ``config.scan_rows`` grid rows around the
-    polygon, the row's centre line cuts the polygon in one interval, and the
-    row prefix counts say whether an occupied cell centre lies in it. Cells
-    beyond the grid read ``config.outside_occupied``.
+    polygon, the row's centre line cuts the polygon in one interval, looked up
+    in the cell table. Cells beyond the grid read ``config.outside_occupied``.
 
     Args:
-        prefix: ``(rows, cols + 1)`` from ``row_prefix`` of one grid.
-        grid_pose: ``(3,)`` pose the grid was read at.
+        table: ``(cols + 1, rows)`` from ``cell_table`` of one grid.
+        grid_pose: ``(3,)`` pose of the grid's frame.
         poly: ``(..., N, 2)`` convex polygons in the world frame (any orientation).
 
     Returns:
@@ -182,26 +205,27 @@ def polygon_covers_occupied(prefix, grid_pose, poly, config: ParkoutConfig):
     lo = jnp.min(jnp.where(cross, x, jnp.inf), axis=-1)  # (..., R)
     hi = jnp.max(jnp.where(cross, xhi_e, -jnp.inf), axis=-1)
     hit_row = jnp.isfinite(lo) & (hi >= lo)
-    c_lo = jnp.ceil(jnp.where(hit_row, lo, 0.0))
-    c_hi = jnp.floor(jnp.where(hit_row, hi, -1.0))
-    occ, in_rows = _rows_occupied(prefix, r, c_lo, c_hi, hit_row, config)
+    big = 4.0 * (config.cols + config.rows)
+    c_lo = jnp.ceil(jnp.clip(jnp.where(hit_row, lo, 0.0), -big, big))
+    c_hi = jnp.floor(jnp.clip(jnp.where(hit_row, hi, -1.0), -big, big))
+    occ, in_rows = _rows_occupied(table, r, c_lo, c_hi, hit_row, config)
     if config.outside_occupied:
-        beyond = hit_row & ((~in_rows) | (c_lo < 0) | (c_hi > config.cols - 1))
-        occ = occ | beyond
+        occ = occ | _beyond(hit_row, in_rows, c_lo, c_hi, config)
     return jnp.any(occ, axis=-1)
 
 
-def box_covers_occupied(prefix, grid_pose, boxes, config: ParkoutConfig):
+def box_covers_occupied(table, grid_pose, boxes, config: ParkoutConfig, base=0):
     """``polygon_covers_occupied`` for oriented boxes ``(..., 5)``, by slabs (about 4x fewer flops).
 
     Each scanned row's centre line meets the box where both slab conditions
     ``|u| <= length/2`` and ``|v| <= width/2`` (box frame) hold; that interval is
-    looked up in the row prefix counts. Exact like the polygon version.
+    looked up in the cell table. Exact like the polygon version. ``base``: see
+    ``footprint_hits_grid``.
     """
     h = config.cell
     c = world_to_cell(grid_pose, boxes[..., :2], config) - 0.5  # (..., 2) centre in cell-centre units
     cy, cx = c[..., 0], c[..., 1]
-    phi = boxes[..., 4] - grid_pose[2]
+    phi = boxes[..., 4] - grid_pose[..., 2]
     cs, sn = jnp.cos(phi), jnp.sin(phi)
     tiny = 1e-9
     ic = 1.0 / jnp.where(jnp.abs(cs) < tiny, tiny, cs)
@@ -219,24 +243,28 @@ def box_covers_occupied(prefix, grid_pose, boxes, config: ParkoutConfig):
     lo = cx[..., None] + jnp.maximum(jnp.minimum(u1, u2), jnp.minimum(v1, v2))
     hi = cx[..., None] + jnp.minimum(jnp.maximum(u1, u2), jnp.maximum(v1, v2))
     hit_row = (hi >= lo) & (jnp.abs(dy) <= half_rows[..., None] + 1e-3)
-    c_lo = jnp.ceil(jnp.clip(lo, -1.0, config.cols + 1.0))
-    c_hi = jnp.floor(jnp.clip(hi, -2.0, config.cols + 1.0))
-    occ, in_rows = _rows_occupied(prefix, r, c_lo, c_hi, hit_row, config)
+    big = 4.0 * (config.cols + config.rows)
+    c_lo = jnp.ceil(jnp.clip(lo, -big, big))
+    c_hi = jnp.floor(jnp.clip(hi, -big, big))
+    occ, in_rows = _rows_occupied(table, r, c_lo, c_hi, hit_row, config, base)
     if config.outside_occupied:
-        occ = occ | (hit_row & (~in_rows | (c_lo < 0) | (c_hi > config.cols - 1)) & (c_hi >= c_lo))
+        occ = occ | _beyond(hit_row, in_rows, c_lo, c_hi, config)
     return jnp.any(occ, axis=-1)
 
 
-def footprint_hits_grid(prefix, grid_pose, poses, vehicle, config: ParkoutConfig, margin=None):
+def footprint_hits_grid(table, grid_pose, poses, vehicle, config: ParkoutConfig, margin=None, base=0):
     """Whether the footprint inflated by ``margin`` (default ``config.margin``) covers an occupied cell centre.
 
     Args:
-        prefix: ``(rows, cols + 1)`` row prefix counts of one grid (``row_prefix``).
-        grid_pose: ``(3,)`` the pose that grid was read at.
-        poses: ``(..., 3)`` rear-axle poses in the world frame.
+        table: ``(cols + 1, rows)`` cell table of one grid (``cell_table``).
+        grid_pose: ``(3,)`` the pose of that grid's frame.
+        poses: ``(..., 3)`` rear-axle poses in the slot frame.
+        margin: ``()`` or broadcastable to ``(..., 1)``.
+        base: flat offset of this grid's table when ``table`` holds the tables of
+            many grids (``(n, cols + 1, rows)``, base ``= i * rows * (cols + 1)``).
 
     Returns:
         ``(...)`` bool.
     """
     margin = config.margin if margin is None else margin
-    return box_covers_occupied(prefix, grid_pose, footprint_boxes(poses, vehicle, margin), config)
+    return box_covers_occupied(table, grid_pose, footprint_boxes(poses, vehicle, margin), config, base)

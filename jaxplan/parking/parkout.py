@@ -1,4 +1,11 @@
-"""Park-out: selection rules, the full park-out condition and the drive / re-plan loop."""
+"""Park-out: the seed's selection rules, the full park-out condition and the drive / re-plan loop.
+
+Everything here is one scene's kernel (``jax.vmap`` for batches) in the slot
+frame. The obstacle information is a *collision model*: a ``GridModel`` (the
+occupancy grid's cell table and frame pose) or a ``PointModel`` (the two-corner
+baseline's points); ``hits_fn`` turns either into ``poses (..., 3) -> (...)
+bool`` with a margin.
+"""
 from __future__ import annotations
 
 import functools
@@ -12,11 +19,47 @@ from jax import lax
 from jaxplan.geometry import wrap_angle
 from jaxplan.parking.circles import backward_curve, forward_curve, stop_line, turning_radius
 from jaxplan.parking.config import ParkoutConfig
-from jaxplan.parking.grid import Grid, footprint_hits_grid, row_prefix
+from jaxplan.parking.grid import Grid, cell_table, footprint_hits_grid
 from jaxplan.parking.pursuit import Rollout, rollout
-from jaxplan.parking.scenes import Scene, render_grid
-from jaxplan.parking.two_corner import footprint_hits_points, two_corner_points
+from jaxplan.parking.two_corner import footprint_hits_points
 from jaxplan.types import VehicleParams, is_concrete
+
+
+class GridModel(NamedTuple):
+    """Collision model of one occupancy grid: ``table (cols + 1, rows)`` (``cell_table``), frame ``pose (3,)``.
+
+    ``table`` may also hold many grids' tables ``(n, cols + 1, rows)`` shared by a
+    batch, with ``base`` the flat offset of this grid's (``i * rows * (cols + 1)``).
+    """
+
+    table: jnp.ndarray
+    pose: jnp.ndarray
+    base: jnp.ndarray = 0
+
+
+class PointModel(NamedTuple):
+    """Collision model of obstacle points ``(P, 2)`` with mask ``ok (P,)`` (the two-corner baseline)."""
+
+    points: jnp.ndarray
+    ok: jnp.ndarray
+
+
+def grid_model(grid: Grid) -> GridModel:
+    """``GridModel`` of a grid (any leading dims)."""
+    pose = jnp.asarray(grid.pose)
+    return GridModel(cell_table(grid.cells), pose, jnp.zeros(pose.shape[:-1], jnp.int32))
+
+
+def hits_fn(model, vehicle, config: ParkoutConfig):
+    """``check(poses (..., 3), margin=...) -> (...) bool`` for a ``GridModel`` or ``PointModel``."""
+    if isinstance(model, GridModel):
+        return functools.partial(footprint_hits_grid, model.table, model.pose, vehicle=vehicle, config=config,
+                                 base=model.base)
+
+    def check(poses, margin=0.0):
+        return footprint_hits_points(model.points, model.ok, poses, vehicle=vehicle, margin=margin)
+
+    return check
 
 
 def is_out(pose, d, config: ParkoutConfig):
@@ -33,8 +76,9 @@ class Plan(NamedTuple):
     """One planning cycle: the chosen move and both candidates.
 
     Attributes:
-        trajectory: the chosen ``Rollout`` (poses, gear per point, valid mask, ...).
-        forward, backward: both candidates.
+        trajectory: the chosen ``Rollout`` (poses, gear per point, valid mask, ...),
+            ``config.steps`` points.
+        forward, backward: both candidates (the backward one padded to ``config.steps``).
         use_forward: ``(...)`` bool, which one was chosen.
         out: ``(...)`` the chosen move ends fully out.
         margin: ``(...)`` the footprint margin the collision check used.
@@ -48,7 +92,7 @@ class Plan(NamedTuple):
     margin: jnp.ndarray
 
 
-def _usable_margin(check, pose, config: ParkoutConfig):
+def usable_margin(check, pose, config: ParkoutConfig):
     """``config.margin``, or with ``shrink_margin`` the largest of four margins from
     ``margin`` down to ``min_margin`` that is clear at ``pose`` (else ``min_margin``)."""
     if not config.shrink_margin:
@@ -58,25 +102,27 @@ def _usable_margin(check, pose, config: ParkoutConfig):
     return jnp.where(jnp.any(clear), cands[jnp.argmax(clear)], cands[-1])
 
 
+def _pad(r: Rollout, T: int) -> Rollout:
+    """A rollout padded to ``T`` points (the last point repeated, not valid)."""
+    n = r.poses.shape[-2]
+    if n == T:
+        return r
+    rep = lambda x, fill: jnp.concatenate([x, jnp.broadcast_to(fill, (T - n,) + x.shape[1:])], 0)  # noqa: E731
+    return r._replace(poses=rep(r.poses, r.poses[-1]), gear=rep(r.gear, r.gear[-1]), steer=rep(r.steer, r.steer[-1]),
+                      s=rep(r.s, r.s[-1]), valid=rep(r.valid, False))
+
+
 def _plan(pose, check, vehicle, config: ParkoutConfig) -> Plan:
     """One planning cycle; ``check(poses, margin=...) -> bool`` is the collision model."""
-    margin = _usable_margin(check, pose, config)
+    margin = usable_margin(check, pose, config)
     hits = functools.partial(check, margin=margin)
     R = turning_radius(vehicle)
     d = stop_line(vehicle, config.c)
-    curves = jax.tree_util.tree_map(lambda a, b: jnp.stack([a, b]), forward_curve(pose, R, d + config.overshoot),
-                                    backward_curve(pose, R, config.theta1, config.theta2, config.back_cap))
-    stop_y = jnp.stack([d + 0.0 * pose[1], jnp.full_like(pose[1], jnp.inf)])
-    both = jax.vmap(lambda c, y: rollout(pose, c, hits, vehicle, config, y, config.out_heading))(curves, stop_y)
-    f, b = (jax.tree_util.tree_map(lambda x: x[i], both) for i in (0, 1))
-    use = select_forward(f, b, d, config)
-    chosen = jax.tree_util.tree_map(lambda x, y: jnp.where(use, x, y), f, b)
-    return Plan(chosen, f, b, use, is_out(chosen.end_pose, d, config), margin)
-
-
-def _grid_hits(grid: Grid, vehicle, config):
-    prefix = row_prefix(grid.cells)
-    return functools.partial(footprint_hits_grid, prefix, grid.pose, vehicle=vehicle, config=config)
+    f = rollout(pose, forward_curve(pose, R, d + config.overshoot), hits, vehicle, config, d + 0.0 * pose[1],
+                config.out_heading, steps=config.steps)
+    b = rollout(pose, backward_curve(pose, R, config.theta1, config.theta2, config.back_cap), hits, vehicle, config,
+                None, config.out_heading, steps=config.back_steps)
+    return choose(f, _pad(b, config.steps), margin, vehicle, config)
 
 
 def _batched(fn, pose, *args):
@@ -92,19 +138,29 @@ def _batched(fn, pose, *args):
 @functools.partial(jax.jit, static_argnames=("config",))
 def _plan_parkout_jit(pose, grid, config, vehicle):
     def one(p, g):
-        return _plan(p, _grid_hits(g, vehicle, config), vehicle, config)
+        return _plan(p, hits_fn(grid_model(g), vehicle, config), vehicle, config)
 
     return _batched(one, pose, grid)
 
 
+def _check_inputs(pose, grid: Grid, config: ParkoutConfig, vehicle):
+    vehicle.validate()
+    config.check_vehicle(vehicle)
+    grid.validate(config)
+    p = jnp.asarray(pose)
+    if p.shape[-1:] != (3,) or p.shape[:-1] != jnp.shape(grid.pose)[:-1]:
+        raise ValueError(f"pose: expected (..., 3) matching grid.pose {jnp.shape(grid.pose)}, got {p.shape}")
+    if not bool(jnp.all(jnp.isfinite(p))):
+        raise ValueError("pose: contains NaN or inf")
+
+
 def plan_parkout(pose, grid: Grid, config: ParkoutConfig = ParkoutConfig(),
                  vehicle: VehicleParams = VehicleParams()) -> Plan:
-    """Plan one park-out move on an occupancy grid (jitted).
+    """Plan one park-out move with the seed's two curves on an occupancy grid (jitted).
 
     Args:
-        pose: ``(..., 3)`` current rear-axle pose in the initial world frame.
-        grid: ``Grid`` with ``cells (..., rows, cols)`` and the ``pose (..., 3)``
-            it was read at (usually the current pose).
+        pose: ``(..., 3)`` current rear-axle pose in the slot frame.
+        grid: ``Grid`` with ``cells (..., rows, cols)`` and its frame's ``pose (..., 3)``.
         config: static sizes and thresholds; vehicle: car geometry.
 
     Returns:
@@ -112,12 +168,7 @@ def plan_parkout(pose, grid: Grid, config: ParkoutConfig = ParkoutConfig(),
         and ``valid (..., T)``.
     """
     if is_concrete(pose, grid, vehicle):
-        vehicle.validate()
-        config.check_vehicle(vehicle)
-        grid.validate(config)
-        p = jnp.asarray(pose)
-        if p.shape[-1:] != (3,) or p.shape[:-1] != jnp.shape(grid.pose)[:-1]:
-            raise ValueError(f"pose: expected (..., 3) matching grid.pose {jnp.shape(grid.pose)}, got {p.shape}")
+        _check_inputs(pose, grid, config, vehicle)
     pose = jnp.asarray(pose, jnp.result_type(float))
     return _plan_parkout_jit(pose, grid, config, vehicle)
 
@@ -126,97 +177,144 @@ class ParkoutResult(NamedTuple):
     """The whole park-out of one scene (or a batch, leading dims ``...``).
 
     Attributes:
-        poses: ``(..., M, T, 3)`` each executed move (``M = config.max_moves``).
-        valid: ``(..., M, T)`` bool, points driven.
+        poses: ``(..., M, T, 3)`` each executed move (``M = config.max_moves``,
+            ``T = config.steps``), rear-axle poses in the slot frame.
+        valid: ``(..., M, T)`` bool, points driven (a prefix of each move).
         gear: ``(..., M)`` gear of each move (0 if not driven).
+        steer: ``(..., M, T)`` front steering angle leaving each point [rad].
         success: ``(...)`` the car ended fully out.
-        stuck: ``(...)`` the planner found no move longer than ``min_progress``.
-        moves: ``(...)`` number of moves driven.
+        stuck: ``(...)`` failed: no move of at least ``min_progress`` was left
+            (the other failures ran out of moves or stopped making progress).
+        moves: ``(...)`` number of moves driven (each ends at a standstill).
         path_length: ``(...)`` total length driven.
         final_pose: ``(..., 3)``.
+        searched: ``(...)`` the plan comes from the search (the seed's two curves failed).
     """
 
     poses: jnp.ndarray
     valid: jnp.ndarray
     gear: jnp.ndarray
+    steer: jnp.ndarray
     success: jnp.ndarray
     stuck: jnp.ndarray
     moves: jnp.ndarray
     path_length: jnp.ndarray
     final_pose: jnp.ndarray
+    searched: jnp.ndarray
 
 
-def _park_out_one(scene: Scene, key, config: ParkoutConfig, vehicle, model: str):
-    dtype = scene.boxes.dtype
-    start = jnp.zeros(3, dtype)
-    if model == "two_corner":
-        ref = jnp.stack([jnp.asarray(vehicle.center_offset, dtype), jnp.zeros((), dtype)])
-        pts, ok = two_corner_points(scene.boxes, scene.valid, ref)
+class LoopState(NamedTuple):
+    """The seed loop's state for one scene (see ``seed_step``)."""
 
+    k: jnp.ndarray
+    pose: jnp.ndarray
+    done: jnp.ndarray
+    success: jnp.ndarray
+    stuck: jnp.ndarray
+    stall: jnp.ndarray
+    best: jnp.ndarray
+    poses: jnp.ndarray
+    valid: jnp.ndarray
+    gear: jnp.ndarray
+    steer: jnp.ndarray
+    length: jnp.ndarray
+
+
+def loop_init(start, config: ParkoutConfig) -> LoopState:
+    """Initial ``LoopState`` at rear-axle pose ``start (3,)``."""
     M, T = config.max_moves, config.steps
-    kd = jnp.asarray(key, jnp.uint32).reshape(-1)
-
-    def cond(state):
-        return (state[0] < M) & ~state[2]
-
-    def move(state):
-        k, pose, done, success, stuck, poses, valid, gear, length = state
-        seed = jnp.stack([kd[0] ^ (k.astype(jnp.uint32) * jnp.uint32(0x85EBCA6B)), kd[-1]])
-        if model == "grid":
-            hits = _grid_hits(render_grid(scene, pose, seed, config, vehicle), vehicle, config)
-        else:
-            hits = functools.partial(footprint_hits_points, pts, ok, vehicle=vehicle)
-        plan = _plan(pose, hits, vehicle, config)
-        tr = plan.trajectory
-        go = ~done & (tr.length >= config.min_progress)
-        now_stuck = ~done & ~go
-        out = go & plan.out
-        poses = poses.at[k].set(tr.poses)
-        valid = valid.at[k].set(tr.valid & go)
-        gear = gear.at[k].set(jnp.where(go, tr.gear[0], 0).astype(jnp.int32))
-        length = length.at[k].set(jnp.where(go, tr.length, 0.0))
-        return (k + 1, jnp.where(go, tr.end_pose, pose), done | now_stuck | out, success | out, stuck | now_stuck,
-                poses, valid, gear, length)
-
+    dtype = start.dtype
     f = jnp.zeros((), bool)
-    init = (jnp.zeros((), jnp.int32), start, f, f, f, jnp.zeros((M, T, 3), dtype), jnp.zeros((M, T), bool),
-            jnp.zeros((M,), jnp.int32), jnp.zeros((M,), dtype))
-    _, pose, done, success, stuck, poses, valid, gear, length = lax.while_loop(cond, move, init)
-    poses = jnp.where(valid.any(-1)[:, None, None], poses, pose)
-    return ParkoutResult(poses, valid, gear, success, stuck, jnp.sum(gear != 0), jnp.sum(length), pose)
+    return LoopState(jnp.zeros((), jnp.int32), start, f, f, f, jnp.zeros((), jnp.int32),
+                     jnp.stack([start[1], wrap_angle(start[2])]), jnp.zeros((M, T, 3), dtype),
+                     jnp.zeros((M, T), bool), jnp.zeros((M,), jnp.int32), jnp.zeros((M, T), dtype),
+                     jnp.zeros((M,), dtype))
 
 
-@functools.partial(jax.jit, static_argnames=("config", "model"))
-def _park_out_jit(scene, key, config, vehicle, model):
-    lead = scene.edge_noise.shape
+PROGRESS_EPS = 0.01  # m of lateral offset or rad of heading that count as progress
+
+
+def seed_step(st: LoopState, check, vehicle, config: ParkoutConfig) -> LoopState:
+    """Plan one move with the seed's rules and drive it (a no-op once ``st.done``).
+
+    The loop stops when the car is out (``success``), when no move of at least
+    ``min_progress`` is left (``stuck``), after ``max_moves`` moves, or when two
+    moves in a row gained neither lateral offset nor heading (the seed's moves
+    only make progress by turning the nose out).
+    """
+    return apply_plan(st, _plan(st.pose, check, vehicle, config), config)
+
+
+def apply_plan(st: LoopState, plan: Plan, config: ParkoutConfig) -> LoopState:
+    """Drive the chosen move of ``plan`` from ``st`` (the second half of ``seed_step``)."""
+    tr = plan.trajectory
+    go = ~st.done & (tr.length >= config.min_progress)
+    now_stuck = ~st.done & ~go
+    out = go & plan.out
+    end = jnp.where(go, tr.end_pose, st.pose)
+    yt = jnp.stack([end[1], wrap_angle(end[2])])
+    gain = jnp.any(yt > st.best + PROGRESS_EPS)
+    stall = jnp.where(go, jnp.where(gain, 0, st.stall + 1), st.stall)
+    k = st.k
+    kk = jnp.minimum(k, config.max_moves - 1)
+    done = st.done | now_stuck | out | (go & (stall >= 2)) | (go & (k + 1 >= config.max_moves))
+    return LoopState(
+        k=jnp.where(go, k + 1, k), pose=end, done=done, success=st.success | out, stuck=st.stuck | now_stuck,
+        stall=stall, best=jnp.where(go, jnp.maximum(st.best, yt), st.best),
+        poses=st.poses.at[kk].set(jnp.where(go, tr.poses, st.poses[kk])),
+        valid=st.valid.at[kk].set(jnp.where(go, tr.valid, st.valid[kk])),
+        gear=st.gear.at[kk].set(jnp.where(go, tr.gear[0].astype(jnp.int32), st.gear[kk])),
+        steer=st.steer.at[kk].set(jnp.where(go, tr.steer, st.steer[kk])),
+        length=st.length.at[kk].set(jnp.where(go, tr.length, st.length[kk])))
+
+
+def choose(f: Rollout, b: Rollout, margin, vehicle, config: ParkoutConfig) -> Plan:
+    """The seed's ``Plan`` from its two candidates (``b`` padded to ``config.steps``)."""
+    d = stop_line(vehicle, config.c)
+    use = select_forward(f, b, d, config)
+    chosen = jax.tree_util.tree_map(lambda x, y: jnp.where(use, x, y), f, b)
+    return Plan(chosen, f, b, use, is_out(chosen.end_pose, d, config), margin)
+
+
+def loop_result(st: LoopState, searched=False) -> ParkoutResult:
+    """``ParkoutResult`` of a finished loop (points after a move's end repeat it, undriven moves the final pose)."""
+    n = jnp.maximum(jnp.sum(st.valid, -1) - 1, 0)
+    ends = jnp.take_along_axis(st.poses, n[:, None, None], axis=1)  # (M, 1, 3)
+    poses = jnp.where(st.valid[..., None], st.poses, ends)
+    poses = jnp.where(st.valid.any(-1)[:, None, None], poses, st.pose)
+    return ParkoutResult(poses, st.valid, st.gear, st.steer, st.success, st.stuck & ~st.success,
+                         jnp.sum(st.gear != 0), jnp.sum(st.length), st.pose, jnp.asarray(searched))
+
+
+def seed_loop(start, model, config: ParkoutConfig, vehicle) -> ParkoutResult:
+    """The seed's drive / re-plan loop for one scene (``lax.while_loop``; jittable, vmappable).
+
+    Args:
+        start: ``(3,)`` rear-axle start pose in the slot frame.
+        model: ``GridModel`` or ``PointModel`` of this scene.
+    """
+    check = hits_fn(model, vehicle, config)
+    st = lax.while_loop(lambda s: ~s.done, lambda s: seed_step(s, check, vehicle, config),
+                        loop_init(start, config))
+    return loop_result(st)
+
+
+@functools.partial(jax.jit, static_argnames=("config",))
+def _seed_loop_jit(start, model, config, vehicle):
+    lead = start.shape[:-1]
     if not lead:
-        return _park_out_one(scene, key, config, vehicle, model)
+        return seed_loop(start, model, config, vehicle)
     n = math.prod(lead)
-    flat = jax.tree_util.tree_map(lambda x: x.reshape((n,) + x.shape[len(lead):]), scene)
-    keys = jnp.stack([jnp.broadcast_to(jnp.asarray(key, jnp.uint32).reshape(-1)[-1], (n,)) + jnp.uint32(7919),
-                      jnp.arange(n, dtype=jnp.uint32)], -1)
-    out = jax.vmap(lambda s, k: _park_out_one(s, k, config, vehicle, model))(flat, keys)
+    flat = jax.tree_util.tree_map(lambda x: x.reshape((n,) + x.shape[len(lead):]), (start, model))
+    out = jax.vmap(lambda s, m: seed_loop(s, m, config, vehicle))(*flat)
     return jax.tree_util.tree_map(lambda x: x.reshape(lead + x.shape[1:]), out)
 
 
-def park_out(scene: Scene, key=None, config: ParkoutConfig = ParkoutConfig(),
-             vehicle: VehicleParams = VehicleParams(), model: str = "grid") -> ParkoutResult:
-    """Drive out of the slot: read the grid, plan, drive the chosen move, repeat.
-
-    Stops once the car is fully out (``success``), when no move makes progress
-    (``stuck``), or after ``config.max_moves`` moves. Scenes may carry leading
-    batch dims (one batched call).
-
-    Args:
-        scene: ``Scene`` in the initial world frame (the car starts at the origin).
-        key: legacy PRNG key (uint32 ``(2,)``) or a uint32 seed for the grid noise.
-        model: ``"grid"`` (the occupancy grid) or ``"two_corner"`` (the baseline
-            that keeps the two nearest corners of each obstacle and no grid).
-    """
-    if model not in ("grid", "two_corner"):
-        raise ValueError(f"model must be 'grid' or 'two_corner', got {model!r}")
-    if is_concrete(scene, vehicle):
-        vehicle.validate()
-        config.check_vehicle(vehicle)
-    key = jax.random.PRNGKey(0) if key is None else key
-    return _park_out_jit(scene, key, config, vehicle, model)
+def park_out_grid(start, grid: Grid, config: ParkoutConfig = ParkoutConfig(),
+                  vehicle: VehicleParams = VehicleParams()) -> ParkoutResult:
+    """The seed loop on given grids, in one jitted call (no search; see ``plan_grids`` for the fast
+    batch driver with the search). ``start (..., 3)``, ``grid.cells (..., rows, cols)``."""
+    if is_concrete(start, grid, vehicle):
+        _check_inputs(start, grid, config, vehicle)
+    start = jnp.asarray(start, jnp.result_type(float))
+    return _seed_loop_jit(start, grid_model(grid), config, vehicle)

@@ -7,17 +7,17 @@ from jaxplan.geometry import box_corners, points_in_polygon
 from jaxplan.parking.grid import footprint_boxes
 
 
-def two_corner_points(boxes, valid, ref_xy):
-    """The two corners of each obstacle box nearest to ``ref_xy``.
+def two_corner_points(polygons, valid, ref_xy):
+    """The two vertices of each obstacle outline nearest to ``ref_xy``.
 
     Args:
-        boxes: ``(..., K, 5)``; valid: ``(..., K)``; ref_xy: ``(..., 2)`` (the car's
-            box centre at its start).
+        polygons: ``(..., K, N, 2)`` outlines (e.g. ``box_corners`` of boxes); valid:
+            ``(..., K)``; ref_xy: ``(..., 2)`` (the car's box centre at its start).
 
     Returns:
         (points ``(..., 2K, 2)``, valid ``(..., 2K)``).
     """
-    c = box_corners(boxes)  # (..., K, 4, 2)
+    c = jnp.asarray(polygons)
     d = jnp.sum((c - ref_xy[..., None, None, :]) ** 2, -1)
     idx = jnp.argsort(d, axis=-1)[..., :2]
     pts = jnp.take_along_axis(c, idx[..., None], axis=-2)

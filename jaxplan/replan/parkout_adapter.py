@@ -1,8 +1,9 @@
 """Planner callback around the park-out planner (``jaxplan.parking.plan_parkout``).
 
 The supervisor asks for a plan from the car's current pose; this adapter renders
-the occupancy grid of the perceived obstacle boxes at that pose, asks the
-park-out planner for one move, drives it virtually to its end and repeats
+the occupancy grid of the perceived obstacle boxes (once, in the scene's frame,
+read from the current pose), asks the park-out planner for one move, drives it
+virtually to its end and repeats
 (``lax.scan`` over ``config.max_moves``) until the car is out or stuck. The
 moves are joined into one plan whose move ends are gear-shift points, so the
 supervisor's intermediate destinations are the park-out planner's own re-plan
@@ -16,9 +17,11 @@ import dataclasses
 import jax
 import jax.numpy as jnp
 
+from jaxplan.geometry import box_corners
 from jaxplan.parking.config import ParkoutConfig
 from jaxplan.parking.parkout import plan_parkout
-from jaxplan.parking.scenes import Scene, render_grid
+from jaxplan.parking.render import render_grid
+from jaxplan.parking.scenes import ParkingScene
 from jaxplan.replan.longitudinal import MotionLimits
 from jaxplan.replan.planner import Plan, PlanRequest, finish_plan
 from jaxplan.types import VehicleParams
@@ -28,20 +31,22 @@ from jaxplan.types import VehicleParams
 class ParkoutPlanner:
     """``PlanRequest -> Plan`` with ``config.max_moves * config.steps`` points (static, hashable)."""
 
-    config: ParkoutConfig = ParkoutConfig()
+    config: ParkoutConfig = ParkoutConfig(max_moves=8)  # the plan size the replanning figures were made with
     vehicle: VehicleParams = VehicleParams()
     limits: MotionLimits = MotionLimits(v_fwd=1.0, v_rev=1.0, accel=0.5, decel=1.0)
 
     def __call__(self, r: PlanRequest) -> Plan:
         cfg, veh = self.config, self.vehicle
         dtype = r.obstacles.dtype
-        scene = Scene(boxes=r.obstacles, valid=r.obstacles_valid, edge_noise=jnp.zeros((), dtype),
-                      salt=jnp.zeros((), dtype))
-        seed = jnp.zeros((2,), jnp.uint32)
+        z = jnp.zeros((), dtype)
+        scene = ParkingScene(polygons=box_corners(r.obstacles), valid=r.obstacles_valid,
+                             start=jnp.asarray(r.start, dtype), edge_noise=z, salt=z, occlusion=jnp.zeros((), bool),
+                             sensor_range=z + jnp.inf, unknown_patches=z)
+        grid = render_grid(scene, jnp.zeros(3, dtype), jnp.zeros((2,), jnp.uint32), cfg, veh, sensors=False)
 
         def move(carry, _):
             pose, done, out = carry
-            p = plan_parkout(pose, render_grid(scene, pose, seed, cfg, veh), cfg, veh)
+            p = plan_parkout(pose, grid, cfg, veh)
             tr = p.trajectory
             go = ~done & (tr.length >= cfg.min_progress)
             return ((jnp.where(go, tr.end_pose, pose), done | ~go | p.out, out | (go & p.out)),
@@ -82,8 +87,8 @@ def parkout_scenarios(seed: int, n: int, planner: ParkoutPlanner = ParkoutPlanne
     rng = np.random.default_rng(seed)
     kw = dict(front_gap=rng.uniform(0.7, 1.2, n), rear_gap=rng.uniform(0.7, 1.2, n))
     kw.update(scene_kw)
-    scene, _ = make_scenes(rng, n, planner.vehicle, **kw)
-    boxes = jnp.asarray(scene.boxes, jnp.float32)
+    scene, info = make_scenes(rng, n, planner.vehicle, **kw)
+    boxes = jnp.asarray(info["boxes"], jnp.float32)
     valid = jnp.asarray(scene.valid)
     z3 = jnp.zeros((n, 3))
     req = PlanRequest(z3, jnp.zeros(n), jnp.ones(n, jnp.int32), jnp.ones(n, jnp.int32), z3, boxes,

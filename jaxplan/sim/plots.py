@@ -91,7 +91,7 @@ def plot_drive(path: str, scene, row: dict, log: dict, vehicle, title: str) -> s
         ax.plot(log["x"][k], log["y"][k], "*", color="g", ms=14, zorder=8)
         marks.append(f"goal at t = {log['t'][k]:.1f} s")
     _axes_box(ax, [xy, np.asarray(scene.goal.region)[np.asarray(scene.goal.region_valid)]])
-    ax.set_aspect("equal", adjustable="datalim")
+    ax.set_aspect("equal", adjustable="box")
     ax.set_xlabel("x (m)")
     ax.set_ylabel("y (m)")
     ax.set_title(title + ("\n" + "; ".join(marks) if marks else ""), fontsize=9)

@@ -25,7 +25,8 @@ DEFINITIONS = """\
 - **collisions at fault**: drives whose first contact was with a static obstacle or one whose centre
   was ahead of the car along its heading; **not at fault**: another road user drove into the car
   (recorded traffic does not react).
-- **off road**: drives where a point of the car's outline left the union of the lanelets.
+- **off road**: drives where the car's box was not inside the union of the lanelets (gaps up to
+  10 cm between lanelets, map seams, count as road; the referee's rule).
 - **max abs accel / lat accel / curvature**: largest |dv/dt|, |v dtheta/dt|, |dtheta/ds| of the
   driven states (finite differences over 0.1 s).
 - **min TTC**: smallest constant-velocity time to collision with an obstacle ahead or static (3 s cap).

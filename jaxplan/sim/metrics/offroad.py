@@ -1,8 +1,19 @@
 """``offroad``: the car's box leaves the drivable area (the union of the lanelets).
 
-Points along the box's outline (its corners and at most every ``SPACING`` metres of its
-sides) must each lie inside some lanelet outline, or within ``TOL`` of one (seams between
-lanelets whose shared bound is not vertex-identical).
+The box is on the road when
+
+* points along its outline (its corners and at most every ``SPACING`` metres of its sides) each
+  lie inside some lanelet outline, or within ``TOL`` of one (seams between lanelets whose shared
+  bound is not vertex-identical), and
+* no vertex of the road's outer edge lies inside the box (deeper than ``PROBE``). A road edge
+  vertex is a lanelet vertex with a point ``PROBE`` away from it (along either adjacent edge's
+  normal or the corner's bisector) that lies in no lanelet: the edge between two outline samples
+  can only dip into the box through such a vertex (a straight edge crossing the box cuts off a
+  corner or two, which the first rule sees).
+
+Together these decide enclosure in the union exactly up to ``PROBE`` (holes inside the union
+smaller than a car are not looked for), as the drivability checker's
+``obb_enclosure_polygons_static`` does (the referee, ``jaxplan.eval.referee``).
 """
 from __future__ import annotations
 
@@ -15,7 +26,8 @@ from jaxplan.sim.metrics.overlap import car_boxes
 from jaxplan.sim.metrics.registry import register_metric
 
 SPACING = 0.5
-TOL = 0.01
+TOL = 0.05  # m: the referee's ROAD_TOL (map seams up to 10 cm wide are road)
+PROBE = 0.1  # m: how far from a vertex its outside is probed (> TOL, so seams are not edges)
 
 
 def outline_points(boxes, spacing: float = SPACING, length=4.5, width=1.8):
@@ -31,23 +43,63 @@ def outline_points(boxes, spacing: float = SPACING, length=4.5, width=1.8):
     return jnp.concatenate(pts, axis=-2)
 
 
-def offroad_steps(log, scene, vehicle):
-    """``(N,)`` bool: some outline point is off the drivable area at that step (within the drive)."""
-    pts = outline_points(car_boxes(log, vehicle), SPACING, vehicle.length, vehicle.width)  # (N, P, 2)
-    lo, hi = jnp.min(pts, axis=(0, 1)), jnp.max(pts, axis=(0, 1))
+def in_drivable(pts, scene, margin: float = 0.0):
+    """``(..., P)`` bool: points ``(..., P, 2)`` inside some lanelet of ``scene.drivable`` (within ``TOL``).
 
-    def add(inside, poly):  # one lanelet at a time: memory (N, P, V), not (N, M, P, V)
+    One lanelet at a time (memory ``(..., P, V)``, not ``(..., M, P, V)``); lanelets whose bounding box is
+    farther than ``margin`` from every point are skipped.
+    """
+    flat = pts.reshape(-1, 2)
+    lo, hi = jnp.min(flat, axis=0) - margin, jnp.max(flat, axis=0) + margin
+
+    def add(inside, poly):
         v, ok = poly
         big = 1e9
         plo = jnp.min(jnp.where(ok[:, None], v, big), axis=0)
         phi = jnp.max(jnp.where(ok[:, None], v, -big), axis=0)
         near = jnp.any(ok) & jnp.all(plo <= hi + TOL) & jnp.all(phi >= lo - TOL)
-        here = jax.lax.cond(near, lambda: points_in_simple_polygon(pts, v, ok, TOL),
-                            lambda: jnp.zeros(pts.shape[:-1], bool))
+        here = jax.lax.cond(near, lambda: points_in_simple_polygon(flat, v, ok, TOL),
+                            lambda: jnp.zeros(flat.shape[:-1], bool))
         return inside | here, None
 
-    inside, _ = jax.lax.scan(add, jnp.zeros(pts.shape[:-1], bool), (scene.drivable, scene.drivable_valid))
-    return ~jnp.all(inside, axis=-1) & log.valid
+    inside, _ = jax.lax.scan(add, jnp.zeros(flat.shape[:-1], bool), (scene.drivable, scene.drivable_valid))
+    return inside.reshape(pts.shape[:-1])
+
+
+def road_edge_vertices(scene, near_lo, near_hi):
+    """``(M, V)`` bool: lanelet vertices on the outer edge of the drivable area (see the module doc), among
+    those inside the box ``[near_lo, near_hi]`` (others are ``False``)."""
+    v, ok = scene.drivable, scene.drivable_valid  # (M, V, 2), (M, V)
+    k = jnp.sum(ok, axis=-1, keepdims=True)
+    idx = jnp.arange(v.shape[-2])
+    nxt = jnp.take_along_axis(v, jnp.where(idx + 1 < k, idx + 1, 0)[..., None], axis=-2)
+    prv = jnp.take_along_axis(v, jnp.where(idx > 0, idx - 1, k - 1)[..., None], axis=-2)
+
+    def unit(d):
+        return d / jnp.maximum(jnp.linalg.norm(d, axis=-1, keepdims=True), 1e-9)
+
+    e1, e2 = unit(v - prv), unit(nxt - v)
+    perp = lambda d: jnp.stack([-d[..., 1], d[..., 0]], -1)  # noqa: E731
+    dirs = jnp.stack([perp(e1), perp(e2), unit(e2 - e1)], -2)  # (M, V, 3, 2)
+    probes = v[..., None, :] + PROBE * jnp.concatenate([dirs, -dirs], -2)  # (M, V, 6, 2)
+    near = ok & jnp.all((v >= near_lo) & (v <= near_hi), axis=-1)
+    outside = ~in_drivable(jnp.where(near[..., None, None], probes, near_lo), scene)  # far ones: a stand-in point
+    return near & jnp.any(outside, axis=-1)
+
+
+def offroad_steps(log, scene, vehicle):
+    """``(N,)`` bool: the car's box is not enclosed by the drivable area at that step (within the drive)."""
+    boxes = car_boxes(log, vehicle)
+    pts = outline_points(boxes, SPACING, vehicle.length, vehicle.width)  # (N, P, 2)
+    lo, hi = jnp.min(pts, axis=(0, 1)), jnp.max(pts, axis=(0, 1))
+    out_pts = ~jnp.all(in_drivable(pts, scene), axis=-1)
+    edge = road_edge_vertices(scene, lo, hi).reshape(-1)  # (M V,)
+    c, s = jnp.cos(boxes[:, 4]), jnp.sin(boxes[:, 4])
+    d = scene.drivable.reshape(-1, 2)[None] - boxes[:, None, :2]  # (N, M V, 2)
+    along = d[..., 0] * c[:, None] + d[..., 1] * s[:, None]
+    across = -d[..., 0] * s[:, None] + d[..., 1] * c[:, None]
+    dips = edge & (jnp.abs(along) < vehicle.length / 2 - PROBE) & (jnp.abs(across) < vehicle.width / 2 - PROBE)
+    return (out_pts | jnp.any(dips, axis=-1)) & log.valid
 
 
 @register_metric("offroad")
