@@ -11,6 +11,7 @@ import hashlib
 import os
 from collections import defaultdict
 
+from jaxplan.eval.claims import claims_table
 from jaxplan.eval.registry import METRICS, RUN, read_json, sha256_file
 
 MARK = "<!-- written by jaxplan report; sha256 of the text above: "
@@ -59,6 +60,31 @@ def _drive_headlines(results_dir: str) -> list:
     return lines
 
 
+def _bench_lines(results_dir: str) -> list:
+    """Benchmark figures of ``bench_*.json`` files in the folder (``make bench``): throughput keyed by batch
+    size and every ratio."""
+    lines = []
+    for name in sorted(os.listdir(results_dir)):
+        if not (name.startswith("bench_") and name.endswith(".json")):
+            continue
+        try:
+            b = read_json(os.path.join(results_dir, name))
+        except ValueError as e:
+            lines.append(f"- `{name}`: not readable ({e})")
+            continue
+        if not isinstance(b, dict):
+            continue
+        parts = []
+        for k, v in sorted(b.items()):
+            if k.endswith("_per_s") and isinstance(v, dict):
+                parts.append(f"{k} " + ", ".join(f"{n}: {_fmt(x)}" for n, x in v.items()))
+            elif "ratio" in k and isinstance(v, (int, float)):
+                parts.append(f"{k} {_fmt(v)}")
+        if parts:
+            lines.append(f"- `{name}`: " + "; ".join(parts))
+    return ["## Benchmarks", "", *lines, ""] if lines else []
+
+
 def write_report(results_dir: str, filename: str = "report.md", force: bool = False) -> str:
     """Write ``RESULTS_DIR/report.md`` from ``metrics.json`` and the plots listed in ``run.json``.
 
@@ -94,7 +120,9 @@ def write_report(results_dir: str, filename: str = "report.md", force: bool = Fa
     recorded = [] if run is None else [p for p in run.get("outputs", []) if isinstance(p, str)]
     pngs = sorted(p for p in recorded if p.endswith(".png") and os.path.isfile(os.path.join(results_dir, p)))
     lines = ["# jaxplan evaluation report", "", f"Results folder: `{os.path.abspath(results_dir)}`", ""]
+    lines += ["## Claims", "", *claims_table(metrics), ""]
     lines += _drive_headlines(results_dir)
+    lines += _bench_lines(results_dir)
     if run is None:
         lines += [f"No `{RUN}` in this folder (not written by `jaxplan eval`): its plots are not shown.", ""]
     else:

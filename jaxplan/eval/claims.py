@@ -1,0 +1,90 @@
+"""The seeds' claims and the issues' targets, each read from a run's figures.
+
+A claim names the figure that decides it (a ``metrics.json`` key, or the ratio of two), the
+comparison and the target. ``judge(metrics)`` gives one row per claim: the value, and whether it
+is met, or ``None`` when this run did not measure it (a suite not run, or run without the input
+the figure needs). The report (``jaxplan report``) opens with these rows.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+
+@dataclass(frozen=True)
+class Claim:
+    """One claim.
+
+    Attributes:
+        seed: where it comes from (``"seed 000"``, ``"issue 18"``).
+        text: the claim in a few words.
+        figure: the deciding figure: a key, or ``"A / B"`` for the ratio of two keys.
+        op: ``"<="``, ``">="`` or ``"=="``.
+        target: the number it is compared with.
+    """
+
+    seed: str
+    text: str
+    figure: str
+    op: str
+    target: float
+
+
+CLAIMS = (
+    Claim("seed 000", "contour corners bound the path >= 3x closer than the centre line (radius <= 12 m)",
+          "bounds.claim.r_le12.centerline_over_contour", ">=", 3.0),
+    Claim("seed 002", "grid park-out never collides", "parkout.claim.grid_runs_with_collision", "==", 0),
+    Claim("seed 002", "grid park-out gets out of every slot >= the analytic minimum",
+          "parkout.claim.success_rate_slot_ge_min", ">=", 1.0),
+    Claim("issue 17", "park-out gets out of every slot with >= 1.5 m spare",
+          "parkout.claim.success_rate_spare_ge_1.5", ">=", 1.0),
+    Claim("seed 003", "lazy re-planning: >= 5x fewer re-plans than periodic",
+          "replan.claim.periodic_over_lazy_replans", ">=", 5.0),
+    Claim("seed 003", "lazy re-planning: no more collisions than periodic (share difference)",
+          "replan.claim.lazy_minus_periodic_collision_share", "<=", 0.0),
+    Claim("issue 18", "tuned weights: ADE3 >= 20 % below the default weights",
+          "lattice.imitation.weights.ade3 / lattice.imitation.default.ade3", "<=", 0.8),
+    Claim("issue 18", "tuned weights: ADE3 below constant velocity",
+          "lattice.imitation.weights.ade3 / lattice.imitation.constant_velocity.ade3", "<=", 1.0),
+)
+
+
+def value(metrics: dict, figure: str):
+    """The figure's value in ``metrics``, or ``None`` when a key is missing or not finite."""
+    keys = [k.strip() for k in figure.split(" / ")]
+    vals = [metrics.get(k) for k in keys]
+    if any(not isinstance(v, (int, float)) or isinstance(v, bool) or not math.isfinite(v) for v in vals):
+        return None
+    if len(vals) == 1:
+        return float(vals[0])
+    return float(vals[0]) / float(vals[1]) if vals[1] else None
+
+
+def met(v: float, op: str, target: float) -> bool:
+    """Whether ``v op target`` holds (``==`` within 1e-9)."""
+    if op == "<=":
+        return v <= target
+    if op == ">=":
+        return v >= target
+    if op == "==":
+        return abs(v - target) <= 1e-9
+    raise ValueError(f"op: expected one of <=, >=, ==, got {op!r}")
+
+
+def judge(metrics: dict, claims=CLAIMS) -> list:
+    """Rows ``(claim, value or None, met or None)``, one per claim."""
+    rows = []
+    for c in claims:
+        v = value(metrics, c.figure)
+        rows.append((c, v, None if v is None else met(v, c.op, c.target)))
+    return rows
+
+
+def claims_table(metrics: dict, claims=CLAIMS) -> list:
+    """Markdown lines of the claims table."""
+    lines = ["| from | claim | figure | value | target | met |", "| --- | --- | --- | --- | --- | --- |"]
+    for c, v, ok in judge(metrics, claims):
+        shown = "not measured in this run" if v is None else f"{v:.4g}"
+        verdict = "-" if ok is None else ("yes" if ok else "**no**")
+        lines.append(f"| {c.seed} | {c.text} | `{c.figure}` | {shown} | {c.op} {c.target:g} | {verdict} |")
+    return lines
