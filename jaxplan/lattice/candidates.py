@@ -101,7 +101,8 @@ class LatticeConfig:
         max_lanes: the road planner plans over at most this many lanes about the car's.
         near_k: collision broad phase keeping the ``near_k`` nearest obstacles per lateral group
             and step for the exact test (0: ``near_budget``'s exact broad phase); conservative:
-            the bounding-circle distance stands in for the others (never a missed collision).
+            the bounding-circle distance stands in for the others (never a missed collision); used
+            when there are more than ``2 near_k`` obstacles (with fewer the dense test is faster).
         goal_weight_time: seconds of arrival-time error that cost as much as 1 m/s of goal
             speed error or 1 m of lateral goal error in the ``goal`` feature.
     """
@@ -215,7 +216,7 @@ class LatticeConfig:
         base = dict(modes=("follow", "stop", "goal"), emergency=True, fallback=True,
                     lateral_times=(2.0, 3.0, 4.5), hold_offset=True, goal_offset=True, lanes=(-2, -1, 0, 1, 2),
                     n_offsets=3, offset_span=0.6, buffer_lon=1.0, buffer_lat=0.3, ignore_behind=True, terminal=True,
-                    near_budget=0.0, d_threshold=150.0)
+                    near_budget=0.0, near_k=6, d_threshold=150.0)
         base.update(overrides)
         return cls(**base)
 

@@ -126,7 +126,7 @@ def _plan(state: PlanState, ref: ReferenceLine, obstacles: Obstacles, config: La
     center, half = car_parts(jnp.stack([cand.traj.x, cand.traj.y], -1), cand.axis, veh)
     G, P = config.n_profiles, config.n_lateral
     buf = (config.buffer_lon, config.buffer_lat)
-    if config.near_k > 0:
+    if config.near_k > 0 and obs.boxes.shape[-3] > 2 * config.near_k:  # (with few obstacles the dense test is faster)
         Lw, O, Lt = config.lateral_grid
         lane_ok = cand.available.reshape(G * Lw, O * Lt).any(-1)
         sep, sep_m = min_separation_topk(center, cand.axis, half, obs, O * Lt, config.near_k, buf, lane_ok)
@@ -139,7 +139,7 @@ def _plan(state: PlanState, ref: ReferenceLine, obstacles: Obstacles, config: La
             sep = check(obs)
             sep_m = check(inflate(obs, *buf)) if max(buf) > 0 else sep
         elif max(buf) > 0:
-            sep, sep_m = min_separation_pair(center, cand.axis, half, obs, buf)
+            sep, sep_m = min_separation_pair(center, cand.axis, half, obs, buf, P)
         else:
             sep = sep_m = min_separation_axes(center, cand.axis, half, obs)
     risk = risk_from_separation(sep, t)

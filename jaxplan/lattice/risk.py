@@ -268,8 +268,13 @@ def first_contact(sep, t, center, axis, speed, obstacles: Obstacles, half, dt):
     return jnp.where(any_hit, t[k], jnp.inf), impact
 
 
-def min_separation_pair(center, axis, half, obstacles: Obstacles, buffer=(0.0, 0.0)):
-    """``min_separation_axes`` to the plain and to the inflated obstacles in one pass.
+PAIR_CHUNK = 1 << 18  # (candidate, obstacle, step) triples per chunk of the dense check
+
+
+def min_separation_pair(center, axis, half, obstacles: Obstacles, buffer=(0.0, 0.0), group_size: int = 1):
+    """``min_separation_axes`` to the plain and to the inflated obstacles in one pass, over
+    chunks of candidates (whole groups of ``group_size``) of at most ``PAIR_CHUNK`` triples, so
+    that memory stays bounded under ``vmap`` over many scenes.
 
     Args:
         center, axis: ``(N, T, 2)``; half: ``(2,)``; obstacles: ``(K, T)``; buffer: ``(lon, lat)`` (m).
@@ -277,6 +282,7 @@ def min_separation_pair(center, axis, half, obstacles: Obstacles, buffer=(0.0, 0
     Returns:
         (sep ``(N, T)``, sep_inflated ``(N, T)``).
     """
+    N, T = center.shape[:2]
     K = obstacles.boxes.shape[-3]
     if K == 0:
         big = jnp.full(center.shape[:-1], BIG, center.dtype)
@@ -284,7 +290,19 @@ def min_separation_pair(center, axis, half, obstacles: Obstacles, buffer=(0.0, 0
     oc, ou, oh = _obstacle_parts(obstacles)
     center, axis = lax.optimization_barrier((center, axis))
     ohi = oh + jnp.asarray(buffer, oh.dtype)
-    a = (center[:, None], axis[:, None], half)
-    sep = box_separation_axes(*a, oc[None], ou[None], oh[None])  # (N, K, T)
-    sep_i = box_separation_axes(*a, oc[None], ou[None], ohi[None])
-    return jnp.min(sep, axis=-2), jnp.min(sep_i, axis=-2)
+
+    def one(ca):
+        c, a = ca  # (P, T, 2)
+        x = (c[:, None], a[:, None], half)
+        sep = box_separation_axes(*x, oc[None], ou[None], oh[None])  # (P, K, T)
+        sep_i = box_separation_axes(*x, oc[None], ou[None], ohi[None])
+        return jnp.min(sep, axis=-2), jnp.min(sep_i, axis=-2)
+
+    P = group_size
+    G = N // P
+    per = max(1, PAIR_CHUNK // (P * K * T))
+    if per >= G:
+        return one((center, axis))
+    cg, ag = center.reshape(G, P, T, 2), axis.reshape(G, P, T, 2)
+    sep, sep_i = lax.map(one, (cg, ag), batch_size=per)
+    return sep.reshape(N, T), sep_i.reshape(N, T)
