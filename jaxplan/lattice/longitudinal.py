@@ -133,7 +133,8 @@ def longitudinal_set(sdot0, a0, t, config, leader_s=None, leader_v=None, leader_
 
     def quintic_part(s1, v1, T, kind, ok):
         s1, v1, T, ok = jnp.broadcast_arrays(s1, v1, T, ok)
-        T = jnp.maximum(T, 0.1)
+        T = jnp.where(ok & jnp.isfinite(T), jnp.maximum(T, 0.1), 1.0)  # unavailable: a finite stand-in
+        v1 = jnp.where(ok, v1, 0.0)
         ss, vv, aa = quintic_profile(v0, a0, jnp.where(ok, s1, 0.0), jnp.where(ok, v1, 0.0), T, t)
         n = T.shape[0]
         return ss, vv, aa, v1, jnp.zeros((n,), int), jnp.full((n,), kind), ok, T

@@ -59,7 +59,7 @@ class RoadTargets:
         lanes = jnp.asarray(config.lanes, f) * config.lane_width
         inf = jnp.asarray(jnp.inf, f)
         return cls(lanes, jnp.ones(lanes.shape, bool), jnp.asarray(list(config.lanes).index(config.target_lane)),
-                   inf, jnp.stack([inf, inf]), jnp.stack([-inf, inf]), jnp.stack([0.0 * inf, inf]),
+                   inf, jnp.stack([inf, inf]), jnp.stack([-inf, inf]), jnp.stack([jnp.zeros_like(inf), inf]),
                    jnp.stack([-inf, inf]), None)
 
 
