@@ -37,7 +37,7 @@ from jaxplan.geometry.frenet import ref_state, reference_line, to_frenet
 from jaxplan.geometry.polygons import has_overlap
 from jaxplan.speed import CostWeights, SpeedConfig, compose_plan, plan_speed
 from jaxplan.speed.nonblocking import obstacle_speed
-from jaxplan.types import Obstacles, VehicleParams
+from jaxplan.types import Obstacles, VehicleParams, at_times_jit
 
 CAR = VehicleParams()
 DT_OBS = 0.1
@@ -62,6 +62,11 @@ class Scenes:
     kc_active: np.ndarray  # (B, R)
     goal: np.ndarray       # (B,) distance along the path
     t_sim: float
+    static: np.ndarray | None = None  # (B, K) static obstacles (held at every time); None: none
+    skipped_files: int = 0  # recorded scenes: files that did not load (named on stderr)
+
+    def obstacle_static(self) -> np.ndarray:
+        return np.zeros(self.boxes.shape[:2], bool) if self.static is None else self.static
 
 
 def _track(x0, v_of_t, tg):
@@ -130,36 +135,41 @@ def synthetic_scenes(rng, n_per_kind: int, t_sim: float, horizon: float) -> Scen
 
 
 def recorded_scenes(directory: str, t_max: float, horizon: float, k_max: int = 24, n: int | None = None) -> Scenes:
-    """Recorded traffic: the ego lane's centre line as the path, the recording as obstacles."""
-    from jaxplan.scenarios.loader import lane_reference, load_dir
+    """Recorded traffic: the ego lane's centre line as the path, the recording as obstacles
+    (read at the suite's 0.1 s grid, static obstacles held over the whole drive)."""
+    import sys
 
-    scs = [s for s in load_dir(directory) if s.obstacles.boxes.shape[1] > 10 and s.obstacles.boxes.shape[0] > 0]
-    if n:
-        scs = scs[:n]
+    from jaxplan.scenarios.loader import lane_reference, load_folder
+
+    folder = load_folder(directory)
     tg = np.arange(0.0, t_max + horizon + 1e-6, DT_OBS)
     G = len(tg)
-    out = dict(kind=[], ref_xy=[], s0=[], v0=[], v_cruise=[], boxes=[], valid=[], goal=[])
-    for s in scs:
+    out = dict(kind=[], ref_xy=[], s0=[], v0=[], v_cruise=[], boxes=[], valid=[], static=[], goal=[])
+    for f, s in zip(folder.files, folder.scenarios):
+        if n is not None and len(out["kind"]) >= n:
+            break
+        if s.obstacles.boxes.shape[1] <= 10 or s.obstacles.boxes.shape[0] == 0:
+            continue  # a recording of 1 s or less, or nobody to meet: nothing to measure
         try:
             ref = lane_reference(s)
-        except ValueError:
+        except ValueError as e:
+            print(f"jaxplan: speed: no reference line in {f}: {e}", file=sys.stderr)
             continue
         d = np.linalg.norm(np.diff(np.asarray(ref.xy), axis=0), axis=1)
         u = np.concatenate([[0.0], np.cumsum(d)])
         q = np.linspace(0, u[-1], 64)
         xy = np.stack([np.interp(q, u, np.asarray(ref.xy)[:, i]) for i in range(2)], -1)
         s0, _ = to_frenet(reference_line(jnp.asarray(xy, jnp.float32)), jnp.zeros((1, 2)))
-        ob = s.obstacles
+        ob = at_times_jit(s.obstacles, jnp.asarray(tg, s.obstacles.boxes.dtype))
         b = np.asarray(ob.boxes, float)
         ok = np.asarray(ob.valid)
-        T = min(b.shape[1], G)
         dist = np.where(ok[:, 0], np.linalg.norm(b[:, 0, :2], axis=-1), 1e9)
         keep = np.argsort(dist)[:k_max]
         bb = np.zeros((k_max, G, 5))
         bb[..., 2:4] = 1.0
         vv = np.zeros((k_max, G), bool)
-        bb[:len(keep), :T] = b[keep, :T]
-        vv[:len(keep), :T] = ok[keep, :T]
+        ss = np.zeros(k_max, bool)
+        bb[:len(keep)], vv[:len(keep)], ss[:len(keep)] = b[keep], ok[keep], np.asarray(ob.static)[keep]
         out["kind"].append("recorded:" + s.id)
         out["ref_xy"].append(xy)
         out["s0"].append(float(s0[0]))
@@ -167,12 +177,14 @@ def recorded_scenes(directory: str, t_max: float, horizon: float, k_max: int = 2
         out["v_cruise"].append(max(s.ego.v, 8.0))
         out["boxes"].append(bb)
         out["valid"].append(vv)
-        out["goal"].append(max(s.ego.v, 8.0) * (b.shape[1] - 1) * s.dt * 0.8)
+        out["static"].append(ss)
+        out["goal"].append(max(s.ego.v, 8.0) * (s.obstacles.boxes.shape[1] - 1) * s.dt * 0.8)
     B = len(out["kind"])
     kc = np.tile(np.array([[0.0, -1], [1, -1], [1, 1], [0, 1]]) + 1000.0, (B, R_MAX, 1, 1))
     return Scenes(out["kind"], np.array(out["ref_xy"]), np.array(out["s0"]), np.array(out["v0"]),
                   np.array(out["v_cruise"]), np.array(out["boxes"]), np.array(out["valid"]), kc,
-                  np.zeros((B, R_MAX), bool), np.array(out["goal"]), t_max)
+                  np.zeros((B, R_MAX), bool), np.array(out["goal"]), t_max, np.array(out["static"], bool).reshape(B, k_max),
+                  len(folder.skipped))
 
 
 def _weights(sc: Scenes, with_nb: bool):
@@ -224,7 +236,8 @@ def simulate(sc: Scenes, cfg: SpeedConfig, with_nb: bool, smooth: bool = False):
     for r in range(n_rep):
         g = r * per
         obs = Obstacles(jnp.asarray(sc.boxes[:, :, g:g + n_pred], jnp.float32),
-                        jnp.asarray(sc.valid[:, :, g:g + n_pred]), jnp.broadcast_to(tp, (B, n_pred)))
+                        jnp.asarray(sc.valid[:, :, g:g + n_pred]), jnp.broadcast_to(tp, (B, n_pred)),
+                        jnp.asarray(sc.obstacle_static()))
         plan = plan_speed(refs, obs, cfg, w, v0=v, a0=a, s0=s, keep_clear=kc, vehicle=CAR)
         no_bypass |= np.asarray(plan.scene.classified.no_bypass)
         if first is None:
@@ -283,7 +296,8 @@ def _geometry_metrics(ref_xy, s, v, boxes, valid, kc, kc_active, speeds, blind_b
 def measure(sc: Scenes, s, v, a, no_bypass, cfg: SpeedConfig) -> dict:
     n = s.shape[1]
     spd = np.asarray(obstacle_speed(Obstacles(jnp.asarray(sc.boxes, jnp.float32), jnp.asarray(sc.valid),
-                                              jnp.asarray(np.arange(sc.boxes.shape[2]) * DT_OBS, jnp.float32))))
+                                              jnp.asarray(np.arange(sc.boxes.shape[2]) * DT_OBS, jnp.float32),
+                                              jnp.asarray(sc.obstacle_static()))))
     col, blind, kc_stop, ahead = (np.asarray(x) for x in _geometry_metrics(
         jnp.asarray(sc.ref_xy, jnp.float32), jnp.asarray(s, jnp.float32), jnp.asarray(v, jnp.float32),
         jnp.asarray(sc.boxes, jnp.float32),
@@ -445,6 +459,7 @@ def speed_suite(args: SuiteArgs) -> dict:
     if args.scenarios:
         rcfg = SpeedConfig(v_max=30.0)
         rs = recorded_scenes(args.scenarios, 5.0, rcfg.horizon, n=8 if args.quick else None)
+        m["skipped_files"] = rs.skipped_files
         if len(rs.kind):
             mr, _, _ = _run(rs, rcfg, "recorded.")
             m.update({k: v for k, v in mr.items() if k.count(".") <= 2 and "recorded:" not in k})

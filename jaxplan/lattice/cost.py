@@ -44,16 +44,17 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 
-from jaxplan.types import _pytree
+from jaxplan.types import _pytree, check_weights
 
 FEATURES = ("d_lrp", "rho_max", "risk", "speed", "collision", "level_free", "jerk_lon", "jerk_lat", "obstacle",
             "v_offset", "goal", "infeasible", "unsafe_end")
 SEED_FEATURES = 6  # the first six are the seed's
 # The exact selection's modes: FREE / ESCALATED (a comfortable level, every check passed),
 # RISK (every candidate collides), EMERGENCY (the emergency or fallback level, every check
-# passed), CONSTRAINED (collision-free, but inside a safety buffer or failing the terminal condition).
-FREE, ESCALATED, RISK, EMERGENCY, CONSTRAINED = 0, 1, 2, 3, 4
-MODE_NAMES = ("free", "escalated", "risk", "emergency", "constrained")
+# passed), CONSTRAINED (collision-free, but inside a safety buffer or failing the terminal condition),
+# INVALID (no candidate could be judged: NaN / inf in all of them).
+FREE, ESCALATED, RISK, EMERGENCY, CONSTRAINED, INVALID = 0, 1, 2, 3, 4, 5
+MODE_NAMES = ("free", "escalated", "risk", "emergency", "constrained", "invalid")
 GOAL_CAP = 10.0
 OBSTACLE_SCALE = 2.0
 
@@ -87,6 +88,11 @@ class CostWeights:
     goal: Any = 3.0
     infeasible: Any = 1e6
     unsafe_end: Any = 5e3
+
+    def validate(self) -> "CostWeights":
+        """Host-side: every weight finite and >= 0 (a ``ValueError`` names the field)."""
+        check_weights(self)
+        return self
 
     def vector(self):
         """``(..., F)`` in the order of ``FEATURES``."""
@@ -159,20 +165,29 @@ def rule_cost(weights, features, collided):
     return lam(weights, features) + jnp.where(all_collide, weights.gamma * features[..., 2], 0.0)
 
 
-def select(weights: CostWeights, features, collided, level):
+def select(weights: CostWeights, features, collided, level, valid=None):
     """Exact selection (see the module docstring).
 
     Args:
         features: ``(..., N, F)``; collided: ``(..., N)`` bool; level: ``(..., N)`` int.
+        valid: ``(..., N)`` bool or None: candidates that can be judged (finite trajectory,
+            separation and features). The others count as colliding and are never chosen;
+            when no candidate is valid the mode is ``INVALID``.
 
     Returns:
-        (index ``(...)`` int, mode ``(...)`` in {FREE, ESCALATED, RISK}, selection cost ``(..., N)``
-        with ``inf`` for candidates the rule excluded).
+        (index ``(...)`` int, mode ``(...)`` in {FREE, ESCALATED, RISK, INVALID}, selection
+        cost ``(..., N)`` with ``inf`` for candidates the rule excluded).
     """
+    if valid is not None:
+        collided = collided | ~valid
     ok, any_free, first_level = eligible(collided, level)
+    if valid is not None:
+        ok = ok & valid
     c = jnp.where(ok, rule_cost(weights, features, collided), jnp.inf)
     idx = jnp.argmin(c, axis=-1)
     mode = jnp.where(any_free, jnp.where(first_level == 0, FREE, ESCALATED), RISK)
+    if valid is not None:
+        mode = jnp.where(jnp.any(valid, axis=-1), mode, INVALID)
     return idx, mode, c
 
 

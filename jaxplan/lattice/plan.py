@@ -11,7 +11,7 @@ import numpy as np
 from jaxplan.geometry.frenet import ReferenceLine
 from jaxplan.geometry.frenet import to_frenet
 from jaxplan.lattice.candidates import Candidates, LatticeConfig, PlanState, generate
-from jaxplan.lattice.cost import CostWeights, choose, cost_features, costs, goal_error, road_features
+from jaxplan.lattice.cost import INVALID, CostWeights, choose, cost_features, costs, goal_error, road_features
 from jaxplan.lattice.crossroad import with_stop_target
 from jaxplan.lattice.feasibility import feasibility
 from jaxplan.lattice.risk import (align_obstacles, car_parts, first_contact, inflate, min_separation_axes,
@@ -22,8 +22,8 @@ from jaxplan.types import Obstacles, _pytree, is_concrete
 
 
 @_pytree(data_fields=("candidates", "features", "cost", "selection_cost", "collided", "first_t", "ttc",
-                      "min_sep", "chosen", "mode", "obstacles", "feasible", "reasons", "collided_margin",
-                      "terminal_ok", "impact", "l_target", "ignored"))
+                      "min_sep", "chosen", "mode", "obstacles", "finite", "ok", "feasible", "reasons",
+                      "collided_margin", "terminal_ok", "impact", "l_target", "ignored"))
 class LatticeResult:
     """Everything one plan computed (``N`` candidates, ``T`` steps, any leading batch dims).
 
@@ -32,9 +32,16 @@ class LatticeResult:
         features: ``(..., N, F)`` (see ``cost.FEATURES``).
         cost: ``(..., N)`` linear cost ``features @ weights`` (the smooth form's score).
         selection_cost: ``(..., N)`` the exact rule's cost (inf = excluded).
-        collided, first_t, ttc: ``(..., N)`` against the plain obstacles; min_sep: ``(..., N, T)``.
-        chosen: ``(...)`` index of the chosen candidate; mode: ``cost.FREE`` ... ``CONSTRAINED``.
-        obstacles: the obstacles checked (aligned to T, virtual stop box last).
+        collided: ``(..., N)``: the candidate hits a (plain) obstacle, or cannot be judged (not
+            ``finite``: a NaN is never reported as free). first_t, ttc: ``(..., N)``;
+            min_sep: ``(..., N, T)``.
+        chosen: ``(...)`` index of the chosen candidate; mode: ``cost.FREE`` ... ``CONSTRAINED``,
+            or ``cost.INVALID`` when no candidate is finite.
+        obstacles: the obstacles checked (read at the candidates' times, virtual stop box last).
+        finite: ``(..., N)`` the candidate's trajectory, separations and features hold no
+            NaN / inf (only those are chosen).
+        ok: ``(...)`` the chosen trajectory is finite: False means the plan must not be used
+            (for example a reference line with repeated points built inside jit).
         feasible: ``(..., N)``; reasons: ``(..., N, R)`` why infeasible (``feasibility.REASONS``).
         collided_margin: ``(..., N)`` overlap with the obstacles inflated by the buffers.
         terminal_ok: ``(..., N)`` the end state can stop behind what is ahead (True when off).
@@ -54,6 +61,8 @@ class LatticeResult:
     chosen: Any
     mode: Any
     obstacles: Any
+    finite: Any
+    ok: Any
     feasible: Any = None
     reasons: Any = None
     collided_margin: Any = None
@@ -88,6 +97,13 @@ def _stop_distance(config, s_car, d_crossroad, stop_s, leader_rear, stopped, fro
     return jnp.minimum(d, jnp.asarray(stop_s, s_car.dtype) - s_car - front)
 
 
+def _finite(cand: Candidates, sep, feats):
+    """``(N,)`` True where a candidate's trajectory, separations and features hold no NaN / inf."""
+    tr = cand.traj
+    rows = jnp.stack([tr.x, tr.y, tr.theta, tr.kappa, tr.v, tr.a, tr.s, sep], -1)  # (N, T, 8)
+    return jnp.all(jnp.isfinite(rows), axis=(-2, -1)) & jnp.all(jnp.isfinite(feats), axis=-1)
+
+
 def _plan(state: PlanState, ref: ReferenceLine, obstacles: Obstacles, config: LatticeConfig,
           weights: CostWeights, targets: RoadTargets | None = None) -> LatticeResult:
     f = ref.xy.dtype
@@ -96,8 +112,8 @@ def _plan(state: PlanState, ref: ReferenceLine, obstacles: Obstacles, config: La
     veh = config.vehicle
     T = config.n_steps
     t = jnp.arange(T, dtype=f) * config.dt
-    obs = align_obstacles(obstacles, T)
-    sl = targets.obstacle_sl
+    obs = align_obstacles(obstacles, t)
+    sl = targets.obstacle_sl  # given: on the planner's grid (step k at k * dt), as road_context windows it
     sl = obstacle_frenet(ref, obs) if sl is None else jnp.asarray(sl, f)[..., :T, :]
     s_car, l_car = to_frenet(ref, jnp.stack([state.x, state.y]).astype(f))
     front = jnp.asarray(veh.length - veh.rear_overhang if veh.reference == "rear_axle" else 0.5 * veh.length, f)
@@ -156,7 +172,8 @@ def _plan(state: PlanState, ref: ReferenceLine, obstacles: Obstacles, config: La
                           targets.goal_v, jnp.asarray(veh.center_offset, f), config.goal_weight_time)
     feats = road_features(base, cand.traj, config.dt, sep, state.v_set, goal_err, feasible, terminal_ok,
                           risk.collided)
-    avail = cand.available
+    finite = _finite(cand, sep, feats)
+    avail = cand.available & finite  # a candidate with a NaN / inf is never chosen
     pool = avail & jnp.where(jnp.any(avail & feasible), feasible, True)
     ok = pool & ~collided_m & terminal_ok
     l_target = _lane_decision(cand, targets, ok, l_car, config)
@@ -166,8 +183,11 @@ def _plan(state: PlanState, ref: ReferenceLine, obstacles: Obstacles, config: La
     risk_cost = weights.gamma * feats[:, 2]
     idx, mode, sel = choose(weights, feats, cand.level, avail, feasible, ~collided_m, ~risk.collided, terminal_ok,
                             impact, first_t, risk_cost, n_comfort, config.all_collide)
-    return LatticeResult(cand, feats, costs(weights, feats), sel, risk.collided, risk.first_t, risk.ttc,
-                         sep, idx, mode, obs, feasible, reasons, collided_m, terminal_ok, impact, l_target, ignored)
+    mode = jnp.where(jnp.any(avail), mode, INVALID)
+    ok_plan = jnp.take(finite, idx)
+    return LatticeResult(cand, feats, costs(weights, feats), sel, risk.collided | ~finite, risk.first_t, risk.ttc,
+                         sep, idx, mode, obs, finite, ok_plan, feasible, reasons, collided_m, terminal_ok, impact,
+                         l_target, ignored)
 
 
 def _terminal(ref, cand, obs, sl, ext, v_along, front, half_w, config):
@@ -217,16 +237,51 @@ def _lane_decision(cand, targets, ok, l_car, config):
 _plan_jit = jax.jit(_plan, static_argnames=("config",))
 
 
+@functools.partial(jax.jit, static_argnames=("config",))
+def _plan_batch_jit(state, reference_line, obstacles, config, weights, targets=None):
+    if targets is None:
+        return jax.vmap(lambda s, r, o: _plan(s, r, o, config, weights))(state, reference_line, obstacles)
+    return jax.vmap(lambda s, r, o, g: _plan(s, r, o, config, weights, g))(state, reference_line, obstacles, targets)
+
+
+def _check_shapes(where: str, state: PlanState, ref: ReferenceLine, obstacles: Obstacles, batch: int):
+    """Refuse arguments whose batch dimensions do not fit ``plan`` (0) / ``plan_batch`` (1)."""
+    got = (jnp.ndim(state.x), jnp.ndim(ref.xy) - 2, jnp.ndim(obstacles.boxes) - 3)
+    if got == (batch,) * 3:
+        return
+    if batch == 0:
+        raise ValueError(f"{where}: plans one state at a time, got batch dimensions (state {got[0]}, reference line "
+                         f"{got[1]}, obstacles {got[2]}); use jaxplan.lattice.plan_batch or jax.vmap(plan) for batches")
+    raise ValueError(f"{where}: needs one leading batch dimension on the state, the reference line and the obstacles, "
+                     f"got (state {got[0]}, reference line {got[1]}, obstacles {got[2]}); use jaxplan.lattice.plan "
+                     f"for one state")
+
+
+def _validate(state, reference_line, obstacles, config, weights):
+    """Host-side checks of concrete inputs (skipped under jit)."""
+    config.validate()
+    if is_concrete(state, reference_line, obstacles, weights):
+        state.validate()
+        reference_line.validate()
+        obstacles.validate()
+        weights.validate()
+
+
 def plan(state: PlanState, reference_line: ReferenceLine, obstacles: Obstacles,
          config: LatticeConfig = LatticeConfig(), weights: CostWeights | None = None,
          targets: RoadTargets | None = None) -> LatticeResult:
     """Plan once: every candidate of the lattice, its risk and cost, and the choice.
 
+    Host-side checks run on concrete inputs (under jit they are skipped; then check
+    ``LatticeResult.ok``: a NaN / inf in the chosen trajectory makes it False).
+
     Args:
-        state: ``PlanState`` (scalar fields; ``jax.vmap`` ``plan_batch`` for batches).
-        reference_line: the current lane's centre line.
-        obstacles: boxes ``(K, T_obs, 5)``, step ``k`` at time ``k * config.dt``
-            (cut or padded to the horizon); ``K = 0`` means nothing in the way.
+        state: ``PlanState`` with scalar fields (``plan_batch`` or ``jax.vmap`` for batches).
+        reference_line: the current lane's centre line ``(P, 2)``.
+        obstacles: boxes ``(K, T_obs, 5)`` stamped at ``obstacles.t`` ``(T_obs,)`` (seconds
+            from now, any step: they are interpolated to the candidates' times ``k *
+            config.dt``; dynamic obstacles are invalid outside their stamps, static ones held);
+            ``K = 0`` means nothing in the way.
         config: static settings (hashable).
         weights: ``CostWeights`` (default weights if None).
         targets: ``RoadTargets`` (lanes, stop point, goal, the obstacles' Frenet coordinates);
@@ -235,20 +290,26 @@ def plan(state: PlanState, reference_line: ReferenceLine, obstacles: Obstacles,
     Returns:
         ``LatticeResult``.
     """
-    if weights is None:
-        weights = CostWeights()
-    if is_concrete(state, obstacles):
-        config.validate()
-        state.validate()
-        obstacles.validate()
+    weights = CostWeights() if weights is None else weights
+    _check_shapes("plan", state, reference_line, obstacles, 0)
+    _validate(state, reference_line, obstacles, config, weights)
     return _plan_jit(state, reference_line, obstacles, config, weights, targets)
 
 
-@functools.partial(jax.jit, static_argnames=("config",))
 def plan_batch(state: PlanState, reference_line: ReferenceLine, obstacles: Obstacles,
-               config: LatticeConfig, weights: CostWeights, targets: RoadTargets | None = None) -> LatticeResult:
-    """``plan`` over a leading batch dimension of every argument but ``config`` and ``weights``
-    (and of ``targets`` when given)."""
-    if targets is None:
-        return jax.vmap(lambda s, r, o: _plan(s, r, o, config, weights))(state, reference_line, obstacles)
-    return jax.vmap(lambda s, r, o, g: _plan(s, r, o, config, weights, g))(state, reference_line, obstacles, targets)
+               config: LatticeConfig = LatticeConfig(), weights: CostWeights | None = None,
+               targets: RoadTargets | None = None) -> LatticeResult:
+    """``plan`` over a leading batch dimension ``B`` of the state, the reference line and the
+    obstacles (and of ``targets`` when given; ``config`` and ``weights`` are shared; default
+    weights if None)."""
+    weights = CostWeights() if weights is None else weights
+    _check_shapes("plan_batch", state, reference_line, obstacles, 1)
+    sizes = {"state": jnp.shape(state.x)[0], "reference line": jnp.shape(reference_line.xy)[0],
+             "obstacles": jnp.shape(obstacles.boxes)[0]}
+    if len(set(sizes.values())) > 1:
+        raise ValueError(f"plan_batch: batch sizes differ ({', '.join(f'{k} {v}' for k, v in sizes.items())})")
+    # scalar state fields (PlanState.make's defaults) are shared by the batch
+    state = jax.tree_util.tree_map(lambda f: jnp.broadcast_to(f, (sizes["state"],) + jnp.shape(f)[1:])
+                                   if jnp.ndim(f) == 0 else f, state)
+    _validate(state, reference_line, obstacles, config, weights)
+    return _plan_batch_jit(state, reference_line, obstacles, config, weights, targets)

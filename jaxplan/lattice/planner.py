@@ -52,7 +52,8 @@ def goal_speed(v_set, s_centre, goal_s, goal_t):
 
 @dataclasses.dataclass(frozen=True)
 class LatticePlanner:
-    """The lattice planner (static config; ``weights`` as a tuple of ``CostWeights`` field values,
+    """The lattice planner (static config; ``weights``: ``CostWeights`` values as a hashable tuple of
+    ``(name, value)`` pairs, e.g. from ``jaxplan tune``; unnamed fields keep their defaults;
     ``options`` as a tuple of ``(LatticeConfig field, value)`` pairs overriding ``LatticeConfig.road()``)."""
 
     vehicle: VehicleParams = SIM_VEHICLE
@@ -91,7 +92,7 @@ class LatticePlanner:
         targets = RoadTargets(ctx.lane_offset[idx], lane_ok[idx], jnp.clip(scene.own_lane - start, 0, M - 1),
                               ctx.route_end_s, ctx.goal_s, ctx.goal_l, ctx.goal_t, ctx.goal_v,
                               jnp.stack([ctx.obstacle_s, ctx.obstacle_l], -1))
-        w = CostWeights() if self.weights is None else CostWeights(*self.weights)
+        w = CostWeights() if self.weights is None else CostWeights(**dict(self.weights))
         res = _plan(state, scene.route, ctx.obstacles, cfg, w, targets)
         traj = res.chosen_trajectory()
         finite = jnp.all(jnp.isfinite(traj.x)) & jnp.all(jnp.isfinite(traj.y))
