@@ -12,7 +12,7 @@ import pytest
 
 from jaxplan.geometry import ReferenceLine, box_corners
 from jaxplan.lattice import CostWeights, LatticeConfig, PlanState, plan
-from jaxplan.lattice.cost import FREE, RISK
+from jaxplan.lattice.cost import FREE, RISK, choose
 from jaxplan.lattice.feasibility import REASONS
 from jaxplan.lattice.longitudinal import FALLBACK, FOLLOW, GOAL, STOP, quintic_profile
 from jaxplan.lattice.risk import trajectory_boxes
@@ -54,6 +54,22 @@ def targets(**kw):
 plan_jit = jax.jit(plan, static_argnames=("config",))
 
 
+def plan_cfg(st, ref, obs, **targets_kw):
+    """``plan`` with ``CFG`` and explicit ``RoadTargets`` (the defaults ``plan`` would take), so
+    that every open-loop test shares one compiled plan."""
+    return plan_jit(st, ref, obs, CFG, targets=targets(**targets_kw))
+
+
+def choose_from(res, rule="harm", feasible=None):
+    """The exact rule (``cost.choose``) re-run on a result's own arrays (no new compile):
+    ``feasible=None`` keeps the filter's verdicts; ``rule`` as ``LatticeConfig.all_collide``."""
+    w = CostWeights()
+    feas = res.feasible if feasible is None else feasible
+    return int(choose(w, res.features, res.candidates.level, res.candidates.available & res.finite, feas,
+                      ~res.collided_margin, ~res.collided, res.terminal_ok, res.impact, res.first_t,
+                      w.gamma * res.features[:, 2], len(CFG.escalation), rule)[0])
+
+
 # ---------------------------------------------------------------- longitudinal profiles
 
 
@@ -83,8 +99,8 @@ def test_stop_follow_goal_modes_reach_their_targets():
     st = PlanState.make(0.0, 0.0, 0.0, 12.0, v_set=15.0)
     # a leader at 8 m/s 30 m ahead, a goal 80-90 m ahead in 6-8 s at 8-12 m/s
     lead = car(30 + CFG.vehicle.length, 0.0, 8.0)
-    res = plan_jit(st, ref, obstacles([lead]), CFG,
-                   targets=targets(goal_s=[80.0, 90.0], goal_l=[-2.0, 2.0], goal_t=[6.0, 8.0], goal_v=[8.0, 12.0]))
+    res = plan_cfg(st, ref, obstacles([lead]), goal_s=[80.0, 90.0], goal_l=[-2.0, 2.0], goal_t=[6.0, 8.0],
+                   goal_v=[8.0, 12.0])
     kind, avail = np.asarray(res.candidates.kind), np.asarray(res.candidates.available)
     end_t = np.asarray(res.candidates.end_time)
     s_rel, v = np.asarray(res.candidates.s_rel), np.asarray(res.candidates.traj.v)
@@ -107,14 +123,14 @@ def test_stop_follow_goal_modes_reach_their_targets():
     assert v[i, -1] == pytest.approx(0.0, abs=1e-3)
     assert np.asarray(res.candidates.traj.a)[i].min() == pytest.approx(-CFG.fallback_decel, abs=1e-3)
     # a stopped car ahead gives the stop mode: rest a stop gap before it
-    res = plan_jit(st, ref, obstacles([car(45.0, 0.0, 0.0)]), CFG)
+    res = plan_cfg(st, ref, obstacles([car(45.0, 0.0, 0.0)]))
     kind, avail = np.asarray(res.candidates.kind), np.asarray(res.candidates.available)
     assert avail[(kind == STOP) & (np.asarray(res.candidates.lane) != GOAL_LANE)].all()  # no goal: no goal offset
     i = np.nonzero((kind == STOP) & np.asarray(res.feasible))[0]
     assert len(i)
     stop_front = np.asarray(res.candidates.s_rel)[i, -1] + front
     np.testing.assert_allclose(stop_front[np.asarray(res.candidates.traj.v)[i, -1] < 1e-3],
-                               45.0 - 2.25 - CFG.stop_gap, atol=0.05)
+                               45.0 - 2.25 - CFG.buffer_lon - CFG.stop_gap, atol=0.05)
 
 
 # ---------------------------------------------------------------- feasibility filter
@@ -141,7 +157,7 @@ def test_feasibility_flags_match_an_oracle_and_nothing_infeasible_is_chosen(rng)
         st = PlanState.make(0.0, rng.uniform(-1, 1), rng.uniform(-0.1, 0.1), v, a=rng.uniform(-2, 1.5),
                             kappa=rng.uniform(-0.02, 0.02), v_set=rng.uniform(5, 30))
         boxes = [car(rng.uniform(10, 60), rng.choice([-3.5, 0, 3.5]), rng.uniform(0, 10)) for _ in range(2)]
-        res = plan_jit(st, ref, obstacles(boxes), CFG)
+        res = plan_cfg(st, ref, obstacles(boxes))
         feas, avail = np.asarray(res.feasible), np.asarray(res.candidates.available)
         r = np.asarray(res.reasons)
         level = np.asarray(res.candidates.level)
@@ -168,8 +184,8 @@ def test_feasibility_flags_match_an_oracle_and_nothing_infeasible_is_chosen(rng)
         if (feas & avail).any():
             assert feas[i] and avail[i]
         # without the filter the cheapest candidate is often an infeasible one
-        loose = plan_jit(st, ref, obstacles(boxes), dataclasses.replace(CFG, feasibility=False))
-        seen_infeasible_best += int(not feas[int(loose.chosen)])
+        loose = choose_from(res, feasible=jnp.ones_like(res.feasible))  # the choice without the filter
+        seen_infeasible_best += int(not feas[loose])
         counts = res.rejected()
         assert counts["rejected"] == int((~feas & avail).sum())
         assert set(REASONS) <= set(counts)
@@ -182,14 +198,14 @@ def test_feasibility_flags_match_an_oracle_and_nothing_infeasible_is_chosen(rng)
 def test_all_collide_minimises_harm_against_brute_force(rng):
     shapely = pytest.importorskip("shapely")
     ref = straight_ref()
-    cfg = dataclasses.replace(CFG, lateral_times=(2.0, 4.5), escalation=(1.0,))
+    cfg = CFG
     for trial in range(4):
         v = rng.uniform(14, 22)
         # a wall across the road close ahead and a car coming the other way: nothing avoids both
         wall = car(rng.uniform(9, 14) + 3.5, 0.0, 0.0, length=1.0, width=30.0)
         oncoming = car(rng.uniform(40, 60), rng.uniform(-1, 1), -rng.uniform(0, 8))
         obs = obstacles([wall, oncoming])
-        res = plan_jit(PlanState.make(0.0, 0.0, 0.0, v), ref, obs, cfg)
+        res = plan_cfg(PlanState.make(0.0, 0.0, 0.0, v), ref, obs)
         assert int(res.mode) == RISK
         tr = res.candidates.traj
         cb = np.asarray(box_corners(trajectory_boxes(tr, cfg.vehicle)), np.float64)  # (N, T, 4, 2)
@@ -226,8 +242,8 @@ def test_all_collide_minimises_harm_against_brute_force(rng):
         assert best[i], (trial, impact[i], m, first[i], late)
         np.testing.assert_allclose(np.asarray(res.impact)[pool], impact[pool], atol=0.05)
         # the seed's rule picks by lambda + gamma / TTC and hits harder here
-        seed = plan_jit(PlanState.make(0.0, 0.0, 0.0, v), ref, obs, dataclasses.replace(cfg, all_collide="seed"))
-        assert impact[int(seed.chosen)] >= impact[i] - 1e-6
+        seed = choose_from(res, rule="seed")
+        assert impact[seed] >= impact[i] - 1e-6
 
 
 def test_margins_ignore_behind_and_terminal_condition():
@@ -235,22 +251,22 @@ def test_margins_ignore_behind_and_terminal_condition():
     st = PlanState.make(0.0, 0.0, 0.0, 15.0, v_set=15.0)
     # a car 0.2 m beside the corridor of the straight candidates: free, but inside the lateral buffer
     side = car(20.0, 0.5 * CFG.vehicle.width + 0.9 + 0.2, 0.0)
-    res = plan_jit(st, ref, obstacles([side]), CFG)
+    res = plan_cfg(st, ref, obstacles([side]))
     straight = np.asarray(res.candidates.lane == 0) & np.isclose(np.asarray(res.candidates.offset), 0.0)
     straight &= np.asarray(res.candidates.kind) == 0
     assert not np.asarray(res.collided)[straight].any() and np.asarray(res.collided_margin)[straight].all()
     assert not bool(res.collided_margin[int(res.chosen)])
     # a faster car behind in the same lane is ignored (it would only run into the car), one beside is not
     behind = car(-12.0, 0.0, 20.0)
-    res = plan_jit(st, ref, obstacles([behind]), CFG)
+    res = plan_cfg(st, ref, obstacles([behind]))
     assert np.asarray(res.ignored)[0].all() and int(res.mode) == FREE
     beside = car(-12.0, 3.5, 20.0)
-    res = plan_jit(st, ref, obstacles([beside]), CFG)
+    res = plan_cfg(st, ref, obstacles([beside]))
     assert not np.asarray(res.ignored)[0].any()
     # terminal condition: a stopped car 150 m ahead is free for the fast candidates but they cannot stop after
     # the horizon any more; the chosen plan can
     stopped = car(150.0, 0.0, 0.0)
-    res = plan_jit(PlanState.make(0.0, 0.0, 0.0, 25.0, v_set=25.0), ref, obstacles([stopped]), CFG)
+    res = plan_cfg(PlanState.make(0.0, 0.0, 0.0, 25.0, v_set=25.0), ref, obstacles([stopped]))
     tok = np.asarray(res.terminal_ok)
     free = ~np.asarray(res.collided_margin)
     fast = np.asarray(res.candidates.traj.v)[:, -1] > 20
@@ -330,9 +346,9 @@ def test_closed_loop_stops_passes_and_survives_the_cut_in():
         ref = jax.tree_util.tree_map(jnp.asarray, r.scene.route)
         s, l = (np.asarray(a) for a in to_frenet(ref, jnp.stack([log.x[i], log.y[i]], -1)))
         s_obs = float(np.asarray(r.scene.obstacle_sl)[0, 0, 0])
-        if r.name == "TEST_stop":  # stopped before the car, within a few metres of the stop gap
+        if r.name == "TEST_stop":  # (nearly) stopped before the car, within a few metres of the stop gap
             front = s[-1] + 0.5 * planner.vehicle.length
-            assert log.v[i, -1] < 0.1 and s_obs - 2.3 - 6.0 < front < s_obs - 2.3
+            assert log.v[i, -1] < 0.5 and s_obs - 2.3 - 6.0 < front < s_obs - 2.3
         if r.name == "TEST_pass":  # changed lanes, drove past the stopped car, came back towards the route lane
             assert s[-1] > s_obs + 10 and np.abs(l).max() > 2.5
         if r.name == "TEST_cut_in":

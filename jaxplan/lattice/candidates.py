@@ -73,7 +73,8 @@ class LatticeConfig:
         modes: a subset of ``("follow", "stop", "goal")``, each over ``end_times`` (s).
         follow_gap, follow_time_gap: the following mode's end state is
             ``follow_gap + follow_time_gap * v_lead`` behind the leader's rear (m, s).
-        stop_gap: metres kept before a stopped obstacle by the stopping mode.
+        stop_gap: metres kept before a stopped obstacle (its box inflated by ``buffer_lon``) by the
+            stopping mode.
         emergency: add the emergency level (after the escalation levels): braking with
             ``emergency_a_min`` (m/s^2) and jerk ``emergency_jerk`` (m/s^3).
         fallback: add the last level: braking at ``fallback_decel`` (m/s^2) to a stop.

@@ -90,8 +90,10 @@ class LatticeResult:
 
 
 def _stop_distance(config, s_car, d_crossroad, stop_s, leader_rear, stopped, front):
-    """Distance from the car's reference point to its stop point (inf: none)."""
-    d = jnp.where(stopped, leader_rear[0] - config.stop_gap, jnp.inf)
+    """Distance from the car's reference point to its stop point (inf: none): ``stop_gap`` before
+    the stopped obstacle's inflated box (so that the stopped end state passes the terminal
+    condition with ``terminal_gap <= stop_gap``)."""
+    d = jnp.where(stopped, leader_rear[0] - config.stop_gap - config.buffer_lon, jnp.inf)
     d_c = jnp.asarray(d_crossroad, s_car.dtype)
     d = jnp.minimum(d, jnp.where(d_c < config.d_threshold, d_c + config.d_margin - front - 0.5, jnp.inf))
     return jnp.minimum(d, jnp.asarray(stop_s, s_car.dtype) - s_car - front)

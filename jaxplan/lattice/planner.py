@@ -12,7 +12,7 @@ The set speed is the speed limit, bent towards the goal's timing: no faster than
 the far end of the goal region when its time window opens, no slower than reaching its
 near end when the window closes (at most ``GOAL_SPEEDUP`` times the limit).
 
-``ok`` is False when every candidate collides (mode RISK) or the plan is not finite;
+``ok`` is False when every candidate collides (mode RISK) or the plan is not finite (INVALID);
 ``info`` has the mode, the candidates the feasibility filter rejected and the target lane.
 """
 from __future__ import annotations
@@ -23,8 +23,8 @@ import jax.numpy as jnp
 
 from jaxplan.baselines.brake import SIM_VEHICLE
 from jaxplan.lattice.candidates import LatticeConfig, PlanState
-from jaxplan.lattice.cost import RISK, CostWeights
-from jaxplan.lattice.plan import _plan
+from jaxplan.lattice.cost import INVALID, RISK, CostWeights
+from jaxplan.lattice.plan import LatticeResult, _plan
 from jaxplan.lattice.targets import RoadTargets
 from jaxplan.plan_context import road_context
 from jaxplan.planner import EgoState, PlanOutput
@@ -76,7 +76,9 @@ class LatticePlanner:
         m = min(n_lanes, self.config.max_lanes)
         return dataclasses.replace(self.config, lanes=tuple(range(-(m // 2), m - m // 2)), target_lane=0)
 
-    def plan(self, scene, ego: EgoState, step) -> PlanOutput:
+    def plan_result(self, scene, ego: EgoState, step) -> LatticeResult:
+        """The whole ``LatticeResult`` of one plan (every candidate, why each was rejected, the
+        choice): what ``plan`` returns the chosen trajectory of; for plots and diagnostics."""
         cfg = self.scene_config(scene.lane_offset.shape[-2])
         ctx = road_context(scene, ego, step, cfg.n_steps, self.vehicle)
         f = scene.route.xy.dtype
@@ -93,9 +95,11 @@ class LatticePlanner:
                               ctx.route_end_s, ctx.goal_s, ctx.goal_l, ctx.goal_t, ctx.goal_v,
                               jnp.stack([ctx.obstacle_s, ctx.obstacle_l], -1))
         w = CostWeights() if self.weights is None else CostWeights(**dict(self.weights))
-        res = _plan(state, scene.route, ctx.obstacles, cfg, w, targets)
+        return _plan(state, scene.route, ctx.obstacles, cfg, w, targets)
+
+    def plan(self, scene, ego: EgoState, step) -> PlanOutput:
+        res = self.plan_result(scene, ego, step)
         traj = res.chosen_trajectory()
-        finite = jnp.all(jnp.isfinite(traj.x)) & jnp.all(jnp.isfinite(traj.y))
         rejected = jnp.sum(res.candidates.available & ~res.feasible)
-        return PlanOutput(traj, (res.mode != RISK) & finite,
+        return PlanOutput(traj, (res.mode != RISK) & (res.mode != INVALID) & res.ok,
                           {"mode": res.mode, "rejected": rejected, "l_target": res.l_target})
