@@ -175,7 +175,7 @@ def frenetix_rates(n, k, reps, threads):
             h.evaluate_all_current_functions(True)
         if not k:
             return None
-        trajs = h.get_sorted_trajectories()
+        trajs = list(h.get_sorted_trajectories())
         t0 = time.perf_counter()
         if concurrent_eval:
             parts = [trajs[i::threads] for i in range(threads)]

@@ -13,7 +13,7 @@ from jaxplan.geometry.frenet import to_frenet
 from jaxplan.lattice.candidates import Candidates, LatticeConfig, PlanState, generate
 from jaxplan.lattice.cost import INVALID, CostWeights, choose, cost_features, costs, goal_error, road_features
 from jaxplan.lattice.crossroad import with_stop_target
-from jaxplan.lattice.feasibility import feasibility
+from jaxplan.lattice.feasibility import feasibility, usable
 from jaxplan.lattice.risk import (align_obstacles, car_parts, first_contact, inflate, min_separation_axes,
                                   min_separation_broad, min_separation_pair, min_separation_topk,
                                   risk_from_separation)
@@ -176,14 +176,15 @@ def _plan(state: PlanState, ref: ReferenceLine, obstacles: Obstacles, config: La
                           risk.collided)
     finite = _finite(cand, sep, feats)
     avail = cand.available & finite  # a candidate with a NaN / inf is never chosen
-    pool = avail & jnp.where(jnp.any(avail & feasible), feasible, True)
+    use = usable(feasible, reasons, cand.traj, cand.level, avail, config)  # feasible, else the least infeasible
+    pool = avail & use
     ok = pool & ~collided_m & terminal_ok
     l_target = _lane_decision(cand, targets, ok, l_car, config)
     d_lrp = jnp.mean(jnp.abs(cand.l - l_target), axis=-1)
     feats = feats.at[:, 0].set(d_lrp)
     n_comfort = len(config.escalation)
     risk_cost = weights.gamma * feats[:, 2]
-    idx, mode, sel = choose(weights, feats, cand.level, avail, feasible, ~collided_m, ~risk.collided, terminal_ok,
+    idx, mode, sel = choose(weights, feats, cand.level, avail, use, ~collided_m, ~risk.collided, terminal_ok,
                             impact, first_t, risk_cost, n_comfort, config.all_collide)
     mode = jnp.where(jnp.any(avail), mode, INVALID)
     ok_plan = jnp.take(finite, idx)
