@@ -26,7 +26,7 @@ from jaxplan.lattice.candidates import LatticeConfig, PlanState
 from jaxplan.lattice.cost import INVALID, RISK, CostWeights
 from jaxplan.lattice.plan import LatticeResult, _plan
 from jaxplan.lattice.targets import RoadTargets
-from jaxplan.plan_context import road_context
+from jaxplan.plan_context import road_context, route_sample
 from jaxplan.planner import EgoState, PlanOutput
 from jaxplan.types import VehicleParams
 
@@ -48,6 +48,9 @@ def goal_speed(v_set, s_centre, goal_s, goal_t):
                      0.0)
     v = jnp.maximum(jnp.minimum(v_set, v_hi), jnp.minimum(v_lo, GOAL_SPEEDUP * v_set))
     return jnp.where(has, v, v_set)
+
+
+LANE_LOOKAHEAD = 2.5  # s: the lanes are read this far ahead (15-60 m)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -85,13 +88,18 @@ class LatticePlanner:
         s_centre = ctx.s + jnp.asarray(self.vehicle.center_offset, f)
         v_set = goal_speed(ctx.v_set, s_centre, ctx.goal_s, ctx.goal_t)
         state = PlanState(ego.x, ego.y, ego.heading, ego.kappa, ego.v, ego.a, v_set, jnp.inf)
-        # the max_lanes lanes about the car's current one (every lane on a road up to that wide)
-        L, M = ctx.lane_offset.shape[-1], len(cfg.lanes)
-        lane_ok = ctx.lane_valid & ctx.lane_same_dir
-        cur = jnp.argmin(jnp.where(lane_ok, jnp.abs(ctx.lane_offset - ctx.l), jnp.inf))
+        # the max_lanes lanes about the car's current one (every lane on a road up to that wide), read
+        # LANE_LOOKAHEAD s ahead, where the lateral manoeuvres end: where the route blends into another
+        # lane, the lane the car is in is then still a target (the offsets at the car would not offer it)
+        s_ahead = ctx.s + jnp.clip(ego.v * LANE_LOOKAHEAD, 15.0, 60.0)
+        lane_offset = route_sample(scene, scene.lane_offset, s_ahead)
+        lane_ok = (route_sample(scene, scene.lane_valid.astype(f), s_ahead) > 0.5) \
+            & (route_sample(scene, scene.lane_same_dir.astype(f), s_ahead) > 0.5)
+        L, M = lane_offset.shape[-1], len(cfg.lanes)
+        cur = jnp.argmin(jnp.where(lane_ok, jnp.abs(lane_offset - ctx.l), jnp.inf))
         start = jnp.clip(cur - M // 2, 0, L - M)
         idx = start + jnp.arange(M)
-        targets = RoadTargets(ctx.lane_offset[idx], lane_ok[idx], jnp.clip(scene.own_lane - start, 0, M - 1),
+        targets = RoadTargets(lane_offset[idx], lane_ok[idx], jnp.clip(scene.own_lane - start, 0, M - 1),
                               ctx.route_end_s, ctx.goal_s, ctx.goal_l, ctx.goal_t, ctx.goal_v,
                               jnp.stack([ctx.obstacle_s, ctx.obstacle_l], -1))
         w = CostWeights() if self.weights is None else CostWeights(**dict(self.weights))
