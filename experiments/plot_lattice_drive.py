@@ -54,8 +54,8 @@ def main(argv=None):
     veh = planner.vehicle
     plan_result = jax.jit(planner.plan_result)
     steps = [k for k in args.steps if k <= int(log.end_step)]
-    fig, axes = plt.subplots(len(steps), 1, figsize=(12, 3.2 * len(steps)), squeeze=False)
-    for ax, k in zip(axes[:, 0], steps):
+    fig, axes = plt.subplots(1, len(steps), figsize=(6.5 * len(steps), 7), squeeze=False)
+    for ax, k in zip(axes[0], steps):
         h = log.heading[k]
         off = veh.center_offset
         ego = EgoState(jnp.asarray(log.x[k] - off * np.cos(h)), jnp.asarray(log.y[k] - off * np.sin(h)),
@@ -93,11 +93,14 @@ def main(argv=None):
         ax.add_patch(MplPolygon(np.asarray(box_corners(jnp.asarray(ego_box, jnp.float32))), closed=True,
                                 facecolor="C0", edgecolor="k"))
         n_av = int(avail.sum())
-        ax.set_title(f"{rec.name}, t = {k * cfg.dt:.1f} s, v = {log.v[k]:.1f} m/s: {n_av} candidates, "
-                     f"{int((avail & ~feas).sum())} rejected as infeasible, {int((avail & feas & hit).sum())} "
+        ax.set_title(f"{rec.name}, t = {k * cfg.dt:.1f} s, v = {log.v[k]:.1f} m/s\n{n_av} candidates, "
+                     f"{int((avail & ~feas).sum())} rejected as infeasible,\n{int((avail & feas & hit).sum())} "
                      f"feasible but hitting an obstacle or its buffer", fontsize=9)
-        ax.set_xlim(log.x[k] - 15, log.x[k] + 110)
-        ax.set_ylim(log.y[k] - 14, log.y[k] + 14)
+        px, py = np.append(x[avail].ravel(), log.x[k]), np.append(y[avail].ravel(), log.y[k])
+        half = 0.5 * max(np.ptp(px), np.ptp(py)) + 8.0  # a square window about the fan
+        cx, cy = 0.5 * (px.min() + px.max()), 0.5 * (py.min() + py.max())
+        ax.set_xlim(cx - half, cx + half)
+        ax.set_ylim(cy - half, cy + half)
         ax.set_aspect("equal")
         ax.set_xlabel("x (m)")
         ax.set_ylabel("y (m)")
