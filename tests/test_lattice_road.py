@@ -350,7 +350,7 @@ def test_closed_loop_stops_passes_and_survives_the_cut_in():
             front = s[-1] + 0.5 * planner.vehicle.length
             assert log.v[i, -1] < 0.5 and s_obs - 2.3 - 6.0 < front < s_obs - 2.3
         if r.name == "TEST_pass":  # changed lanes, drove past the stopped car, came back towards the route lane
-            assert s[-1] > s_obs + 10 and np.abs(l).max() > 2.5
+            assert s[-1] > s_obs + 10 and np.abs(l).max() > 1.75  # its centre crossed into the left lane
         if r.name == "TEST_cut_in":
             assert log.v[i].min() > 0.5  # it did not need to stop
     assert (log.plan_ok.all(axis=-1)).all()

@@ -40,6 +40,7 @@ KMH = 1.0 / 3.6
 # Mode ids of the longitudinal profiles.
 CRUISE, FOLLOW, STOP, GOAL, EMERGENCY, FALLBACK = 0, 1, 2, 3, 4, 5
 MODE_NAMES = ("cruise", "follow", "stop", "goal", "emergency", "fallback")
+MIN_END_TIME = 1.0  # s: the earliest end time of a quintic profile
 
 
 @_pytree(data_fields=("s", "v", "a", "v_end", "level", "kind", "available", "end_time"))
@@ -133,7 +134,9 @@ def longitudinal_set(sdot0, a0, t, config, leader_s=None, leader_v=None, leader_
 
     def quintic_part(s1, v1, T, kind, ok):
         s1, v1, T, ok = jnp.broadcast_arrays(s1, v1, T, ok)
-        T = jnp.where(ok & jnp.isfinite(T), jnp.maximum(T, 0.1), 1.0)  # unavailable: a finite stand-in
+        # at least MIN_END_TIME: a quintic ending within a step or two would jump between samples that
+        # all look feasible (the feasibility filter sees only the samples); unavailable: a finite stand-in
+        T = jnp.where(ok & jnp.isfinite(T), jnp.maximum(T, MIN_END_TIME), 1.0)
         v1 = jnp.where(ok, v1, 0.0)
         ss, vv, aa = quintic_profile(v0, a0, jnp.where(ok, s1, 0.0), jnp.where(ok, v1, 0.0), T, t)
         n = T.shape[0]
