@@ -1,19 +1,39 @@
 """Benchmark: the jaxplan lattice against Frenetix (C++ Frenet sampler) on the same work.
 
-Both sample N end speeds x lateral offsets (quintic lateral paths, 3 s at dt = 0.1 s,
-31 samples), map them to Cartesian along the same straight reference line and score
-them: (a) kinematic costs only, (b) plus K moving obstacles (jaxplan: exact box SAT
-per step with collision flags and TTC; Frenetix: its fast collision-probability cost
-from the predicted poses). Throughput in trajectories/s, best of ``--reps``; the
-ratios come from this one run. jaxplan's compile time is reported separately.
-The machine may be shared: timings are noisy, compare ratios.
+Both sides sample ``N`` trajectories (end speeds x lateral offsets, quintic lateral paths
+reached at the horizon, 3 s at dt = 0.1 s, 31 samples) along the same **curved** reference
+line (a straight run into an arc of radius 150 m) from the same state, and run the same
+stages:
 
-    python experiments/bench_lattice.py [--sizes 1000 5000 50000] [--obstacles 20]
-                                        [--out results/bench_lattice.json]
+- **kinematic costs only**: generation, the feasibility checks (Frenetix: acceleration,
+  curvature and velocity constraints; jaxplan: the feasibility filter's curvature,
+  lateral / longitudinal acceleration, jerk and reverse checks) and the cost terms
+  (longitudinal and lateral jerk, distance to the reference path, velocity offset to the
+  set speed; jaxplan computes all of its features, the seed's and the road terms);
+- **full pipeline with K moving obstacles** (default 20): the above plus the
+  distance-to-obstacles cost and real collision checking of every trajectory against
+  every obstacle at every step: jaxplan's exact SAT box check (with the safety buffers,
+  the terminal condition and the selection); Frenetix's trajectories are checked with
+  pycrcc (commonroad-drivability-checker), one ``TimeVariantCollisionObject`` per
+  trajectory against a ``CollisionChecker`` of the obstacles' time-variant boxes; that
+  check is timed separately and included.
+
+Frenetix runs sequentially (``evaluate_all_current_functions``) and concurrently
+(``evaluate_all_current_functions_concurrent``, and the pycrcc checks in a thread pool
+of ``os.cpu_count()`` threads). Throughput in trajectories/s, best of ``--reps``; the
+ratios are from this one run; jaxplan's compile time is reported separately. The
+machine may be shared: the load average is recorded; compare ratios.
+
+Frenetix 0.4.0 needs Python < 3.13 and its own commonroad pins: run this with a venv that
+has ``frenetix==0.4.0``, ``commonroad-drivability-checker`` and jax (e.g.
+``/work/venvs/lattice-bench/bin/python``, with the repository on ``PYTHONPATH``)::
+
+    python experiments/bench_lattice.py [--sizes 1000 5000] [--obstacles 20] [--out results/bench_lattice.json]
 """
 from __future__ import annotations
 
 import argparse
+import concurrent.futures
 import itertools
 import os
 import platform
@@ -23,118 +43,198 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxplan.eval.timing import best_time, write_figures
 from jaxplan.geometry import ReferenceLine
 from jaxplan.lattice import CostWeights, LatticeConfig, PlanState
 from jaxplan.lattice.plan import _plan_jit
-from jaxplan.types import Obstacles
-from jaxplan.eval.timing import best_time, write_figures
+from jaxplan.types import Obstacles, VehicleParams
 
 HORIZON, DT, V0 = 3.0, 0.1, 15.0
+CAR = VehicleParams(length=4.508, width=1.61, wheelbase=2.578, rear_overhang=0.8313, max_steer=0.55)
+RADIUS = 150.0
+
+
+def reference(n=600):
+    """A straight 60 m into an arc of radius ``RADIUS`` (``(n, 2)``), starting 20 m behind the car."""
+    s = np.linspace(0.0, 420.0, n)
+    x = np.where(s < 80, s - 20, 60 + RADIUS * np.sin((s - 80) / RADIUS))
+    y = np.where(s < 80, 0.0, RADIUS * (1 - np.cos((s - 80) / RADIUS)))
+    return np.stack([x, y], 1)
 
 
 def _grid(n):
-    """Speeds x offsets with about n candidates: (V, L)."""
+    """End speeds x offsets with about n candidates: (V, L)."""
     v = max(2, int(round(np.sqrt(n / 5))))
-    return v, n // v
+    return v, max(1, n // v)
 
 
-def _obstacles(k, t):
-    """k cars on three lanes ahead, driving at 8 m/s: boxes (k, T, 5)."""
+def _obstacles(k, t, ref):
+    """k cars on three lanes ahead along the reference line at 8 m/s: boxes (k, T, 5)."""
+    from jaxplan.geometry.frenet import frenet_to_cartesian_state
+
+    rl = ReferenceLine.from_polyline(ref)
     i = np.arange(k)
-    x = 20 + 6 * i[:, None] + 8 * t
-    y = np.broadcast_to((((i % 3) - 1) * 3.5)[:, None], x.shape)
-    return np.stack([x, y, np.full(x.shape, 4.5), np.full(x.shape, 1.8), np.zeros(x.shape)], -1)
+    s = 20 + 25 + 6 * i[:, None] + 8 * t[None]
+    l = np.broadcast_to((((i % 3) - 1) * 3.5)[:, None], s.shape)
+    xy, th, _ = frenet_to_cartesian_state(rl, jnp.asarray(s), jnp.asarray(l), 0 * s, 0 * s)
+    xy, th = np.asarray(xy), np.asarray(th)
+    return np.concatenate([xy, np.full(s.shape + (1,), 4.5), np.full(s.shape + (1,), 1.8), th[..., None]], -1)
 
 
-
-def jaxplan_rate(n, k, reps, near_budget=0.25):
+def lattice_config(n):
     V, L = _grid(n)
-    cfg = LatticeConfig(horizon=HORIZON, dt=DT, speed_deltas_kmh=tuple(np.linspace(-36, 36, V).round(4)),
-                        escalation=(1.0,), n_offsets=L, offset_span=3.0, near_budget=near_budget)
-    ref = ReferenceLine.from_polyline(np.stack([np.linspace(-20, 400, 421), np.zeros(421)], 1))
-    st = PlanState.make(0.0, 0.0, 0.0, V0)
+    return LatticeConfig(horizon=HORIZON, dt=DT, speed_deltas_kmh=tuple(np.linspace(-36, 36, V).round(4)),
+                         escalation=(1.0,), n_offsets=L, offset_span=3.0, vehicle=CAR, buffer_lon=1.0,
+                         buffer_lat=0.3, terminal=True, ignore_behind=True, near_budget=0.0)
+
+
+def jaxplan_rate(n, k, reps):
+    cfg = lattice_config(n)
+    ref_xy = reference()
+    ref = ReferenceLine.from_polyline(ref_xy)
+    st = PlanState.make(0.0, 0.0, 0.0, V0, v_set=V0)
     t = np.arange(cfg.n_steps) * DT
-    obs = Obstacles(jnp.asarray(_obstacles(k, t), jnp.float32), jnp.ones((k, len(t)), bool),
+    obs = Obstacles(jnp.asarray(_obstacles(k, t, ref_xy), jnp.float32), jnp.ones((k, len(t)), bool),
                     jnp.asarray(t, jnp.float32)) if k else Obstacles.empty(jnp.asarray(t, jnp.float32))
     w = CostWeights()
     run = lambda: jax.block_until_ready(_plan_jit(st, ref, obs, cfg, w))
     t0 = time.perf_counter()
     res = run()
     compile_s = time.perf_counter() - t0
-    return cfg.n_candidates / best_time(run, reps), compile_s, cfg.n_candidates, int(np.asarray(res.collided).sum())
+    return cfg.n_candidates / best_time(run, reps), compile_s, cfg.n_candidates, int(np.asarray(res.collided).sum()), \
+        int(np.asarray(res.feasible).sum())
 
 
-def frenetix_rate(n, k, reps):
+def _pycrcc_obstacles(boxes):
+    import commonroad_dc.pycrcc as pycrcc
+
+    cc = pycrcc.CollisionChecker()
+    for b in boxes:
+        tvo = pycrcc.TimeVariantCollisionObject(0)
+        for x, y, L, W, th in b:
+            tvo.append_obstacle(pycrcc.RectOBB(0.5 * L, 0.5 * W, th, x, y))
+        cc.add_collision_object(tvo)
+    return cc
+
+
+def _pycrcc_check(cc, trajs):
+    """Collision flags of Frenetix trajectories (the car's box at each step) against ``cc``."""
+    import commonroad_dc.pycrcc as pycrcc
+
+    off = 0.5 * CAR.length - CAR.rear_overhang
+    out = []
+    for tr in trajs:
+        c = tr.cartesian
+        x, y, th = np.asarray(c.x), np.asarray(c.y), np.asarray(c.theta)
+        tvo = pycrcc.TimeVariantCollisionObject(0)
+        for xi, yi, ti in zip(x + off * np.cos(th), y + off * np.sin(th), th):
+            tvo.append_obstacle(pycrcc.RectOBB(0.5 * CAR.length, 0.5 * CAR.width, ti, xi, yi))
+        out.append(cc.collide(tvo))
+    return out
+
+
+def frenetix_rates(n, k, reps, threads):
+    """(sequential traj/s, concurrent traj/s, trajectories, collided, collision check share of the time)."""
     import frenetix
     import frenetix.trajectory_functions as tf
     import frenetix.trajectory_functions.cost_functions as cf
+    import frenetix.trajectory_functions.feasability_functions as ff
 
-    ref = np.stack([np.linspace(-20, 400, 421), np.zeros(421)], 1)
+    ref = reference()
     cs = frenetix.CoordinateSystemWrapper(ref)
     h = frenetix.TrajectoryHandler(dt=DT)
     h.add_function(tf.FillCoordinates(lowVelocityMode=False, initialOrientation=0.0, coordinateSystem=cs,
                                       horizon=int(HORIZON)))
-    for c in (cf.CalculateAccelerationCost("acceleration", 1.0), cf.CalculateJerkCost("jerk", 1.0),
-              cf.CalculateLateralJerkCost("lateral_jerk", 1.0),
+    h.add_feasability_function(ff.CheckAccelerationConstraint(switchingVelocity=4.86, maxAcceleration=8.0,
+                                                              wholeTrajectory=False))
+    h.add_feasability_function(ff.CheckCurvatureConstraint(deltaMax=float(CAR.max_steer), wheelbase=float(CAR.wheelbase),
+                                                           wholeTrajectory=False))
+    h.add_feasability_function(ff.CheckVelocityConstraint(wholeTrajectory=False))
+    for c in (cf.CalculateLongitudinalJerkCost("longitudinal_jerk", 1.0), cf.CalculateLateralJerkCost("lateral_jerk", 1.0),
               cf.CalculateDistanceToReferencePathCost("distance_to_reference_path", 1.0),
-              cf.CalculateOrientationOffsetCost("orientation_offset", 1.0)):
+              cf.CalculateVelocityOffsetCost("velocity_offset", 1.0, V0, DT, 0.0, False, 2)):
         h.add_cost_function(c)
+    t = np.arange(int(round(HORIZON / DT)) + 1) * DT
+    boxes = _obstacles(k, t, ref) if k else None
     if k:
-        t = np.arange(int(round(HORIZON / DT)) + 1) * DT
-        boxes = _obstacles(k, t) + np.array([20.0, 0, 0, 0, 0])  # frenetix's s = 0 is the line's start
-        cov = np.zeros((6, 6))
-        cov[:2, :2] = 0.1 * np.eye(2)
-        cov = np.asfortranarray(cov)
-        preds = {}
-        for i in range(k):
-            path = [frenetix.PoseWithCovariance(np.array([b[0] - 20.0, b[1], 0.0]), np.array([0, 0, 0, 1.0]), cov)
-                    for b in boxes[i]]
-            preds[i] = frenetix.PredictedObject(i, path, 4.5, 1.8)
-        h.add_cost_function(cf.CalculateCollisionProbabilityFast("prediction", 1.0, preds, 4.8, 1.9))
+        h.add_cost_function(cf.CalculateDistanceToObstacleCost("distance_to_obstacles", 1.0,
+                                                               np.ascontiguousarray(boxes[:, 0, :2], float)))
+        cc = _pycrcc_obstacles(boxes)
     V, L = _grid(n)
     M = np.array(list(itertools.product([0.0], [HORIZON], [20.0], [V0], [0.0], V0 + np.linspace(-10, 10, V), [0.0],
                                         [0.0], [0.0], [0.0], np.linspace(-3, 3, L), [0.0], [0.0])))
+    pool = concurrent.futures.ThreadPoolExecutor(threads)
+    share = {}
 
-    def run():
+    def run(concurrent_eval):
         h.reset_Trajectories()
         h.generate_trajectories(M, False)
-        h.evaluate_all_current_functions(True)
+        if concurrent_eval:
+            h.evaluate_all_current_functions_concurrent(True)
+        else:
+            h.evaluate_all_current_functions(True)
+        if not k:
+            return None
+        trajs = list(h.get_sorted_trajectories())
+        t0 = time.perf_counter()
+        if concurrent_eval:
+            parts = [trajs[i::threads] for i in range(threads)]
+            flags = sum(pool.map(lambda p: _pycrcc_check(cc, p), parts), [])
+        else:
+            flags = _pycrcc_check(cc, trajs)
+        share[concurrent_eval] = time.perf_counter() - t0
+        return flags
 
-    run()
-    return len(M) / best_time(run, reps), len(M)
+    flags = run(False)
+    seq = len(M) / best_time(lambda: run(False), reps)
+    t_seq = len(M) / seq
+    con = len(M) / best_time(lambda: run(True), reps)
+    pool.shutdown()
+    return seq, con, len(M), int(np.sum(flags)) if flags is not None else 0, share.get(False, 0.0) / t_seq
 
 
 def main(argv=None):
-    ap = argparse.ArgumentParser(description=__doc__)
-    ap.add_argument("--sizes", type=int, nargs="+", default=[1000, 5000, 50000])
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--sizes", type=int, nargs="+", default=[1000, 5000])
     ap.add_argument("--obstacles", type=int, default=20)
     ap.add_argument("--reps", type=int, default=5)
     ap.add_argument("--out", default="results/bench_lattice.json")
     args = ap.parse_args(argv)
-    res = {"device": str(jax.devices()[0]), "cpu_count": os.cpu_count(), "machine": platform.machine(),
-           "samples_per_trajectory": int(round(HORIZON / DT)) + 1, "obstacles": args.obstacles}
+    threads = os.cpu_count() or 1
+    res = {"device": str(jax.devices()[0]), "cpu_count": threads, "machine": platform.machine(),
+           "load_average_1min_start": os.getloadavg()[0], "samples_per_trajectory": int(round(HORIZON / DT)) + 1,
+           "obstacles": args.obstacles, "reference": f"straight 60 m + arc R={RADIUS:g} m"}
     try:
         import frenetix  # noqa: F401
+        import commonroad_dc.pycrcc  # noqa: F401
         have_fx = True
-        res["frenetix_version"] = getattr(frenetix, "__version__", "?")
+        from importlib.metadata import version
+
+        res["frenetix_version"] = version("frenetix")
     except ImportError:
         have_fx = False
-        print("frenetix not installed: skipped (pip install frenetix)")
+        print("frenetix / commonroad-drivability-checker not installed: Frenetix skipped "
+              "(pip install frenetix==0.4.0 commonroad-drivability-checker)")
     for n in args.sizes:
         for k, tag in ((0, "kinematic"), (args.obstacles, f"obstacles{args.obstacles}")):
-            rate, comp, n_c, n_col = jaxplan_rate(n, k, args.reps)
+            rate, comp, n_c, n_col, n_feas = jaxplan_rate(n, k, args.reps)
             res[f"jaxplan_{tag}_N{n}_traj_per_s"] = rate
             res[f"jaxplan_{tag}_N{n}_compile_s"] = comp
             res[f"jaxplan_{tag}_N{n}_candidates"] = n_c
+            res[f"jaxplan_{tag}_N{n}_feasible"] = n_feas
             if k:
                 res[f"jaxplan_{tag}_N{n}_collided"] = n_col
             if have_fx:
-                fx, n_f = frenetix_rate(n, k, max(1, args.reps // 2 + 1))
-                res[f"frenetix_{tag}_N{n}_traj_per_s"] = fx
-                res[f"ratio_{tag}_N{n}"] = rate / fx
-        if args.obstacles:  # the dense collision check (no broad phase), for reference
-            rate, comp, _, _ = jaxplan_rate(n, args.obstacles, args.reps, near_budget=0.0)
-            res[f"jaxplan_dense_obstacles{args.obstacles}_N{n}_traj_per_s"] = rate
+                seq, con, n_f, fx_col, cc_share = frenetix_rates(n, k, max(1, args.reps // 2 + 1), threads)
+                res[f"frenetix_{tag}_N{n}_sequential_traj_per_s"] = seq
+                res[f"frenetix_{tag}_N{n}_concurrent_traj_per_s"] = con
+                res[f"frenetix_{tag}_N{n}_trajectories"] = n_f
+                if k:
+                    res[f"frenetix_{tag}_N{n}_collided_pycrcc"] = fx_col
+                    res[f"frenetix_{tag}_N{n}_pycrcc_share_of_time"] = cc_share
+                res[f"ratio_{tag}_N{n}_vs_sequential"] = rate / seq
+                res[f"ratio_{tag}_N{n}_vs_concurrent"] = rate / con
+    res["load_average_1min_end"] = os.getloadavg()[0]
     write_figures(res, args.out)
     return res
 

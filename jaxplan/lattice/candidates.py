@@ -1,8 +1,10 @@
-"""The candidate lattice: end speeds x lanes x lateral offsets, time-stamped at dt.
+"""The candidate lattice: longitudinal profiles x lanes x lateral offsets x lateral times, at dt.
 
-Layout: candidates are indexed ``(level, speed, lane, offset)`` flattened in that
-order (``N = levels * speeds * lanes * offsets``). ``level`` is the speed-variation
-escalation: level ``e`` uses the speed deltas scaled by ``escalation[e]``.
+Layout: candidates are indexed ``(profile, lane, offset, lateral time)`` flattened in that
+order (``N = G * P``). The profiles (``jaxplan.lattice.longitudinal``) start with the seed's
+``(level, speed)`` grid: level ``e`` uses the speed deltas scaled by ``escalation[e]``; then
+the following, stopping and goal modes (level 0), the emergency and fallback levels. With
+the default config this is the seed's ``(level, speed, lane, offset)`` order.
 
 Each speed profile gives the distance ``s(t)`` along the reference line; the lateral
 path ``l(s)`` is a quintic reaching its offset after ``S = max(s(t_lat), s_min)``, where
@@ -66,6 +68,45 @@ class LatticeConfig:
         d_threshold, d_margin, stop_length, stop_width: crossroad virtual target: when
             the distance to the crossroad is below ``d_threshold`` a stopped box of
             ``stop_length x stop_width`` starts ``d_margin`` beyond it on the reference line.
+
+    Longitudinal modes (``jaxplan.lattice.longitudinal``; all off by default, the seed's lattice):
+        modes: a subset of ``("follow", "stop", "goal")``, each over ``end_times`` (s).
+        follow_gap, follow_time_gap: the following mode's end state is
+            ``follow_gap + follow_time_gap * v_lead`` behind the leader's rear (m, s).
+        stop_gap: metres kept before a stopped obstacle (its box inflated by ``buffer_lon``) by the
+            stopping mode.
+        emergency: add the emergency level (after the escalation levels): braking with
+            ``emergency_a_min`` (m/s^2) and jerk ``emergency_jerk`` (m/s^3).
+        fallback: add the last level: braking at ``fallback_decel`` (m/s^2) to a stop.
+    Lateral:
+        lateral_times: several times (s) by which each offset is reached (empty: ``lateral_time``).
+        hold_offset: add targets about the car's current offset (the in-lane braking path).
+        goal_offset: add targets about the goal region's lateral middle.
+    Feasibility filter (before the collision check; ``jaxplan.lattice.feasibility``):
+        feasibility: reject candidates beyond the limits (never chosen while a feasible one exists).
+        kappa_max: curvature limit (1/m); 0 = the steering limit ``tan(max_steer) / wheelbase``.
+        lon_acc_limits, lon_jerk_max, lat_acc_max: limits of the comfortable levels;
+        emergency_jerk_max, emergency_lat_acc_max: of the emergency and fallback levels (their
+            deceleration limit is ``emergency_a_min``).
+    Safety:
+        buffer_lon, buffer_lat: obstacles are inflated by these (m) along and across their
+            heading for the "free" test (``collided`` stays the plain overlap).
+        ignore_behind: obstacles behind the car in its corridor (now) do not count while they
+            stay in it, unless they overlap the car.
+        terminal: the end state must be able to stop behind whatever is ahead in its corridor,
+            decelerating at ``terminal_decel`` (m/s^2) with ``terminal_gap`` (m) left, the
+            obstacle braking as hard.
+        all_collide: ``"harm"`` (default: least impact speed at first contact, then the latest
+            contact) or ``"seed"`` (the seed's ``lambda + gamma / TTC``).
+        lane_change_gain: metres of progress over the horizon by which another lane must beat
+            the current and the route lane before the lattice takes it as its target lane.
+        max_lanes: the road planner plans over at most this many lanes about the car's.
+        near_k: collision broad phase keeping the ``near_k`` nearest obstacles per lateral group
+            and step for the exact test (0: ``near_budget``'s exact broad phase); conservative:
+            the bounding-circle distance stands in for the others (never a missed collision); used
+            when there are more than ``2 near_k`` obstacles (with fewer the dense test is faster).
+        goal_weight_time: seconds of arrival-time error that cost as much as 1 m/s of goal
+            speed error or 1 m of lateral goal error in the ``goal`` feature.
     """
 
     horizon: float = 5.0
@@ -93,6 +134,37 @@ class LatticeConfig:
     d_margin: float = 0.0
     stop_length: float = 1.0
     stop_width: float = 12.0
+    modes: tuple = ()
+    end_times: tuple = (2.0, 3.5, 5.5)
+    follow_gap: float = 4.0
+    follow_time_gap: float = 1.0
+    stop_gap: float = 2.0
+    emergency: bool = False
+    emergency_a_min: float = -8.0
+    emergency_jerk: float = 20.0
+    fallback: bool = False
+    fallback_decel: float = 5.0
+    lateral_times: tuple = ()
+    hold_offset: bool = False
+    goal_offset: bool = False
+    feasibility: bool = True
+    kappa_max: float = 0.0
+    lon_acc_limits: tuple = (-5.0, 3.0)
+    lon_jerk_max: float = 15.0
+    lat_acc_max: float = 4.0
+    emergency_jerk_max: float = 45.0
+    emergency_lat_acc_max: float = 6.0
+    buffer_lon: float = 0.0
+    buffer_lat: float = 0.0
+    ignore_behind: bool = False
+    terminal: bool = False
+    terminal_decel: float = 6.0
+    terminal_gap: float = 1.0
+    all_collide: str = "harm"
+    lane_change_gain: float = 8.0
+    near_k: int = 0
+    max_lanes: int = 5
+    goal_weight_time: float = 1.0
 
     @property
     def n_steps(self) -> int:
@@ -100,12 +172,55 @@ class LatticeConfig:
 
     @property
     def grid(self) -> tuple:
-        """``(levels, speeds, lanes, offsets)``."""
+        """``(levels, speeds, lanes, offsets)`` of the seed's part of the lattice."""
         return (len(self.escalation), len(self.speed_deltas_kmh), len(self.lanes), self.n_offsets)
 
     @property
+    def n_profiles(self) -> int:
+        """``G``: longitudinal profiles (the seed's levels x speeds, then the modes)."""
+        from jaxplan.lattice.longitudinal import n_profiles
+
+        return n_profiles(self)
+
+    @property
+    def lateral_grid(self) -> tuple:
+        """``(lateral lanes, offsets, lateral times)``; the lateral lanes are ``lanes`` then the
+        hold and goal targets when switched on."""
+        return (len(self.lanes) + int(self.hold_offset) + int(self.goal_offset), self.n_offsets,
+                max(1, len(self.lateral_times)))
+
+    @property
+    def n_lateral(self) -> int:
+        return int(np.prod(self.lateral_grid))
+
+    @property
+    def n_levels(self) -> int:
+        """Selection levels: escalation levels, then emergency and fallback when on."""
+        return len(self.escalation) + int(self.emergency) + int(self.fallback)
+
+    @property
     def n_candidates(self) -> int:
-        return int(np.prod(self.grid))
+        return self.n_profiles * self.n_lateral
+
+    @property
+    def curvature_limit(self) -> float:
+        """``kappa_max``, or the steering limit ``tan(max_steer) / wheelbase``."""
+        if self.kappa_max > 0:
+            return float(self.kappa_max)
+        return float(np.tan(float(self.vehicle.max_steer)) / float(self.vehicle.wheelbase))
+
+    @classmethod
+    def road(cls, **overrides) -> "LatticeConfig":
+        """The full lattice the road planner drives with: every longitudinal mode over end
+        times, emergency and fallback levels, three lateral times, the hold and goal targets,
+        the feasibility filter, safety buffers, the terminal condition and harm selection
+        (the road planner gives the lanes' offsets in ``RoadTargets``, ``max_lanes`` of them)."""
+        base = dict(modes=("follow", "stop", "goal"), emergency=True, fallback=True,
+                    lateral_times=(2.0, 3.0, 4.5), hold_offset=True, goal_offset=True, lanes=(-2, -1, 0, 1, 2),
+                    n_offsets=3, offset_span=0.6, buffer_lon=1.0, buffer_lat=0.3, ignore_behind=True, terminal=True,
+                    near_budget=0.0, near_k=6, d_threshold=150.0)
+        base.update(overrides)
+        return cls(**base)
 
     def validate(self) -> "LatticeConfig":
         if self.dt <= 0 or self.horizon < self.dt:
@@ -120,6 +235,23 @@ class LatticeConfig:
             raise ValueError("LatticeConfig: need a_min < 0 < a_max, jerk > 0, s_min > 0")
         if not 0.0 <= self.lateral_time <= self.horizon:
             raise ValueError(f"LatticeConfig.lateral_time must be in [0, horizon], got {self.lateral_time}")
+        if any(not 0.0 < x <= self.horizon for x in self.lateral_times):
+            raise ValueError(f"LatticeConfig.lateral_times must be in (0, horizon], got {self.lateral_times}")
+        bad = set(self.modes) - {"follow", "stop", "goal"}
+        if bad:
+            raise ValueError(f"LatticeConfig.modes: unknown {sorted(bad)}; known: follow, stop, goal")
+        if any(x <= 0 for x in self.end_times) or (set(self.modes) & {"follow"} and not self.end_times):
+            raise ValueError(f"LatticeConfig.end_times must be positive (and given for follow), got {self.end_times}")
+        if self.all_collide not in ("harm", "seed"):
+            raise ValueError(f"LatticeConfig.all_collide must be 'harm' or 'seed', got {self.all_collide!r}")
+        if not (self.emergency_a_min < 0 and self.fallback_decel > 0 and self.emergency_jerk > 0):
+            raise ValueError("LatticeConfig: need emergency_a_min < 0, fallback_decel > 0, emergency_jerk > 0")
+        lo, hi = self.lon_acc_limits
+        if not (lo < 0 < hi) or self.lon_jerk_max <= 0 or self.lat_acc_max <= 0 or self.kappa_max < 0:
+            raise ValueError("LatticeConfig: need lon_acc_limits (lo < 0 < hi), positive jerk, lateral "
+                             "acceleration limits and kappa_max >= 0")
+        if self.buffer_lon < 0 or self.buffer_lat < 0 or self.terminal_decel <= 0 or self.near_k < 0:
+            raise ValueError("LatticeConfig: buffers and near_k must be >= 0, terminal_decel > 0")
         self.vehicle.validate()
         return self
 
@@ -169,17 +301,25 @@ class PlanState:
         return self
 
 
-@_pytree(data_fields=("traj", "axis", "s", "l", "dl", "v_end", "offset", "level", "speed_index", "lane", "l_target"))
+@_pytree(data_fields=("traj", "axis", "s", "l", "dl", "v_end", "offset", "level", "speed_index", "lane", "l_target",
+                      "kind", "available", "lat_time", "lane_slot", "profile", "end_time", "s_rel"))
 class Candidates:
-    """Every candidate of the lattice, flattened to ``N`` (see the module docstring).
+    """Every candidate of the lattice, flattened to ``N = G * P`` (see the module docstring).
 
     Attributes:
         traj: ``Trajectory`` with fields ``(..., N, T)`` (reference point of the car).
         axis: ``(..., N, T, 2)`` heading unit vectors ``(cos theta, sin theta)``.
         s, l, dl: ``(..., N, T)`` Frenet arc length (absolute), offset and dl/ds.
         v_end, offset: ``(..., N)`` target end speed (m/s) and lateral offset (m).
-        level, speed_index, lane: ``(..., N)`` int grid indices.
-        l_target: ``(...)`` the local reference path's offset (target lane centre).
+        level, speed_index, lane: ``(..., N)`` int: selection level, the seed's speed index
+            (-1 for the other modes), lane id (``config.lanes`` value, ``HOLD_LANE`` / ``GOAL_LANE``).
+        l_target: ``(...)`` the local reference path's offset (the route lane's centre).
+        kind: ``(..., N)`` longitudinal mode (``longitudinal.CRUISE`` ... ``FALLBACK``).
+        available: ``(..., N)`` its target exists (mode and lane).
+        lat_time: ``(..., N)`` time (s) by which the lateral offset is reached.
+        lane_slot: ``(..., N)`` index into the lateral lanes; profile: ``(..., N)`` index ``g``.
+        end_time: ``(..., N)`` the profile's end time (inf for ramps); s_rel: ``(..., N, T)``
+            distance along the line from the car.
     """
 
     traj: Any
@@ -193,6 +333,13 @@ class Candidates:
     speed_index: Any
     lane: Any
     l_target: Any
+    kind: Any = None
+    available: Any = None
+    lat_time: Any = None
+    lane_slot: Any = None
+    profile: Any = None
+    end_time: Any = None
+    s_rel: Any = None
 
 
 # Minimax odd polynomial for atan on [0, 1] (max error about 1e-7 rad in float32 arithmetic).
@@ -215,30 +362,56 @@ def atan2(y, x):
     return jnp.where(y < 0, -r, r)
 
 
-def _grid_values(config: LatticeConfig, v0, dtype):
-    E, V, Ln, O = config.grid
-    scale = jnp.asarray(config.escalation, dtype)[:, None]
-    deltas = jnp.asarray(config.speed_deltas_kmh, dtype)[None, :] * KMH
-    v_end = jnp.clip(v0[..., None, None] + scale * deltas, 0.0, config.v_max)  # (..., E, V)
-    centre = jnp.asarray(config.lanes, dtype) * config.lane_width
-    offsets = centre[:, None] + jnp.linspace(-config.offset_span, config.offset_span, O, dtype=dtype) \
-        if O > 1 else centre[:, None] + jnp.zeros((1,), dtype)
-    return v_end, offsets  # (..., E, V), (Ln, O)
+def _lateral_targets(config: LatticeConfig, targets, l0, dtype):
+    """Lateral target offsets ``(Pl,)`` = (lateral lane, offset), their lane ids, slots and availability."""
+    from jaxplan.lattice.targets import GOAL_LANE, HOLD_LANE
+
+    Lw, O, _ = config.lateral_grid
+    centres, ok = [targets.lane_centres.astype(dtype)], [targets.lane_ok]
+    ids = list(config.lanes)
+    if config.hold_offset:
+        centres.append(jnp.reshape(l0, (1,)).astype(dtype))
+        ok.append(jnp.ones((1,), bool))
+        ids.append(HOLD_LANE)
+    if config.goal_offset:
+        gl = jnp.asarray(targets.goal_l, dtype)
+        fin = jnp.all(jnp.isfinite(gl))
+        centres.append(jnp.reshape(jnp.where(fin, 0.5 * (gl[0] + gl[1]), l0), (1,)).astype(dtype))
+        ok.append(jnp.reshape(fin, (1,)))
+        ids.append(GOAL_LANE)
+    centres, ok = jnp.concatenate(centres), jnp.concatenate(ok)
+    offs = jnp.linspace(-config.offset_span, config.offset_span, O, dtype=dtype) if O > 1 else jnp.zeros((1,), dtype)
+    return ((centres[:, None] + offs).reshape(Lw * O), np.repeat(np.asarray(ids), O), np.repeat(np.arange(Lw), O),
+            jnp.repeat(ok, O))
 
 
-def generate(state: PlanState, ref: ReferenceLine, config: LatticeConfig) -> Candidates:
+def generate(state: PlanState, ref: ReferenceLine, config: LatticeConfig, targets=None, leader=None,
+             stop_s=None) -> Candidates:
     """All candidates of the lattice for one state (any leading batch dims via vmap).
+
+    Layout: ``N = G * P``, the longitudinal profile ``g`` major (``jaxplan.lattice.longitudinal``:
+    the seed's ``levels x speeds`` first), then the lateral target ``(lane, offset)`` and the
+    lateral time (``P = lanes' * offsets * lateral times``). With the defaults this is the
+    seed's ``(level, speed, lane, offset)`` order.
 
     Args:
         state: ``PlanState`` with scalar fields.
-        ref: the reference line (the current lane's centre).
+        ref: the reference line (the route lane's centre).
         config: static settings.
+        targets: ``RoadTargets`` (None: ``RoadTargets.from_config``).
+        leader: optional ``(rear (T,), speed (T,), found ())`` for the following mode (relative
+            to the car's reference point, the car's front length subtracted).
+        stop_s: optional ``()`` distance from the car's reference point to where it stops.
 
     Returns:
         ``Candidates`` with ``N = config.n_candidates`` and ``T = config.n_steps``.
     """
+    from jaxplan.lattice.longitudinal import longitudinal_set
+    from jaxplan.lattice.targets import RoadTargets
+
     dtype = ref.xy.dtype
-    E, V, Ln, O = config.grid
+    if targets is None:
+        targets = RoadTargets.from_config(config, dtype)
     T = config.n_steps
     t = jnp.arange(T, dtype=dtype) * config.dt
     v0 = jnp.asarray(state.v, dtype)
@@ -249,26 +422,33 @@ def generate(state: PlanState, ref: ReferenceLine, config: LatticeConfig) -> Can
     to_sdot = 1.0 / jnp.sqrt((1.0 - kr0 * l0) ** 2 + dl0 ** 2)
     sdot0 = v0 * to_sdot
     a0 = jnp.asarray(state.a, dtype) * to_sdot
-    v_end, offsets = _grid_values(config, v0, dtype)
-    if config.profile == "jerk":
-        s_rel, sd, sdd = jerk_profile(sdot0, a0, v_end, t, config.jerk, config.a_min, config.a_max)
-    else:
-        s_rel, sd, sdd = accel_profile(sdot0, v_end, t, config.a_min, config.a_max)
-    # s_rel, sd, sdd: (E, V, T)
-    G, P = E * V, Ln * O
-    k_lat = T - 1 if config.lateral_time <= 0 else min(T - 1, int(round(config.lateral_time / config.dt)))
-    S = jnp.maximum(s_rel[..., k_lat], config.s_min).reshape(G)
-    s_abs = (s0 + s_rel).reshape(G, T)  # the reference line is evaluated once per speed profile
+    lead_s, lead_v, lead_ok = leader if leader is not None else (None, None, False)
+    goal_s = jnp.asarray(targets.goal_s, dtype)
+    goal_mid = jnp.where(jnp.all(jnp.isfinite(goal_s)), 0.5 * (goal_s[0] + goal_s[1]), jnp.inf)
+    lon = longitudinal_set(sdot0, a0, t, config, lead_s, lead_v, lead_ok,
+                           jnp.inf if stop_s is None else stop_s,
+                           goal_mid - s0 - jnp.asarray(config.vehicle.center_offset, dtype),
+                           targets.goal_t, targets.goal_v, v_grid=v0)
+    s_rel, sd, sdd = lon.s, lon.v, lon.a  # (G, T)
+    G = s_rel.shape[0]
+    Lw, O, Lt = config.lateral_grid
+    offsets, lane_ids, slots, lat_ok = _lateral_targets(config, targets, l0, dtype)
+    Pl = Lw * O
+    P = Pl * Lt
+    times = config.lateral_times or (config.lateral_time,)
+    k_lat = np.array([T - 1 if x <= 0 else min(T - 1, int(round(x / config.dt))) for x in times])
+    S = jnp.maximum(s_rel[:, k_lat], config.s_min)  # (G, Lt)
+    S = jnp.broadcast_to(S[:, None, :], (G, Pl, Lt)).reshape(G, P)
+    offsets_p = jnp.broadcast_to(offsets[:, None], (Pl, Lt)).reshape(P)
+    s_abs = s0 + s_rel  # the reference line is evaluated once per speed profile
     pos, theta_r, kr, dkr = ref_state(ref, s_abs)
-    per_group = (s_rel.reshape(G, T), sd.reshape(G, T), sdd.reshape(G, T), S, pos, jnp.cos(theta_r),
-                 jnp.sin(theta_r), theta_r, kr, dkr)
-    offsets = offsets.reshape(P)
+    per_group = (s_rel, sd, sdd, S, pos, jnp.cos(theta_r), jnp.sin(theta_r), theta_r, kr, dkr)
 
     def lateral(g):
-        """Every offset of one speed profile: fields ``(P, T)``."""
+        """Every lateral target of one speed profile: fields ``(P, T)``."""
         s_g, sd_g, sdd_g, S_g, pos_g, cr, sr, th_r, kr_g, dkr_g = g
-        coeffs = quintic_coeffs(l0, dl0, ddl0, offsets, S_g)  # (P, 6)
-        l, dl, ddl = quintic_eval(coeffs, jnp.broadcast_to(S_g, (P,)), jnp.broadcast_to(s_g, (P, T)))
+        coeffs = quintic_coeffs(l0, dl0, ddl0, offsets_p, S_g)  # (P, 6)
+        l, dl, ddl = quintic_eval(coeffs, S_g, jnp.broadcast_to(s_g, (P, T)))
         # Frenet -> Cartesian (frenet_to_cartesian_state's formulas, no trigonometry per candidate)
         one = 1.0 - kr_g * l
         q = jnp.sqrt(one ** 2 + dl ** 2)
@@ -293,11 +473,19 @@ def generate(state: PlanState, ref: ReferenceLine, config: LatticeConfig) -> Can
     x, y, theta, kappa, speed, acc, arc, ux, uy, l, dl = (o.reshape(N, T) for o in out)
     traj = Trajectory(x, y, theta, kappa, speed, acc, jnp.broadcast_to(t, (N, T)), arc,
                       jnp.ones((N, T), dtype))
-    idx = np.indices((E, V, Ln, O)).reshape(4, N)
-    lane_ids = np.asarray(config.lanes)[idx[2]]
+    per_g = lambda a: jnp.broadcast_to(jnp.asarray(a)[:, None], (G, P)).reshape(N)
+    per_p = lambda a: jnp.broadcast_to(jnp.asarray(a)[None, :], (G, P)).reshape(N)
+    lat_p = lambda a: np.broadcast_to(np.asarray(a)[:, None], (Pl, Lt)).reshape(P)
+    E, V = len(config.escalation), len(config.speed_deltas_kmh)
+    speed_index = np.full(G, -1)
+    speed_index[:E * V] = np.tile(np.arange(V), E)
+    lat_times = np.broadcast_to(np.asarray([x if x > 0 else config.horizon for x in times], float)[None], (Pl, Lt))
+    route_lane = jnp.asarray(targets.route_lane)
+    l_target = targets.lane_centres.astype(dtype)[route_lane]
     return Candidates(traj, jnp.stack([ux, uy], -1), jnp.broadcast_to(s_abs[:, None], (G, P, T)).reshape(N, T),
-                      l, dl, jnp.broadcast_to(v_end.reshape(G, 1), (G, P)).reshape(N),
-                      jnp.broadcast_to(offsets, (G, P)).reshape(N),
-                      jnp.asarray(idx[0]), jnp.asarray(idx[1]), jnp.asarray(lane_ids),
-                      jnp.asarray(config.target_lane * config.lane_width, dtype))
-
+                      l, dl, per_g(lon.v_end), per_p(offsets_p), per_g(lon.level), per_g(jnp.asarray(speed_index)),
+                      per_p(jnp.asarray(lat_p(lane_ids))), l_target, per_g(lon.kind),
+                      per_g(lon.available) & per_p(jnp.broadcast_to(lat_ok[:, None], (Pl, Lt)).reshape(P)),
+                      per_p(jnp.asarray(lat_times.reshape(P), dtype)), per_p(jnp.asarray(lat_p(slots))),
+                      per_g(jnp.arange(G)), per_g(lon.end_time),
+                      jnp.broadcast_to(s_rel[:, None], (G, P, T)).reshape(N, T))

@@ -12,6 +12,21 @@ Features ``(..., N, F)`` in the order of ``FEATURES``:
   the signed separation (``min_sep`` = minimum over steps and obstacles).
 - ``level_free``: escalation level times ``(1 - collision)``.
 
+The road lattice adds (``road_features``, all linear in their weights, so ``jax.grad`` and
+optax tune them like the seed's):
+
+- ``jerk_lon``: mean squared ``da/dt`` (m^2/s^6); ``jerk_lat``: mean squared ``d(v^2 kappa)/dt``;
+- ``obstacle``: mean over the horizon of ``exp(-max(min_sep, 0) / obstacle_scale)``, the
+  distance to obstacles (1 at contact, ``1/e`` at ``obstacle_scale`` metres);
+- ``v_offset``: mean ``|v - v_set|`` over the horizon, ``v_set`` the set speed (from the
+  scene's speed limit in the road planner, not the current speed);
+- ``goal``: the error of the predicted arrival at the goal region's middle: seconds outside
+  its time window (``/ config.goal_weight_time``) + m/s outside its speed range + metres
+  outside its lateral range (0 without a goal; capped at ``GOAL_CAP``);
+- ``infeasible``: the feasibility filter's verdict; ``unsafe_end``: collision-free but the
+  terminal condition fails (both as 0/1, with large weights, so that the smooth form ranks
+  like the exact rule).
+
 The exact rule (the seed's flow): if some level-0 candidate is collision-free,
 take the free one of least ``lambda = alpha d_lrp + beta rho_max + delta speed``;
 else the lowest escalation level with a free candidate, likewise; if every
@@ -31,18 +46,33 @@ import jax.numpy as jnp
 
 from jaxplan.types import _pytree, check_weights
 
-FEATURES = ("d_lrp", "rho_max", "risk", "speed", "collision", "level_free")
-# The exact selection's modes; INVALID: no candidate could be judged (NaN / inf in all of them).
-FREE, ESCALATED, RISK, INVALID = 0, 1, 2, 3
-MODE_NAMES = ("free", "escalated", "risk", "invalid")
+FEATURES = ("d_lrp", "rho_max", "risk", "speed", "collision", "level_free", "jerk_lon", "jerk_lat", "obstacle",
+            "v_offset", "goal", "infeasible", "unsafe_end")
+SEED_FEATURES = 6  # the first six are the seed's
+# The exact selection's modes: FREE / ESCALATED (a comfortable level, every check passed),
+# RISK (every candidate collides), EMERGENCY (the emergency or fallback level, every check
+# passed), CONSTRAINED (collision-free, but inside a safety buffer or failing the terminal condition),
+# INVALID (no candidate could be judged: NaN / inf in all of them).
+FREE, ESCALATED, RISK, EMERGENCY, CONSTRAINED, INVALID = 0, 1, 2, 3, 4, 5
+MODE_NAMES = ("free", "escalated", "risk", "emergency", "constrained", "invalid")
+GOAL_CAP = 10.0
+OBSTACLE_SCALE = 2.0
 
 
-@_pytree(data_fields=("alpha", "beta", "gamma", "delta", "collision", "level"))
+WEIGHT_FIELDS = ("alpha", "beta", "gamma", "delta", "collision", "level", "jerk_lon", "jerk_lat", "obstacle",
+                 "v_offset", "goal", "infeasible", "unsafe_end")
+EXTRA_WEIGHTS = ("jerk_lon", "jerk_lat", "obstacle", "v_offset", "goal")  # enter lambda beside the seed's
+
+
+@_pytree(data_fields=WEIGHT_FIELDS)
 class CostWeights:
-    """Cost weights (array pytree, differentiable). Each field ``(...)``.
+    """Cost weights (array pytree, differentiable). Each field ``(...)``, one per ``FEATURES``.
 
     alpha: D_toLRP; beta: rho_max; gamma: risk (1/TTC); delta: |v_end - v_set|;
-    collision: smooth collision indicator; level: escalation level of free candidates.
+    collision: smooth collision indicator; level: escalation level of free candidates;
+    jerk_lon, jerk_lat: mean squared jerks; obstacle: distance to obstacles; v_offset: mean
+    |v - v_set|; goal: goal arrival error; infeasible, unsafe_end: the smooth form's
+    penalties for the feasibility filter and the terminal condition.
     """
 
     alpha: Any = 1.0
@@ -51,6 +81,13 @@ class CostWeights:
     delta: Any = 0.1
     collision: Any = 1e4
     level: Any = 1e3
+    jerk_lon: Any = 0.02
+    jerk_lat: Any = 0.02
+    obstacle: Any = 2.0
+    v_offset: Any = 0.2
+    goal: Any = 3.0
+    infeasible: Any = 1e6
+    unsafe_end: Any = 5e3
 
     def validate(self) -> "CostWeights":
         """Host-side: every weight finite and >= 0 (a ``ValueError`` names the field)."""
@@ -60,8 +97,7 @@ class CostWeights:
     def vector(self):
         """``(..., F)`` in the order of ``FEATURES``."""
         f = jnp.result_type(float)
-        return jnp.stack(jnp.broadcast_arrays(*(jnp.asarray(getattr(self, k), f) for k in
-                                                ("alpha", "beta", "gamma", "delta", "collision", "level"))), -1)
+        return jnp.stack(jnp.broadcast_arrays(*(jnp.asarray(getattr(self, k), f) for k in WEIGHT_FIELDS)), -1)
 
 
 def cost_features(l, kappa, l_target, ttc, v_end, v_set, min_sep, level, ttc_min=0.1, sep_eps=0.05):
@@ -85,13 +121,23 @@ def cost_features(l, kappa, l_target, ttc, v_end, v_set, min_sep, level, ttc_min
 
 
 def costs(weights: CostWeights, features):
-    """Linear cost ``(..., N)`` of features ``(..., N, F)``."""
-    return jnp.einsum("...nf,...f->...n", features, weights.vector())
+    """Linear cost ``(..., N)`` of features ``(..., N, F)`` (the first ``F`` weights)."""
+    return jnp.einsum("...nf,...f->...n", features, weights.vector()[..., :features.shape[-1]])
 
 
-def lam(weights: CostWeights, features):
-    """The seed's ``lambda = alpha D_toLRP + beta rho_max (+ delta speed)``, ``(..., N)``."""
-    return weights.alpha * features[..., 0] + weights.beta * features[..., 1] + weights.delta * features[..., 3]
+def lam(weights: CostWeights, features, speed: bool = True):
+    """The seed's ``lambda = alpha D_toLRP + beta rho_max (+ delta speed)``, ``(..., N)``, plus the
+    road terms (``EXTRA_WEIGHTS``) where ``features`` has them (weights without those
+    attributes count them 0). ``speed=False`` drops both speed terms (``delta``, ``v_offset``)."""
+    out = weights.alpha * features[..., 0] + weights.beta * features[..., 1]
+    if speed:
+        out = out + weights.delta * features[..., 3]
+    if features.shape[-1] > SEED_FEATURES:
+        for name in EXTRA_WEIGHTS:
+            if name == "v_offset" and not speed:
+                continue
+            out = out + getattr(weights, name, 0.0) * features[..., FEATURES.index(name)]
+    return out
 
 
 def eligible(collided, level):
@@ -152,3 +198,108 @@ def soft_select(weights: CostWeights, features, temperature):
         ``(..., N)`` probabilities (differentiable in the weights and the features).
     """
     return jax.nn.softmax(-costs(weights, features) / temperature, axis=-1)
+
+
+def road_features(base, traj, dt, min_sep, v_set, goal_err, feasible, terminal_ok, collided):
+    """The seed's features ``base (..., N, 6)`` followed by the road terms (module docstring).
+
+    Args:
+        traj: ``Trajectory`` ``(..., N, T)``; dt: step (s); min_sep: ``(..., N, T)``.
+        v_set: ``(...)``; goal_err: ``(..., N)``; feasible, terminal_ok, collided: ``(..., N)`` bool.
+
+    Returns:
+        ``(..., N, len(FEATURES))``.
+    """
+    f = base.dtype
+    jl = jnp.mean((jnp.diff(traj.a, axis=-1) / dt) ** 2, axis=-1)
+    lat = traj.v ** 2 * traj.kappa
+    jt = jnp.mean((jnp.diff(lat, axis=-1) / dt) ** 2, axis=-1)
+    obst = jnp.mean(jnp.exp(-jnp.maximum(min_sep, 0.0) / OBSTACLE_SCALE), axis=-1)
+    voff = jnp.mean(jnp.abs(traj.v - jnp.asarray(v_set, f)[..., None, None]), axis=-1)
+    extra = jnp.stack([jl, jt, obst, voff, goal_err.astype(f), (~feasible).astype(f),
+                       ((~terminal_ok) & ~collided).astype(f)], axis=-1)
+    return jnp.concatenate([base, extra], axis=-1)
+
+
+def goal_error(s, l, v, t, goal_s, goal_l, goal_t, goal_v, center_offset, time_weight=1.0):
+    """Arrival error ``(..., N)`` at the goal region's middle (see the module docstring).
+
+    Args:
+        s, l, v: ``(..., N, T)`` arc length on the line, offset and speed of the reference point.
+        t: ``(T,)``; goal_s, goal_l, goal_t (from now), goal_v: ``(..., 2)``.
+        center_offset: reference point to box centre (m): the goal is judged at the box centre.
+    """
+    f = s.dtype
+    gs = jnp.asarray(goal_s, f)
+    has = jnp.all(jnp.isfinite(gs), axis=-1)
+    target = jnp.where(has, 0.5 * (gs[..., 0] + gs[..., 1]), 0.0) - center_offset
+    sc = s
+    reach = sc >= target[..., None, None]
+    arrived = jnp.any(reach, axis=-1)
+    k = jnp.argmax(reach, axis=-1)
+    at = lambda a: jnp.take_along_axis(a, k[..., None], axis=-1)[..., 0]
+    v_end = v[..., -1]
+    t_ext = t[-1] + (target[..., None] - sc[..., -1]) / jnp.maximum(v_end, 0.1)
+    t_arr = jnp.where(arrived, t[k], jnp.minimum(t_ext, 1e3))
+    v_arr = jnp.where(arrived, at(v), v_end)
+    l_arr = jnp.where(arrived, at(l), l[..., -1])
+    out = lambda x, lo, hi: jnp.maximum(lo - x, 0.0) + jnp.maximum(x - hi, 0.0)
+    gt, gv, gl = (jnp.asarray(x, f) for x in (goal_t, goal_v, goal_l))
+    err = out(t_arr, gt[..., 0, None], gt[..., 1, None]) / time_weight + out(v_arr, gv[..., 0, None], gv[..., 1, None]) \
+        + out(l_arr, gl[..., 0, None], gl[..., 1, None])
+    return jnp.where(has[..., None], jnp.minimum(err, GOAL_CAP), 0.0)
+
+
+def choose(weights, features, level, available, feasible, free_margin, free, terminal_ok, impact, first_t,
+           risk_cost=None, n_comfort: int = 1, rule: str = "harm"):
+    """The road lattice's exact selection.
+
+    Among the available candidates, the feasible ones if any (else all): the candidates that
+    are free of the inflated obstacles and pass the terminal condition; if none, those free
+    of the inflated obstacles; if none, those free of the plain obstacles. In the first
+    non-empty group: the lowest level that has one, then the least ``lambda``. If every
+    candidate collides: ``rule="harm"`` takes the least impact speed at first contact, then
+    the latest first contact, then the least ``lambda`` without the speed terms;
+    ``rule="seed"`` the least ``lambda + gamma * risk`` (``risk_cost``).
+
+    Args:
+        features: ``(..., N, F)``; level: ``(..., N)`` int; available, feasible, free_margin,
+        free, terminal_ok: ``(..., N)`` bool; impact, first_t: ``(..., N)``.
+        n_comfort: the number of comfortable levels (the rest are emergency / fallback).
+
+    Returns:
+        (index ``(...)``, mode ``(...)`` (``FREE``, ``ESCALATED``, ``EMERGENCY``, ``CONSTRAINED``,
+        ``RISK``), selection cost ``(..., N)`` with inf for the candidates the rule excluded).
+    """
+    big = jnp.iinfo(jnp.int32).max
+    pool = available & jnp.where(jnp.any(available & feasible, axis=-1, keepdims=True), feasible, True)
+    groups = [pool & free_margin & terminal_ok, pool & free_margin, pool & free]
+    lam_c = lam(weights, features)
+    chosen_set = jnp.zeros_like(pool)
+    found = jnp.zeros(pool.shape[:-1], bool)
+    tier = jnp.full(pool.shape[:-1], 3)
+    for i, g in enumerate(groups):
+        lvl = jnp.min(jnp.where(g, level, big), axis=-1, keepdims=True)
+        here = g & (level == lvl) & ~found[..., None]
+        take = jnp.any(g, axis=-1) & ~found
+        chosen_set = jnp.where(take[..., None], here, chosen_set)
+        tier = jnp.where(take, i, tier)
+        found = found | take
+    sel_free = jnp.where(chosen_set, lam_c, jnp.inf)
+    if rule == "seed":
+        rc = lam_c + (0.0 if risk_cost is None else risk_cost)
+        sel_risk = jnp.where(pool, rc, jnp.inf)
+    else:
+        imp = jnp.where(pool, impact, jnp.inf)
+        m = jnp.min(imp, axis=-1, keepdims=True)
+        c1 = pool & (imp <= m + 1e-3)
+        ft = jnp.where(c1, first_t, -jnp.inf)
+        late = jnp.max(ft, axis=-1, keepdims=True)
+        c2 = c1 & (ft >= late - 1e-6)
+        sel_risk = jnp.where(c2, lam(weights, features, speed=False), jnp.inf)
+    sel = jnp.where(found[..., None], sel_free, sel_risk)
+    idx = jnp.argmin(sel, axis=-1)
+    lvl = jnp.take_along_axis(level, idx[..., None], axis=-1)[..., 0]
+    mode = jnp.where(~found, RISK, jnp.where(tier > 0, CONSTRAINED,
+                                             jnp.where(lvl == 0, FREE, jnp.where(lvl < n_comfort, ESCALATED, EMERGENCY))))
+    return idx, mode, sel

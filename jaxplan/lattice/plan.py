@@ -9,16 +9,21 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxplan.geometry.frenet import ReferenceLine
+from jaxplan.geometry.frenet import to_frenet
 from jaxplan.lattice.candidates import Candidates, LatticeConfig, PlanState, generate
-from jaxplan.lattice.cost import CostWeights, cost_features, costs, select
+from jaxplan.lattice.cost import INVALID, CostWeights, choose, cost_features, costs, goal_error, road_features
 from jaxplan.lattice.crossroad import with_stop_target
-from jaxplan.lattice.risk import (align_obstacles, car_parts, min_separation_axes, min_separation_broad,
+from jaxplan.lattice.feasibility import feasibility, usable
+from jaxplan.lattice.risk import (align_obstacles, car_parts, first_contact, inflate, min_separation_axes,
+                                  min_separation_broad, min_separation_pair, min_separation_topk,
                                   risk_from_separation)
+from jaxplan.lattice.targets import RoadTargets, extents, lane_leader, obstacle_frenet, speed_along
 from jaxplan.types import Obstacles, _pytree, is_concrete
 
 
 @_pytree(data_fields=("candidates", "features", "cost", "selection_cost", "collided", "first_t", "ttc",
-                      "min_sep", "chosen", "mode", "obstacles", "finite", "ok"))
+                      "min_sep", "chosen", "mode", "obstacles", "finite", "ok", "feasible", "reasons",
+                      "collided_margin", "terminal_ok", "impact", "l_target", "ignored"))
 class LatticeResult:
     """Everything one plan computed (``N`` candidates, ``T`` steps, any leading batch dims).
 
@@ -27,16 +32,22 @@ class LatticeResult:
         features: ``(..., N, F)`` (see ``cost.FEATURES``).
         cost: ``(..., N)`` linear cost ``features @ weights`` (the smooth form's score).
         selection_cost: ``(..., N)`` the exact rule's cost (inf = excluded).
-        collided: ``(..., N)``: the candidate hits an obstacle, or cannot be judged (not
+        collided: ``(..., N)``: the candidate hits a (plain) obstacle, or cannot be judged (not
             ``finite``: a NaN is never reported as free). first_t, ttc: ``(..., N)``;
             min_sep: ``(..., N, T)``.
-        chosen: ``(...)`` index of the chosen candidate; mode: FREE / ESCALATED / RISK, or
-            INVALID when no candidate is finite.
+        chosen: ``(...)`` index of the chosen candidate; mode: ``cost.FREE`` ... ``CONSTRAINED``,
+            or ``cost.INVALID`` when no candidate is finite.
         obstacles: the obstacles checked (read at the candidates' times, virtual stop box last).
         finite: ``(..., N)`` the candidate's trajectory, separations and features hold no
             NaN / inf (only those are chosen).
         ok: ``(...)`` the chosen trajectory is finite: False means the plan must not be used
             (for example a reference line with repeated points built inside jit).
+        feasible: ``(..., N)``; reasons: ``(..., N, R)`` why infeasible (``feasibility.REASONS``).
+        collided_margin: ``(..., N)`` overlap with the obstacles inflated by the buffers.
+        terminal_ok: ``(..., N)`` the end state can stop behind what is ahead (True when off).
+        impact: ``(..., N)`` relative speed at first contact (m/s; 0 without contact).
+        l_target: ``(...)`` the target lane's centre the lane decision took (m).
+        ignored: ``(..., K, T)`` obstacle steps left out (same-lane obstacles behind the car).
     """
 
     candidates: Any
@@ -52,12 +63,40 @@ class LatticeResult:
     obstacles: Any
     finite: Any
     ok: Any
+    feasible: Any = None
+    reasons: Any = None
+    collided_margin: Any = None
+    terminal_ok: Any = None
+    impact: Any = None
+    l_target: Any = None
+    ignored: Any = None
 
     def chosen_trajectory(self):
         """The chosen ``Trajectory`` ``(..., T)``."""
         i = self.chosen[..., None, None]
         return jax.tree_util.tree_map(lambda f: jnp.take_along_axis(f, i, axis=-2)[..., 0, :],
                                       self.candidates.traj)
+
+    def rejected(self) -> dict:
+        """Host side: how many available candidates the feasibility filter rejected, and why
+        (one candidate may fail several checks), summed over any batch dims."""
+        from jaxplan.lattice.feasibility import REASONS
+
+        avail = np.asarray(self.candidates.available)
+        r = np.asarray(self.reasons) & avail[..., None]
+        out = {"rejected": int(np.sum(~np.asarray(self.feasible) & avail)), "available": int(avail.sum())}
+        out.update({k: int(r[..., i].sum()) for i, k in enumerate(REASONS)})
+        return out
+
+
+def _stop_distance(config, s_car, d_crossroad, stop_s, leader_rear, stopped, front):
+    """Distance from the car's reference point to its stop point (inf: none): ``stop_gap`` before
+    the stopped obstacle's inflated box (so that the stopped end state passes the terminal
+    condition with ``terminal_gap <= stop_gap``)."""
+    d = jnp.where(stopped, leader_rear[0] - config.stop_gap - config.buffer_lon, jnp.inf)
+    d_c = jnp.asarray(d_crossroad, s_car.dtype)
+    d = jnp.minimum(d, jnp.where(d_c < config.d_threshold, d_c + config.d_margin - front - 0.5, jnp.inf))
+    return jnp.minimum(d, jnp.asarray(stop_s, s_car.dtype) - s_car - front)
 
 
 def _finite(cand: Candidates, sep, feats):
@@ -68,35 +107,144 @@ def _finite(cand: Candidates, sep, feats):
 
 
 def _plan(state: PlanState, ref: ReferenceLine, obstacles: Obstacles, config: LatticeConfig,
-          weights: CostWeights) -> LatticeResult:
-    cand: Candidates = generate(state, ref, config)
-    obs = align_obstacles(obstacles, cand.traj.t[0])
-    obs = with_stop_target(obs, ref, cand.s[0, 0], state.d_crossroad, config)
-    center, half = car_parts(jnp.stack([cand.traj.x, cand.traj.y], -1), cand.axis, config.vehicle)
-    if config.near_budget > 0:
-        E, V, Ln, O = config.grid
-        G, K = E * V, obs.boxes.shape[-3]
-        budget = max(1, int(np.ceil(config.near_budget * G * K * config.n_steps)))
-        sep = min_separation_broad(center, cand.axis, half, obs, Ln * O, budget, config.broad_margin)
+          weights: CostWeights, targets: RoadTargets | None = None) -> LatticeResult:
+    f = ref.xy.dtype
+    if targets is None:
+        targets = RoadTargets.from_config(config, f)
+    veh = config.vehicle
+    T = config.n_steps
+    t = jnp.arange(T, dtype=f) * config.dt
+    obs = align_obstacles(obstacles, t)
+    sl = targets.obstacle_sl  # given: on the planner's grid (step k at k * dt), as road_context windows it
+    sl = obstacle_frenet(ref, obs) if sl is None else jnp.asarray(sl, f)[..., :T, :]
+    s_car, l_car = to_frenet(ref, jnp.stack([state.x, state.y]).astype(f))
+    front = jnp.asarray(veh.length - veh.rear_overhang if veh.reference == "rear_axle" else 0.5 * veh.length, f)
+    half_w = 0.5 * jnp.asarray(veh.width, f)
+    K = obs.boxes.shape[-3]
+    if K:
+        ext = extents(ref, obs.boxes, sl[..., 0])
+        v_along = speed_along(sl, obs.valid, config.dt)
+        _, rear, lead_v, found, stopped = lane_leader(s_car, l_car, half_w, front, sl, ext, obs.valid, v_along)
     else:
-        sep = min_separation_axes(center, cand.axis, half, obs)
-    risk = risk_from_separation(sep, cand.traj.t[0])
-    feats = cost_features(cand.l, cand.traj.kappa, cand.l_target, risk.ttc, cand.v_end, state.v_set, sep,
-                          cand.level, config.ttc_min, config.sep_eps)
+        ext = jnp.zeros(sl.shape, f)
+        v_along = jnp.zeros(sl.shape[:-1], f)
+        rear, lead_v, found, stopped = jnp.zeros_like(t), jnp.zeros_like(t), jnp.asarray(False), jnp.asarray(False)
+    d_stop = _stop_distance(config, s_car, state.d_crossroad, targets.stop_s, rear, stopped, front)
+    cand: Candidates = generate(state, ref, config, targets, (rear, lead_v, found), d_stop)
+    # same-lane obstacles behind the car do not count while they stay in its corridor (unless they overlap it)
+    if config.ignore_behind and K:
+        rear_car = s_car + jnp.asarray(veh.center_offset - 0.5 * veh.length, f)
+        corridor = jnp.abs(sl[..., 1] - l_car) < ext[..., 1] + half_w  # (K, T)
+        behind0 = (sl[:, 0, 0] + ext[:, 0, 0] < rear_car) & corridor[:, 0]
+        ignored = behind0[:, None] & corridor & obs.valid
+    else:
+        ignored = jnp.zeros(obs.valid.shape, bool)
+    obs = Obstacles(obs.boxes, obs.valid & ~ignored, obs.t, obs.static)
+    obs = with_stop_target(obs, ref, cand.s[0, 0], state.d_crossroad, config)
+    center, half = car_parts(jnp.stack([cand.traj.x, cand.traj.y], -1), cand.axis, veh)
+    G, P = config.n_profiles, config.n_lateral
+    buf = (config.buffer_lon, config.buffer_lat)
+    if config.near_k > 0 and obs.boxes.shape[-3] > 2 * config.near_k:  # (with few obstacles the dense test is faster)
+        Lw, O, Lt = config.lateral_grid
+        lane_ok = cand.available.reshape(G * Lw, O * Lt).any(-1)
+        sep, sep_m = min_separation_topk(center, cand.axis, half, obs, O * Lt, config.near_k, buf, lane_ok)
+    else:
+        if config.near_budget > 0:
+            Kb = obs.boxes.shape[-3]
+            budget = max(1, int(np.ceil(config.near_budget * G * Kb * config.n_steps)))
+            check = lambda o: min_separation_broad(center, cand.axis, half, o, P, budget,
+                                                   config.broad_margin + max(buf))
+            sep = check(obs)
+            sep_m = check(inflate(obs, *buf)) if max(buf) > 0 else sep
+        elif max(buf) > 0:
+            sep, sep_m = min_separation_pair(center, cand.axis, half, obs, buf, P)
+        else:
+            sep = sep_m = min_separation_axes(center, cand.axis, half, obs)
+    risk = risk_from_separation(sep, t)
+    collided_m = jnp.any(sep_m < 0, axis=-1)
+    feasible, reasons = feasibility(cand.traj, cand.level, config)
+    first_t, impact = first_contact(sep, t, center, cand.axis, cand.traj.v, obs, half, config.dt)
+    if config.terminal and K:
+        terminal_ok = _terminal(ref, cand, obs, sl, ext, v_along, front, half_w, config)
+    else:
+        terminal_ok = jnp.ones(risk.collided.shape, bool)
+    base = cost_features(cand.l, cand.traj.kappa, cand.l_target, risk.ttc, cand.v_end, state.v_set, sep,
+                         cand.level, config.ttc_min, config.sep_eps)
+    goal_err = goal_error(cand.s, cand.l, cand.traj.v, t, targets.goal_s, targets.goal_l, targets.goal_t,
+                          targets.goal_v, jnp.asarray(veh.center_offset, f), config.goal_weight_time)
+    feats = road_features(base, cand.traj, config.dt, sep, state.v_set, goal_err, feasible, terminal_ok,
+                          risk.collided)
     finite = _finite(cand, sep, feats)
-    collided = risk.collided | ~finite
-    idx, mode, sel = select(weights, feats, collided, cand.level, valid=finite)
-    ok = jnp.take(finite, idx)
-    return LatticeResult(cand, feats, costs(weights, feats), sel, collided, risk.first_t, risk.ttc,
-                         sep, idx, mode, obs, finite, ok)
+    avail = cand.available & finite  # a candidate with a NaN / inf is never chosen
+    use = usable(feasible, reasons, cand.traj, cand.level, avail, config)  # feasible, else the least infeasible
+    pool = avail & use
+    ok = pool & ~collided_m & terminal_ok
+    l_target = _lane_decision(cand, targets, ok, l_car, config)
+    d_lrp = jnp.mean(jnp.abs(cand.l - l_target), axis=-1)
+    feats = feats.at[:, 0].set(d_lrp)
+    n_comfort = len(config.escalation)
+    risk_cost = weights.gamma * feats[:, 2]
+    idx, mode, sel = choose(weights, feats, cand.level, avail, use, ~collided_m, ~risk.collided, terminal_ok,
+                            impact, first_t, risk_cost, n_comfort, config.all_collide)
+    mode = jnp.where(jnp.any(avail), mode, INVALID)
+    ok_plan = jnp.take(finite, idx)
+    return LatticeResult(cand, feats, costs(weights, feats), sel, risk.collided | ~finite, risk.first_t, risk.ttc,
+                         sep, idx, mode, obs, finite, ok_plan, feasible, reasons, collided_m, terminal_ok, impact,
+                         l_target, ignored)
+
+
+def _terminal(ref, cand, obs, sl, ext, v_along, front, half_w, config):
+    """``(N,)``: the end state can stop behind every obstacle ahead in its corridor (module ``cost``)."""
+    K = sl.shape[0]
+    s_e, l_e, v_e = cand.s[:, -1], cand.l[:, -1], cand.traj.v[:, -1]
+    valid = obs.valid[:K, -1]
+    so, lo, es, el = sl[:, -1, 0], sl[:, -1, 1], ext[:, -1, 0], ext[:, -1, 1]
+    vo = jnp.maximum(v_along[:, -1], 0.0)
+    # the virtual stop box (last obstacle) counts too, where it is active
+    box = obs.boxes[-1, -1]
+    s_box, l_box = to_frenet(ref, box[:2])
+    so = jnp.concatenate([so, s_box[None]])
+    lo = jnp.concatenate([lo, l_box[None]])
+    es = jnp.concatenate([es, 0.5 * box[2][None]])
+    el = jnp.concatenate([el, 0.5 * box[3][None]])
+    vo = jnp.concatenate([vo, jnp.zeros((1,), vo.dtype)])
+    valid = jnp.concatenate([valid, obs.valid[-1:, -1]])
+    rel = valid[None] & (jnp.abs(lo[None] - l_e[:, None]) < el[None] + half_w + config.buffer_lat) \
+        & (so[None] > s_e[:, None])
+    gap = so[None] - es[None] - (s_e[:, None] + front) - config.buffer_lon
+    need = jnp.maximum(v_e[:, None] ** 2 - vo[None] ** 2, 0.0) / (2 * config.terminal_decel) + config.terminal_gap
+    return jnp.all(~rel | (gap >= need), axis=-1)
+
+
+def _lane_decision(cand, targets, ok, l_car, config):
+    """The target lane's centre ``()``: the route lane unless another lane lets the car get
+    further over the horizon (level-0 candidates that pass every check) by more than
+    ``lane_change_gain`` than the route lane and the car's current lane (each keeps that bonus)."""
+    Ln = targets.lane_centres.shape[0]
+    prog = cand.s_rel[:, -1]
+    slot = cand.lane_slot
+    good = ok & (cand.level == 0) & (slot < Ln)
+    best = jnp.max(jnp.where(good[None] & (slot[None] == jnp.arange(Ln)[:, None]), prog[None], -jnp.inf), axis=-1)
+    centres = targets.lane_centres.astype(prog.dtype)
+    current = jnp.argmin(jnp.where(targets.lane_ok, jnp.abs(centres - l_car), jnp.inf))
+    route = targets.route_lane
+    lanes = jnp.arange(Ln)
+    score = best + config.lane_change_gain * ((lanes == route).astype(prog.dtype) + (lanes == current))
+    score = jnp.where(targets.lane_ok, score, -jnp.inf)
+    # ties go to the route lane
+    score = score + 1e-3 * (lanes == route)
+    j = jnp.argmax(score)
+    return jnp.where(jnp.isfinite(score[j]), centres[j], centres[route])
 
 
 _plan_jit = jax.jit(_plan, static_argnames=("config",))
 
 
 @functools.partial(jax.jit, static_argnames=("config",))
-def _plan_batch_jit(state, reference_line, obstacles, config, weights):
-    return jax.vmap(lambda s, r, o: _plan(s, r, o, config, weights))(state, reference_line, obstacles)
+def _plan_batch_jit(state, reference_line, obstacles, config, weights, targets=None):
+    if targets is None:
+        return jax.vmap(lambda s, r, o: _plan(s, r, o, config, weights))(state, reference_line, obstacles)
+    return jax.vmap(lambda s, r, o, g: _plan(s, r, o, config, weights, g))(state, reference_line, obstacles, targets)
 
 
 def _check_shapes(where: str, state: PlanState, ref: ReferenceLine, obstacles: Obstacles, batch: int):
@@ -123,7 +271,8 @@ def _validate(state, reference_line, obstacles, config, weights):
 
 
 def plan(state: PlanState, reference_line: ReferenceLine, obstacles: Obstacles,
-         config: LatticeConfig = LatticeConfig(), weights: CostWeights | None = None) -> LatticeResult:
+         config: LatticeConfig = LatticeConfig(), weights: CostWeights | None = None,
+         targets: RoadTargets | None = None) -> LatticeResult:
     """Plan once: every candidate of the lattice, its risk and cost, and the choice.
 
     Host-side checks run on concrete inputs (under jit they are skipped; then check
@@ -138,6 +287,8 @@ def plan(state: PlanState, reference_line: ReferenceLine, obstacles: Obstacles,
             ``K = 0`` means nothing in the way.
         config: static settings (hashable).
         weights: ``CostWeights`` (default weights if None).
+        targets: ``RoadTargets`` (lanes, stop point, goal, the obstacles' Frenet coordinates);
+            None: the seed's lanes from ``config`` and nothing else.
 
     Returns:
         ``LatticeResult``.
@@ -145,13 +296,15 @@ def plan(state: PlanState, reference_line: ReferenceLine, obstacles: Obstacles,
     weights = CostWeights() if weights is None else weights
     _check_shapes("plan", state, reference_line, obstacles, 0)
     _validate(state, reference_line, obstacles, config, weights)
-    return _plan_jit(state, reference_line, obstacles, config, weights)
+    return _plan_jit(state, reference_line, obstacles, config, weights, targets)
 
 
 def plan_batch(state: PlanState, reference_line: ReferenceLine, obstacles: Obstacles,
-               config: LatticeConfig = LatticeConfig(), weights: CostWeights | None = None) -> LatticeResult:
+               config: LatticeConfig = LatticeConfig(), weights: CostWeights | None = None,
+               targets: RoadTargets | None = None) -> LatticeResult:
     """``plan`` over a leading batch dimension ``B`` of the state, the reference line and the
-    obstacles (``config`` and ``weights`` are shared; default weights if None)."""
+    obstacles (and of ``targets`` when given; ``config`` and ``weights`` are shared; default
+    weights if None)."""
     weights = CostWeights() if weights is None else weights
     _check_shapes("plan_batch", state, reference_line, obstacles, 1)
     sizes = {"state": jnp.shape(state.x)[0], "reference line": jnp.shape(reference_line.xy)[0],
@@ -162,4 +315,4 @@ def plan_batch(state: PlanState, reference_line: ReferenceLine, obstacles: Obsta
     state = jax.tree_util.tree_map(lambda f: jnp.broadcast_to(f, (sizes["state"],) + jnp.shape(f)[1:])
                                    if jnp.ndim(f) == 0 else f, state)
     _validate(state, reference_line, obstacles, config, weights)
-    return _plan_batch_jit(state, reference_line, obstacles, config, weights)
+    return _plan_batch_jit(state, reference_line, obstacles, config, weights, targets)

@@ -1,8 +1,19 @@
 """``lattice``: the quintic candidate lattice as a road ``Planner`` (``jaxplan.planner``).
 
 Each cycle it reads the ``RoadContext`` (predictions from this step, the set speed from
-the speed limits ahead), plans on the route's reference line and returns the chosen
-candidate. ``ok`` is False when every candidate collides (mode RISK) or the plan is not finite.
+the speed limits ahead, the lanes beside the route, the goal) and plans on the route's
+reference line with ``LatticeConfig.road()``: cruising, following, stopping (before a
+stopped obstacle or the end of the mapped route) and goal-reaching profiles over several
+end times, an emergency and a fallback level, every lane the scene has on either side at
+three lateral times, the feasibility filter, safety buffers and the terminal condition
+(``jaxplan.lattice.plan``).
+
+The set speed is the speed limit, bent towards the goal's timing: no faster than reaching
+the far end of the goal region when its time window opens, no slower than reaching its
+near end when the window closes (at most ``GOAL_SPEEDUP`` times the limit).
+
+``ok`` is False when every candidate collides (mode RISK) or the plan is not finite (INVALID);
+``info`` has the mode, the candidates the feasibility filter rejected and the target lane.
 """
 from __future__ import annotations
 
@@ -12,37 +23,91 @@ import jax.numpy as jnp
 
 from jaxplan.baselines.brake import SIM_VEHICLE
 from jaxplan.lattice.candidates import LatticeConfig, PlanState
-from jaxplan.lattice.cost import RISK, CostWeights
-from jaxplan.lattice.plan import _plan
-from jaxplan.plan_context import road_context
+from jaxplan.lattice.cost import INVALID, RISK, CostWeights
+from jaxplan.lattice.plan import LatticeResult, _plan
+from jaxplan.lattice.targets import RoadTargets
+from jaxplan.plan_context import road_context, route_sample
 from jaxplan.planner import EgoState, PlanOutput
 from jaxplan.types import VehicleParams
+
+GOAL_SPEEDUP = 1.2
+
+
+def goal_speed(v_set, s_centre, goal_s, goal_t):
+    """The set speed ``()`` bent towards the goal's timing (see the module docstring).
+
+    Args:
+        v_set: ``()`` the speed limit ahead; s_centre: ``()`` the car's box centre on the route.
+        goal_s: ``(2,)`` the goal region on the route; goal_t: ``(2,)`` its time window from now.
+    """
+    has = jnp.all(jnp.isfinite(goal_s))
+    d_far = jnp.where(has, goal_s[1] - s_centre, jnp.inf)
+    d_near = jnp.where(has, goal_s[0] - s_centre, 0.0)
+    v_hi = jnp.where(goal_t[0] > 0.1, jnp.maximum(d_far, 0.0) / jnp.maximum(goal_t[0], 0.1), jnp.inf)
+    v_lo = jnp.where(jnp.isfinite(goal_t[1]) & (goal_t[1] > 0.1), jnp.maximum(d_near, 0.0) / jnp.maximum(goal_t[1], 0.1),
+                     0.0)
+    v = jnp.maximum(jnp.minimum(v_set, v_hi), jnp.minimum(v_lo, GOAL_SPEEDUP * v_set))
+    return jnp.where(has, v, v_set)
+
+
+LANE_LOOKAHEAD = 2.5  # s: the lanes are read this far ahead (15-60 m)
 
 
 @dataclasses.dataclass(frozen=True)
 class LatticePlanner:
     """The lattice planner (static config; ``weights``: ``CostWeights`` values as a hashable tuple of
-    ``(name, value)`` pairs, e.g. from ``jaxplan tune``; unnamed fields keep their defaults)."""
+    ``(name, value)`` pairs, e.g. from ``jaxplan tune``; unnamed fields keep their defaults;
+    ``options`` as a tuple of ``(LatticeConfig field, value)`` pairs overriding ``LatticeConfig.road()``)."""
 
     vehicle: VehicleParams = SIM_VEHICLE
     dt: float = 0.1
     horizon: float = 5.0
     weights: tuple | None = None
+    options: tuple = ()
 
     @property
     def config(self) -> LatticeConfig:
-        return LatticeConfig(horizon=self.horizon, dt=self.dt, vehicle=self.vehicle)
+        return LatticeConfig.road(horizon=self.horizon, dt=self.dt, vehicle=self.vehicle, **dict(self.options))
 
     @property
     def horizon_steps(self) -> int:
         return self.config.n_steps
 
-    def plan(self, scene, ego: EgoState, step) -> PlanOutput:
-        cfg = self.config
+    def scene_config(self, n_lanes: int) -> LatticeConfig:
+        """The config for a scene with ``n_lanes`` lanes (``Scene.n_lanes``): ``min(n_lanes,
+        max_lanes)`` lateral lanes about the car's."""
+        m = min(n_lanes, self.config.max_lanes)
+        return dataclasses.replace(self.config, lanes=tuple(range(-(m // 2), m - m // 2)), target_lane=0)
+
+    def plan_result(self, scene, ego: EgoState, step) -> LatticeResult:
+        """The whole ``LatticeResult`` of one plan (every candidate, why each was rejected, the
+        choice): what ``plan`` returns the chosen trajectory of; for plots and diagnostics."""
+        cfg = self.scene_config(scene.lane_offset.shape[-2])
         ctx = road_context(scene, ego, step, cfg.n_steps, self.vehicle)
-        state = PlanState(ego.x, ego.y, ego.heading, ego.kappa, ego.v, ego.a, ctx.v_set, jnp.inf)
+        f = scene.route.xy.dtype
+        s_centre = ctx.s + jnp.asarray(self.vehicle.center_offset, f)
+        v_set = goal_speed(ctx.v_set, s_centre, ctx.goal_s, ctx.goal_t)
+        state = PlanState(ego.x, ego.y, ego.heading, ego.kappa, ego.v, ego.a, v_set, jnp.inf)
+        # the max_lanes lanes about the car's current one (every lane on a road up to that wide), read
+        # LANE_LOOKAHEAD s ahead, where the lateral manoeuvres end: where the route blends into another
+        # lane, the lane the car is in is then still a target (the offsets at the car would not offer it)
+        s_ahead = ctx.s + jnp.clip(ego.v * LANE_LOOKAHEAD, 15.0, 60.0)
+        lane_offset = route_sample(scene, scene.lane_offset, s_ahead)
+        lane_ok = (route_sample(scene, scene.lane_valid.astype(f), s_ahead) > 0.5) \
+            & (route_sample(scene, scene.lane_same_dir.astype(f), s_ahead) > 0.5)
+        L, M = lane_offset.shape[-1], len(cfg.lanes)
+        cur = jnp.argmin(jnp.where(lane_ok, jnp.abs(lane_offset - ctx.l), jnp.inf))
+        start = jnp.clip(cur - M // 2, 0, L - M)
+        idx = start + jnp.arange(M)
+        targets = RoadTargets(lane_offset[idx], lane_ok[idx], jnp.clip(scene.own_lane - start, 0, M - 1),
+                              ctx.route_end_s, ctx.goal_s, ctx.goal_l, ctx.goal_t, ctx.goal_v,
+                              jnp.stack([ctx.obstacle_s, ctx.obstacle_l], -1))
         w = CostWeights() if self.weights is None else CostWeights(**dict(self.weights))
-        res = _plan(state, scene.route, ctx.obstacles, cfg, w)
+        return _plan(state, scene.route, ctx.obstacles, cfg, w, targets)
+
+    def plan(self, scene, ego: EgoState, step) -> PlanOutput:
+        res = self.plan_result(scene, ego, step)
         traj = res.chosen_trajectory()
-        finite = jnp.all(jnp.isfinite(traj.x)) & jnp.all(jnp.isfinite(traj.y))
-        return PlanOutput(traj, (res.mode != RISK) & finite, {"mode": res.mode})
+        rejected = jnp.sum(res.candidates.available & ~res.feasible)
+        return PlanOutput(traj, (res.mode != RISK) & (res.mode != INVALID) & res.ok,
+                          {"mode": res.mode, "rejected": rejected, "l_target": res.l_target})
