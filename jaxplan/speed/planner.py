@@ -1,0 +1,219 @@
+"""``pathspeed``: the decoupled path-speed planner as a road ``Planner`` (``jaxplan.planner``).
+
+Each cycle (one scene, jittable; the simulator batches it with ``jax.vmap``):
+
+1. the ``RoadContext`` (predictions from this step, the lane speed limits, the goal);
+2. the **path** (``plan_path``): a ``PathPlan`` along the route from the car; with the path
+   half of ``jaxplan.bounds`` (path decision, bounds, QP) when it is there, else the
+   route's centre line joined from the car's pose by a quintic in the lateral offset
+   (``route_path``);
+3. the **speed**: the ST boundaries of the predictions on that path (blocking,
+   non-blocking with decisions, a wall before the path's blockage and the end of the
+   map), the DP over the reachable band (``dp.py``) with the lane speed limit, the
+   curvature limit, the time-headway follow distance and the goal's window, then the
+   smoothing QP (``smooth.py``) for the executed profile;
+4. the **composed trajectory**: the profile along the path, ``horizon_steps`` points every
+   ``dt`` from the car.
+
+``ok`` is False when the DP found no collision-free profile, the QP needed slack (it could
+not keep the DP's corridor within the acceleration limits) or did not converge, or the
+plan is not finite. ``nonblocking=False`` drops the non-blocking boundaries' costs (the
+seed-001 comparison).
+"""
+from __future__ import annotations
+
+import dataclasses
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+
+from jaxplan.baselines.brake import SIM_VEHICLE
+from jaxplan.geometry.frenet import ReferenceLine, frenet_to_cartesian_state, ref_state, to_frenet, wrap_angle
+from jaxplan.plan_context import RoadContext, road_context, route_sample
+from jaxplan.planner import EgoState, PlanOutput
+from jaxplan.speed.compose import compose_profile
+from jaxplan.speed.dp import CostWeights, SpeedConfig, SpeedRoad, _plan_one
+from jaxplan.speed.smooth import SmoothWeights, smooth_plan
+from jaxplan.types import Obstacles, VehicleParams, _pytree
+
+
+@_pytree(data_fields=("s", "xy", "theta", "kappa", "l", "valid", "blocked_s", "ok"))
+class RoutePath:
+    """A path from the car (the fields of ``jaxplan.bounds``' ``PathPlan`` that the speed
+    planner reads): ``s (N,)`` distance along the path from the car (negative behind it),
+    ``xy (N, 2)``, ``theta (N,)`` unwrapped, ``kappa (N,)``, ``l (N,)`` offset from the route,
+    ``valid (N,)``, ``blocked_s ()`` (inf: nothing blocks it), ``ok ()``."""
+
+    s: Any
+    xy: Any
+    theta: Any
+    kappa: Any
+    l: Any
+    valid: Any
+    blocked_s: Any
+    ok: Any
+
+
+def _quintic(p0, p1, length, u):
+    """Quintic ``l(u)`` (and dl/du, d2l/du2) from ``p0 = (l, dl, ddl)`` at 0 to ``p1`` at
+    ``length``, held at ``p1``'s ``l`` beyond; ``u (N,)``."""
+    l0, d0, dd0 = p0
+    T = length
+    a0, a1, a2 = l0, d0, 0.5 * dd0
+    h = p1 - a0 - a1 * T - a2 * T * T
+    a3 = (10 * h + T * (-6 * d0 - 1.5 * dd0 * T)) / T ** 3
+    a4 = (-15 * h + T * (8 * d0 + 1.5 * dd0 * T)) / T ** 4
+    a5 = (6 * h + T * (-3 * d0 - 0.5 * dd0 * T)) / T ** 5
+    x = jnp.clip(u, 0.0, T)
+    l = a0 + x * (a1 + x * (a2 + x * (a3 + x * (a4 + x * a5))))
+    dl = a1 + x * (2 * a2 + x * (3 * a3 + x * (4 * a4 + x * 5 * a5)))
+    ddl = 2 * a2 + x * (6 * a3 + x * (12 * a4 + x * 20 * a5))
+    beyond = u > T
+    behind = u < 0
+    l = jnp.where(behind, l0 + d0 * u, jnp.where(beyond, p1, l))
+    dl = jnp.where(behind, d0, jnp.where(beyond, 0.0, dl))
+    ddl = jnp.where(behind | beyond, 0.0, ddl)
+    return l, dl, ddl
+
+
+def route_path(scene, ctx: RoadContext, ego: EgoState, n: int = 96, back: float = 20.0, ahead: float = 240.0,
+               target_l=0.0) -> RoutePath:
+    """The route's centre line (offset ``target_l``) joined from the car's pose: ``l(s)`` a
+    quintic in the route station from the car's offset, heading and curvature to
+    ``target_l`` over ``clip(10 + 2.5 v, 15, 60)`` m; ``n`` points from ``back`` metres behind
+    the car to ``ahead`` metres ahead of it (the stand-in for the bounds path)."""
+    ref = scene.route
+    f = ref.xy.dtype
+    nb = max(2, n // 12)
+    u = jnp.concatenate([jnp.linspace(-back, 0.0, nb, dtype=f)[:-1], jnp.linspace(0.0, ahead, n - nb + 1, dtype=f)])
+    sr = ctx.s + u
+    _, th0, k0, dk0 = ref_state(ref, ctx.s)
+    one = 1.0 - k0 * ctx.l
+    dth = wrap_angle(ego.heading - th0)
+    dl0 = one * jnp.tan(jnp.clip(dth, -1.2, 1.2))
+    cos_d = jnp.cos(dth)
+    ddl0 = (ego.kappa * one / cos_d - k0) * one / cos_d ** 2 - (dk0 * ctx.l + k0 * dl0) * jnp.tan(dth)
+    ddl0 = jnp.clip(ddl0, -0.5, 0.5)
+    length = jnp.clip(10.0 + 2.5 * ego.v, 15.0, 60.0)
+    l, dl, ddl = _quintic((ctx.l, dl0, ddl0), jnp.asarray(target_l, f), length, u)
+    xy, _, kappa = frenet_to_cartesian_state(ref, sr, l, dl, ddl)
+    _, th_r, kr, _ = ref_state(ref, sr)
+    theta = th_r + jnp.arctan2(dl, 1.0 - kr * l)
+    ones = jnp.ones_like(u, dtype=bool)
+    return RoutePath(u, xy, theta, kappa, l, ones, jnp.asarray(jnp.inf, f), jnp.asarray(True))
+
+
+def path_reference(path) -> tuple[ReferenceLine, Any]:
+    """The path as a ``ReferenceLine`` (chord arc lengths, the path's own heading and
+    curvature) and the car's station on it."""
+    xy = path.xy
+    seg = jnp.linalg.norm(jnp.diff(xy, axis=0), axis=-1)
+    s = jnp.concatenate([jnp.zeros((1,), xy.dtype), jnp.cumsum(jnp.maximum(seg, 1e-6))])
+    ref = ReferenceLine(xy, s, path.theta, path.kappa)
+    return ref, jnp.interp(jnp.zeros((), xy.dtype), path.s, s)
+
+
+def speed_road(scene, ctx: RoadContext, path, v_max: float) -> SpeedRoad:
+    """What the road asks of the speed on ``path``: the lane speed limit at each path point,
+    a stop before the path's blockage and the end of the mapped road, the goal's stations
+    (box centre, along the route), time window and speeds."""
+    f = path.xy.dtype
+    sr = ctx.s + path.s  # route stations of the path points (the path runs along the route)
+    lim = route_sample(scene, scene.speed_limit, sr)
+    end = ctx.route_end_s - ctx.s
+    stop = jnp.minimum(path.blocked_s, jnp.where(jnp.isfinite(end), end, jnp.inf))
+    goal_s = ctx.goal_s - ctx.s
+    return SpeedRoad(path.s, jnp.minimum(lim, v_max), stop, goal_s.astype(f), ctx.goal_t.astype(f),
+                     ctx.goal_v.astype(f))
+
+
+def cruise_speed(ctx: RoadContext, vehicle: VehicleParams, horizon: float):
+    """The cruise speed: the set speed from the limits ahead, lowered so as not to pass the
+    goal region before its time window opens, raised (up to the set speed) to reach it
+    before the window closes."""
+    f = ctx.v_set.dtype
+    centre = jnp.asarray(vehicle.center_offset, f)
+    d_near = ctx.goal_s[0] - (ctx.s + centre)
+    d_far = ctx.goal_s[1] - (ctx.s + centre)
+    t0, t1 = ctx.goal_t[0], ctx.goal_t[1]
+    d_mid = 0.5 * (d_near + d_far)
+    cap = jnp.where((t0 > 0.5) & jnp.isfinite(d_mid) & (d_mid > 0), d_mid / jnp.maximum(t0, 0.5), jnp.inf)
+    floor = jnp.where(jnp.isfinite(t1) & (t1 > 0.1) & jnp.isfinite(d_near) & (d_near > 0),
+                      d_near / jnp.maximum(t1, 0.1), 0.0)
+    v = jnp.minimum(ctx.v_set, jnp.maximum(cap, floor))
+    return jnp.maximum(v, 0.0)
+
+
+@dataclasses.dataclass(frozen=True)
+class PathSpeedPlanner:
+    """The path-speed planner (static config; see the module docstring).
+
+    Attributes:
+        vehicle, dt, horizon: the car, the trajectory's step and length (s).
+        nonblocking: plan with the non-blocking boundaries (no-bypass, blind zone, keep clear).
+        speed: the DP's grid and limits (its horizon must equal ``horizon``, its ``qp_dt`` ``dt``).
+        weights: ``CostWeights`` field values as a tuple (``v_cruise`` is set each cycle), or None.
+        smooth: the smoothing QP's weights.
+        path_points: points of the route path.
+    """
+
+    vehicle: VehicleParams = SIM_VEHICLE
+    dt: float = 0.1
+    horizon: float = 7.0
+    nonblocking: bool = True
+    speed: SpeedConfig = SpeedConfig()
+    weights: tuple | None = None
+    smooth: SmoothWeights = SmoothWeights()
+    path_points: int = 96
+
+    def __post_init__(self):
+        self.speed.validate()
+        if abs(self.speed.horizon - self.horizon) > 1e-9 or abs(self.speed.qp_dt - self.dt) > 1e-9:
+            raise ValueError(f"PathSpeedPlanner: speed.horizon ({self.speed.horizon}) and speed.qp_dt "
+                             f"({self.speed.qp_dt}) must equal horizon ({self.horizon}) and dt ({self.dt})")
+        if self.weights is not None and len(self.weights) != len(dataclasses.fields(CostWeights)):
+            raise ValueError(f"PathSpeedPlanner.weights: expected {len(dataclasses.fields(CostWeights))} values "
+                             f"(CostWeights fields), got {len(self.weights)}")
+
+    @property
+    def horizon_steps(self) -> int:
+        return int(round(self.horizon / self.dt)) + 1
+
+    def cost_weights(self, v_cruise) -> CostWeights:
+        f = jnp.result_type(v_cruise)
+        w = CostWeights() if self.weights is None else CostWeights(*self.weights)
+        w = jax.tree_util.tree_map(lambda x: jnp.asarray(x, f), w)
+        w = dataclasses.replace(w, v_cruise=v_cruise)
+        if not self.nonblocking:
+            z = jnp.zeros((), f)
+            w = dataclasses.replace(w, w_no_bypass=z, w_blind=z, w_keep_clear=z)
+        return w
+
+    def plan_path(self, scene, ctx: RoadContext, ego: EgoState):
+        """The path of this cycle (the one function to swap for the bounds path)."""
+        ahead = self.speed.v_max * self.horizon + 30.0
+        return route_path(scene, ctx, ego, self.path_points, 20.0, ahead)
+
+    def plan(self, scene, ego: EgoState, step) -> PlanOutput:
+        H = self.horizon_steps
+        ctx = road_context(scene, ego, step, H, self.vehicle)
+        f = scene.route.xy.dtype
+        path = self.plan_path(scene, ctx, ego)
+        ref, s0 = path_reference(path)
+        road = speed_road(scene, ctx, path, self.speed.v_max)
+        v0 = jnp.maximum(jnp.asarray(ego.v, f), 0.0)
+        a0 = jnp.asarray(ego.a, f)
+        w = self.cost_weights(cruise_speed(ctx, self.vehicle, self.horizon).astype(f))
+        obs = ctx.obstacles
+        obs = Obstacles(obs.boxes, obs.valid, obs.t - obs.t[0], obs.static)
+        plan = _plan_one(ref, obs, v0, a0, s0, None, road, self.vehicle, self.speed, w)
+        prof = smooth_plan(plan, v0, a0, self.speed, self.smooth)
+        traj = compose_profile(ref, s0, prof)
+        finite = jnp.all(jnp.isfinite(traj.x)) & jnp.all(jnp.isfinite(traj.y)) & jnp.all(jnp.isfinite(traj.v))
+        cl = plan.scene.classified
+        ok = plan.feasible & prof.ok & (prof.slack < 0.05) & finite & path.ok
+        info = {"dp_feasible": plan.feasible, "qp_ok": prof.ok, "qp_slack": prof.slack, "qp_r_prim": prof.r_prim, "qp_r_dual": prof.r_dual, "v_cruise": w.v_cruise,
+                "blocking": cl.is_blocking, "behind": cl.behind, "no_bypass": cl.no_bypass,
+                "blind_zone": cl.blind_zone}
+        return PlanOutput(traj, ok, info)
