@@ -20,9 +20,10 @@ with accelerations in ``[a_min, a_max]`` are states: a band of static width
 **Costs** (per-second terms times their duration), on tables built once per plan:
 
 * per sub-step (``n_sub`` per segment, the car at its exact position, rounded to the
-  station grid), from a table over (check time, station) built from the ST boundaries in
-  ``O(F (X + K))`` with scatters and cumulative min / max / sums: ``big`` inside a
-  blocking boundary (``ds / 2`` margin); ``w_block relu(d_follow - gap)^2`` behind the
+  station grid), from a table over (check time, station) built once from the ST
+  boundaries (a scan over the obstacles of elementwise table updates): ``big (1 + v / 10
+  m/s)`` for every sub-step that enters a blocking boundary (``ds / 2`` margin; entering,
+  not staying inside: a collision the car cannot avoid is met at the lowest speed); ``w_block relu(d_follow - gap)^2`` behind the
   tightest one ahead, with the time-headway follow distance
   ``d_follow = follow_dist + follow_headway * v_obstacle``; ``w_block relu(overtake_dist
   - lead)^2`` ahead of one passed; non-blocking (times a size factor ``(area / 8 m^2) **
@@ -84,7 +85,7 @@ class SpeedConfig:
 
     dt: float = 1.0
     n_t: int = 7
-    ds: float = 0.5
+    ds: float = 1.0
     v_max: float = 30.0
     a_min: float = -5.0
     a_max: float = 2.0
@@ -364,7 +365,7 @@ def build_scene(profile: PathProfile, obstacles: Obstacles, vehicle: VehiclePara
     else:
         lo, hi, hit = keep_clear_intervals(profile, vehicle, *keep_clear)
         lo, hi = lo - s0, hi - s0
-    lane = jnp.interp(profile.s - s0, jnp.asarray(road.limit_s, dtype), jnp.asarray(road.limit_v, dtype))
+    lane = jnp.interp(profile.s - s0, jnp.asarray(road.limit_s, dtype), jnp.minimum(jnp.asarray(road.limit_v, dtype), 1e3))
     curve = jnp.sqrt(config.a_lat_max / jnp.maximum(jnp.abs(profile.kappa), 1e-6))
     v_limit = jnp.minimum(jnp.minimum(lane, curve), config.v_max)
     return SpeedScene(c, wall, lo, hi, hit, v_limit, jnp.asarray(road.goal_s, dtype), jnp.asarray(road.goal_t, dtype),
@@ -419,63 +420,75 @@ def unreach(config: SpeedConfig) -> float:
 
 
 def _scatter(n, idx, val, init, op):
-    """``(n,)`` array: ``init`` with ``val`` combined (op: add/min/max) at ``idx`` (``n`` = dropped)."""
-    a = jnp.full((n + 1,), init, val.dtype)
+    """``(n, ...)`` array: ``init`` with ``val (N, ...)`` combined (op: add/min/max) at
+    ``idx (N,)`` (indices ``>= n`` are dropped)."""
+    a = jnp.full((n + 1,) + val.shape[1:], init, val.dtype)
     a = getattr(a.at[jnp.clip(idx, 0, n)], op)(val)
     return a[:n]
 
 
-def _table_row(xs, x0, ds, lo, hi, hit, vob, slo, shit, nb, blind, mult, f_goal, scene, config, w):
-    """Per-second obstacle / goal cost ``(X,)`` and collision ``(X,)`` at one check time."""
+def _obstacle_tables(xs, x0, ds, scene: SpeedScene, config: SpeedConfig, w: CostWeights, mult):
+    """Per-second obstacle cost ``(F, X)`` and collision ``(F, X)`` at every check time and
+    table station: a scan over the obstacles (elementwise updates of the tables, which XLA
+    fuses; no reduction over the small obstacle axis).
+
+    Station ``u`` (index of ``xs``) collides with a blocking boundary when
+    ``lower - ds / 2 <= xs_u <= upper + ds / 2`` (sub-steps are rounded to the nearest
+    station); it is behind it below that range (follow line ``lower - d_follow``, the
+    tightest counts) and ahead of it above (lead line ``upper + overtake_dist``, the
+    farthest counts).
+    """
     X = xs.shape[0]
+    F = config.n_t * config.n_sub + 1
     dtype = xs.dtype
     big = jnp.asarray(BIG, dtype)
-    u_start = jnp.ceil((lo - x0) / ds - 0.5).astype(jnp.int32)
-    u_end = jnp.floor((hi - x0) / ds + 0.5).astype(jnp.int32)
-    drop = jnp.int32(X)
-    one = jnp.ones_like(lo)
-    cnt = _scatter(X + 1, jnp.where(hit, jnp.clip(u_start, 0, X), drop + 1), one, 0.0, "add")
-    cnt = cnt + _scatter(X + 1, jnp.where(hit, jnp.clip(u_end + 1, 0, X), drop + 1), -one, 0.0, "add")
-    collide = jnp.cumsum(cnt)[:X] > 0.5
-    # follow: the tightest follow line of the obstacles ahead (x_u < lower - ds / 2)
-    d_f = w.follow_dist + w.follow_headway * jnp.maximum(vob, 0.0)
-    i_f = jnp.minimum(u_start - 1, X - 1)
-    e = _scatter(X, jnp.where(hit & (i_f >= 0), i_f, drop), lo - d_f, big, "min")
-    e = jax.lax.cummin(e, reverse=True)
-    follow = jnp.maximum(xs - e, 0.0) ** 2
-    # overtake: the farthest lead line of the obstacles passed (x_u > upper + ds / 2)
-    i_o = jnp.maximum(u_end + 1, 0)
-    g = _scatter(X, jnp.where(hit & (i_o < X), i_o, drop), hi + w.overtake_dist, -big, "max")
-    g = jax.lax.cummax(g)
-    ahead = jnp.maximum(g - xs, 0.0) ** 2
-    rate = w.w_block * (follow + ahead)
-    # no bypass: sum of m relu(x + front - rear_k)^2, as cumulative polynomial coefficients
-    cpos = slo - scene.front
-    on = shit & nb
-    i_n = jnp.where(on, jnp.clip(jnp.floor((cpos - x0) / ds).astype(jnp.int32) + 1, 0, X), drop)
-    m = jnp.where(on, mult, 0.0)
-    p2 = jnp.cumsum(_scatter(X, i_n, m, 0.0, "add"))
-    p1 = jnp.cumsum(_scatter(X, i_n, -2.0 * m * cpos, 0.0, "add"))
-    p0 = jnp.cumsum(_scatter(X, i_n, m * cpos * cpos, 0.0, "add"))
-    nbp = jnp.maximum(p2 * xs * xs + p1 * xs + p0, 0.0)
-    # blind zone: footprint [x + rear, x + front] overlaps [rear_k - back, rear_k + front_zone]
-    on = shit & blind
-    b_s = jnp.ceil((slo - config.blind_back - scene.front - x0) / ds).astype(jnp.int32)
-    b_e = jnp.floor((slo + config.blind_front - scene.rear - x0) / ds).astype(jnp.int32)
-    mb = jnp.where(on, mult, 0.0)
-    zone = _scatter(X + 1, jnp.where(on, jnp.clip(b_s, 0, X), drop + 1), mb, 0.0, "add")
-    zone = zone + _scatter(X + 1, jnp.where(on, jnp.clip(b_e + 1, 0, X), drop + 1), -mb, 0.0, "add")
-    zone = jnp.maximum(jnp.cumsum(zone)[:X], 0.0)
-    rate = rate + w.w_no_bypass * nbp + w.w_blind * zone
-    # goal: the box centre between the goal's stations while inside its time window
+    uf = jnp.arange(X, dtype=dtype)
+    lo, hi, hit, vob = scene.blocking()  # (K + 1, F)
+
+    def block(carry, k):
+        col, e, g = carry
+        lo_k, hi_k, hit_k = lo[k][:, None], hi[k][:, None], hit[k][:, None]
+        y = (lo_k - x0) / ds - 0.5
+        z = (hi_k - x0) / ds + 0.5
+        col = col | (hit_k & (uf >= y) & (uf <= z))
+        d_f = w.follow_dist + w.follow_headway * jnp.maximum(vob[k][:, None], 0.0)
+        e = jnp.minimum(e, jnp.where(hit_k & (uf < y), lo_k - d_f, big))
+        g = jnp.maximum(g, jnp.where(hit_k & (uf > z), hi_k + w.overtake_dist, -big))
+        return (col, e, g), None
+
+    init = (jnp.zeros((F, X), bool), jnp.full((F, X), big, dtype), jnp.full((F, X), -big, dtype))
+    (collide, e, g), _ = jax.lax.scan(block, init, jnp.arange(lo.shape[0]))
+    cl = scene.classified
+    slo, shit = cl.side.lower, cl.side.hit  # (K, F)
+
+    def side(carry, k):
+        zone, nbp = carry
+        s_k = slo[k][:, None]
+        on_b = shit[k][:, None] & cl.blind_zone[k]
+        yb = (s_k - config.blind_back - scene.front - x0) / ds
+        zb = (s_k + config.blind_front - scene.rear - x0) / ds
+        zone = zone + jnp.where(on_b & (uf >= yb) & (uf <= zb), mult[k], 0.0)
+        on_n = shit[k][:, None] & cl.no_bypass[k]
+        cpos = s_k - scene.front
+        nbp = nbp + jnp.where(on_n, mult[k] * jnp.maximum(xs - cpos, 0.0) ** 2, 0.0)
+        return (zone, nbp), None
+
+    (zone, nbp), _ = jax.lax.scan(side, (jnp.zeros((F, X), dtype), jnp.zeros((F, X), dtype)), jnp.arange(slo.shape[0]))
+    rate = w.w_block * (jnp.maximum(xs - e, 0.0) ** 2 + jnp.maximum(g - xs, 0.0) ** 2)
+    return rate + w.w_no_bypass * nbp + w.w_blind * zone, collide
+
+
+def _goal_table(xs, f_goal, scene: SpeedScene, w: CostWeights):
+    """``(F, X)`` goal cost rate: the box centre's distance to the goal's stations (Huber) at
+    the check times ``f_goal (F,)`` of the window's last part."""
     cx = xs + 0.5 * (scene.front + scene.rear)
     gd = jnp.maximum(scene.goal_s[0] - cx, 0.0) + jnp.maximum(cx - scene.goal_s[1], 0.0)
     gd = jnp.where(jnp.isfinite(gd), gd, 0.0)
     hub = jnp.where(gd < GOAL_HUBER, gd * gd, GOAL_HUBER * (2.0 * gd - GOAL_HUBER))
-    rate = rate + jnp.where(f_goal, w.w_goal * hub, 0.0)
-    return rate, collide
+    return jnp.where(f_goal[:, None], w.w_goal * hub[None, :], 0.0)
 
 
+COLLISION_V = 10.0  # m/s: a collision's cost grows by big per this much impact speed
 GOAL_TAIL = 1.0  # s: the goal is asked for in the last second of its time window
 GOAL_HUBER = 2.0  # m: the goal's distance cost is quadratic up to this, then linear
 
@@ -502,9 +515,8 @@ def stage_costs(scene: SpeedScene, config: SpeedConfig, w: CostWeights, v0, a0) 
     lo, hi, hit, vob = scene.blocking()
     cl = scene.classified
     mult = (cl.size / 8.0) ** w.size_exp
-    row = lambda lo, hi, hit, vob, slo, shit, fg: _table_row(xs, x0, c.ds, lo, hi, hit, vob, slo, shit, cl.no_bypass,
-                                                             cl.blind_zone, mult, fg, scene, c, w)
-    rate, collide = jax.vmap(row, in_axes=(1, 1, 1, 1, 1, 1, 0))(lo, hi, hit, vob, cl.side.lower, cl.side.hit, f_goal)
+    rate, collide = _obstacle_tables(xs, x0, c.ds, scene, c, w, mult)
+    rate = rate + _goal_table(xs, f_goal, scene, w)
     moving = rate * h + jnp.where(collide, c.big, 0.0)  # (F, X)
     kc = jnp.any(scene.kc_hit & (xs[:, None] > scene.kc_lower - c.ds) & (xs[:, None] < scene.kc_upper + c.ds), -1)
     table = jnp.stack([moving, moving + w.w_keep_clear * h * kc])
@@ -524,11 +536,12 @@ def stage_costs(scene: SpeedScene, config: SpeedConfig, w: CostWeights, v0, a0) 
     accel = w.w_accel * (offs * c.da) ** 2 * c.dt
     # first segment: from (0, v0) to speed j with the exact acceleration (v_j - v0) / dt
     a1 = (vj - v0) / c.dt
-    tq = jnp.arange(1, ns + 1, dtype=dtype) * h
-    xq = v0 * tq[None] + 0.5 * a1[:, None] * tq[None] ** 2  # (V, ns)
+    tq = jnp.arange(0, ns + 1, dtype=dtype) * h
+    xq = v0 * tq[None] + 0.5 * a1[:, None] * tq[None] ** 2  # (V, ns + 1)
     uq = jnp.clip(jnp.round((xq - x0) / c.ds).astype(jnp.int32), 0, X - 1)
-    slow = ((v0 + a1[:, None] * tq[None]) < c.keep_clear_v).astype(jnp.int32)
-    obst1 = jnp.sum(table[slow, jnp.arange(1, ns + 1)[None], uq], -1)
+    vq = v0 + a1[:, None] * tq[None]
+    slow = (vq < c.keep_clear_v).astype(jnp.int32)
+    obst1 = segment_cost(table[slow, jnp.arange(0, ns + 1)[None], uq], vq, c.big)
     first = w.w_accel * a1 ** 2 * c.dt + w.w_jerk * ((a1 - a0) / c.dt) ** 2 * c.dt + obst1
     ok1 = (a1 >= c.a_min - 1e-4) & (a1 <= c.a_max + 1e-4)
     first = jnp.where(ok1, first, unreach(c))
@@ -545,13 +558,11 @@ def _terminal(xs, x0, vj, lo, hit, vob, kc, scene, c: SpeedConfig, w: CostWeight
     i_b = jnp.minimum(jnp.ceil((lo - x0) / c.ds - 0.5).astype(jnp.int32) - 1, X - 1)
     where = jnp.where(hit & (i_b >= 0), i_b, X)
     v2 = jnp.maximum(vob, 0.0) ** 2
-
-    def line(val):
-        return jax.lax.cummin(_scatter(X, where, val, big, "min"), reverse=True)  # min over obstacles ahead
-
-    l_comfort = line(lo + v2 / (2.0 * c.b_comfort))
-    l_hard = line(lo + v2 / (2.0 * abs(c.a_min)))
-    l_follow = line(lo - w.follow_dist)
+    # min over the obstacles ahead of: their stop lines braking at b_comfort and at a_min,
+    # and their follow lines
+    lines = jnp.stack([lo + v2 / (2.0 * c.b_comfort), lo + v2 / (2.0 * abs(c.a_min)), lo - w.follow_dist], -1)
+    lines = jax.lax.cummin(_scatter(X, where, lines, big, "min"), axis=0, reverse=True)
+    l_comfort, l_hard, l_follow = lines[:, 0], lines[:, 1], lines[:, 2]
     stop = xs[:, None] + vj[None] ** 2 / (2.0 * c.b_comfort)
     hard = xs[:, None] + vj[None] ** 2 / (2.0 * abs(c.a_min))
     term = w.w_block * jnp.maximum(w.follow_dist - (l_comfort[:, None] - stop), 0.0) ** 2
@@ -565,79 +576,104 @@ def _terminal(xs, x0, vj, lo, hit, vob, kc, scene, c: SpeedConfig, w: CostWeight
 
 @functools.lru_cache(maxsize=None)
 def _substep_tables(config: SpeedConfig):
-    """Static ``(V, M, n_sub)`` tables: station offset (rounded, in ds) of each sub-step of a
-    segment starting at speed j with acceleration offset m, and whether it is slow."""
+    """Static ``(V, M, n_sub + 1)`` tables for the sub-steps ``q = 0..n_sub`` of a segment
+    starting at speed j with acceleration offset m: station offset (rounded, in ds),
+    whether it is slower than ``keep_clear_v``, and its speed (m/s)."""
     c = config
     offs = np.asarray(c.accel_offsets)
     j = np.arange(c.n_v)[:, None, None]
     m = offs[None, :, None]
-    q = np.arange(1, c.n_sub + 1)[None, None, :] / c.n_sub
+    q = np.arange(0, c.n_sub + 1)[None, None, :] / c.n_sub
     r = np.round(2 * j * q + m * q * q).astype(np.int32)
-    slow = ((j + m * q) * c.dv < c.keep_clear_v).astype(np.int32)
-    return r, slow
+    v = (j + m * q) * c.dv
+    return r, (v < c.keep_clear_v).astype(np.int32), v
+
+
+def segment_cost(g, v, big):
+    """Obstacle cost of a segment from its table values at the sub-steps ``q = 0..n_sub``
+    (``g (..., n_sub + 1)``; the knot it starts from first), the speeds there ``v`` and the
+    collision cost ``big`` (``SpeedConfig.big``, added to the tables inside boundaries): the
+    per-second costs of sub-steps 1..n, and for every sub-step that *enters* a blocking
+    boundary (inside it, not inside at the sub-step before) ``big * (1 + v / COLLISION_V)``.
+    So among profiles that cannot avoid a collision the DP picks the one that hits at the
+    lowest speed (braking), not the one that spends the least time inside the boundary."""
+    inside = g >= 0.5 * big
+    rate = jnp.where(inside, g - big, g)[..., 1:]
+    enter = inside[..., 1:] & ~inside[..., :-1]
+    return jnp.sum(rate + jnp.where(enter, big * (1.0 + v[..., 1:] / COLLISION_V), 0.0), -1)
 
 
 def _forward(d: DPCosts, config: SpeedConfig, temperature=None, probes=None):
-    """Forward pass over the band. Returns (final values ``(S_n, V_n)`` incl. terminal,
-    argmins per step ``[(S_k, V_k)]`` for k >= 2)."""
+    """Forward pass over the band. Returns (final values ``(V_n, S_n)`` incl. terminal,
+    argmins per step ``[(V_k, S_k)]`` for k >= 2).
+
+    Values are kept speed-major, ``(V, S)``: for a target speed j' and an acceleration
+    offset m, the predecessors of the band's stations are one contiguous run of stations
+    at speed ``j' - off[m]``, and each sub-step's costs one contiguous run of a table row,
+    so every read is a window (``lax.dynamic_slice``), not a scalar gather.
+    """
     c = config
     bw = band_widths(c)
     offs = np.asarray(c.accel_offsets)
     M = len(offs)
     U0, X, F = _u0(c), d.table.shape[-1], d.table.shape[1]
     ns = c.n_sub
-    R, SLOW = (jnp.asarray(a) for a in _substep_tables(c))
+    R, SLOW, VQ = (jnp.asarray(a) for a in _substep_tables(c))
     big_u = unreach(c)
-    flat = d.table.reshape(-1)
     dtype = d.table.dtype
+    S_max = max(b[0] for b in bw)
+    flat = jnp.concatenate([d.table.reshape(-1), jnp.zeros((S_max + 1,), dtype)])
+    node_t = d.node.T  # (V, X)
+    offs_j = jnp.asarray(offs)
 
-    def node_cost(k, i, j):  # (S,), (V,) absolute indices, k = 1..n_t
-        nc = d.node[jnp.clip(U0 + i, 0, X - 1)[:, None], j[None, :]]
-        nc = nc + jnp.where(d.goal_k[k - 1], d.goal_v[j], 0.0)[None]
+    def node_cost(k, ilo, jlo, S, V):  # (V, S) at knot k = 1..n_t
+        nc = jax.lax.dynamic_slice(node_t, (jlo, U0 + ilo), (V, S))
+        j = jlo + jnp.arange(V)
+        nc = nc + jnp.where(d.goal_k[k - 1], d.goal_v[j], 0.0)[:, None]
         if probes is not None:
             nc = nc + probes[k - 1]
         return nc
 
-    def softmin(x, axis):
-        if temperature is None:
-            return jnp.min(x, axis)
-        return -temperature * jax.nn.logsumexp(-x / temperature, axis)
-
     S1, V1 = bw[0]
     i1 = d.ilo[0] + jnp.arange(S1)
     j1 = d.jlo[0] + jnp.arange(V1)
-    val = jnp.where(i1[:, None] == j1[None, :], d.first[j1][None, :], big_u) + node_cost(1, i1, j1)
-    val = jnp.minimum(val, big_u)
+    val = jnp.where(i1[None, :] == j1[:, None], d.first[j1][:, None], big_u)
+    val = jnp.minimum(val + node_cost(1, d.ilo[0], d.jlo[0], S1, V1), big_u)
     args = []
-    q = jnp.arange(1, ns + 1)
-    for k in range(2, c.n_t + 1):
+    q = jnp.arange(0, ns + 1)
+    for k in range(2, c.n_t + 1):  # unrolled: the band changes size every step
         S, V = bw[k - 1]
         Sp, Vp = bw[k - 2]
-        i2 = d.ilo[k - 1] + jnp.arange(S)
-        j2 = d.jlo[k - 1] + jnp.arange(V)
-        js = j2[:, None] - offs[None, :]  # (V, M) source speed
-        isrc = i2[:, None, None] - 2 * j2[None, :, None] + offs[None, None, :]  # (S, V, M)
-        pi = isrc - d.ilo[k - 2]
-        pj = js - d.jlo[k - 2]
-        ok = (pi >= 0) & (pi < Sp) & (pj >= 0)[None] & (pj < Vp)[None]
-        pred = jnp.where(ok, val[jnp.clip(pi, 0, Sp - 1), jnp.clip(pj, 0, Vp - 1)[None]], big_u)
+        ilo, jlo, ilo_p, jlo_p = d.ilo[k - 1], d.jlo[k - 1], d.ilo[k - 2], d.jlo[k - 2]
+        j2 = jlo + jnp.arange(V)
+        js = j2[:, None] - offs_j[None, :]  # (V, M) speed at the segment start
+        o = ilo - 2 * j2[:, None] + offs_j[None, :]  # (V, M) station of the first target's start
+        # predecessors: value at (station o + a - ilo_p, speed js - jlo_p), a = 0..S-1
+        pr, pc = S + 2 * c.n_v + M + 2, M + 1
+        vp = jnp.pad(val, ((pc, pc), (pr, pr)), constant_values=big_u)
+        r0 = jnp.clip(o - ilo_p + pr, 0, Sp + 2 * pr - S)
+        c0 = jnp.clip(js - jlo_p + pc, 0, Vp + 2 * pc - 1)
+        win = lambda ci, ri: jax.lax.dynamic_slice(vp, (ci, ri), (1, S))[0]
+        pred = jax.vmap(jax.vmap(win))(c0, r0)  # (V, M, S)
+        # obstacle costs of the segment's sub-steps: a window of one table row each
         jc = jnp.clip(js, 0, c.n_v - 1)
         mm = jnp.arange(M)[None, :]
-        r = R[jc, mm]  # (V, M, ns)
+        r = R[jc, mm]  # (V, M, ns + 1) station offsets of the sub-steps (the start knot first)
         layer = SLOW[jc, mm]
-        f = (k - 1) * ns + q  # (ns,)
-        base = layer * (F * X) + f[None, None, :] * X + U0 + r  # (V, M, ns)
-        u = jnp.clip(base[None] + isrc[..., None], 0, flat.shape[0] - 1)
-        obst = jnp.sum(flat[u], -1)  # (S, V, M)
-        tot = pred + obst + d.accel.astype(dtype)[None, None, :]
-        best = softmin(tot, -1)
+        start = layer * (F * X) + ((k - 1) * ns + q)[None, None, :] * X + U0 + o[..., None] + r  # (V, M, ns + 1)
+        start = jnp.clip(start, 0, flat.shape[0] - S)
+        row = lambda st: jax.lax.dynamic_slice(flat, (st,), (S,))
+        g = jax.vmap(jax.vmap(jax.vmap(row)))(start)  # (V, M, ns + 1, S)
+        obst = segment_cost(jnp.moveaxis(g, 2, -1), VQ[jc, mm][:, :, None, :], c.big)  # (V, M, S)
+        tot = pred + obst + d.accel.astype(dtype)[None, :, None]  # (V, M, S)
         if temperature is None:
-            args.append(jnp.argmin(tot, -1).astype(jnp.int8))
-        val = jnp.minimum(best + node_cost(k, i2, j2), big_u)
+            args.append(jnp.argmin(tot, 1).astype(jnp.int8))
+            best = jnp.min(tot, 1)
+        else:
+            best = -temperature * jax.nn.logsumexp(-tot / temperature, 1)
+        val = jnp.minimum(best + node_cost(k, ilo, jlo, S, V), big_u)
     Sn, Vn = bw[-1]
-    i_n = d.ilo[-1] + jnp.arange(Sn)
-    j_n = d.jlo[-1] + jnp.arange(Vn)
-    term = d.terminal[jnp.clip(U0 + i_n, 0, X - 1)[:, None], j_n[None, :]]
+    term = jax.lax.dynamic_slice(d.terminal.T, (d.jlo[-1], U0 + d.ilo[-1]), (Vn, Sn))
     return val + term, args
 
 
@@ -646,14 +682,14 @@ def _backtrack(final, args, d: DPCosts, config: SpeedConfig):
     c = config
     bw = band_widths(c)
     offs = jnp.asarray(c.accel_offsets)
-    Vn = bw[-1][1]
+    Sn = bw[-1][0]
     flat = jnp.argmin(final)
     cost = final.reshape(-1)[flat]
-    pi, pj = flat // Vn, flat % Vn
+    pj, pi = flat // Sn, flat % Sn
     i, j = d.ilo[-1] + pi, d.jlo[-1] + pj
     ii, jj = [i], [j]
     for k in range(c.n_t, 1, -1):
-        m = args[k - 2][i - d.ilo[k - 1], j - d.jlo[k - 1]].astype(jnp.int32)
+        m = args[k - 2][j - d.jlo[k - 1], i - d.ilo[k - 1]].astype(jnp.int32)
         jp = j - offs[m]
         i, j = i - j - jp, jp
         ii.append(i)
@@ -675,8 +711,8 @@ def soft_value(d: DPCosts, config: SpeedConfig, temperature, probes=None):
 
 
 def profile_cost(d: DPCosts, config: SpeedConfig, j_seq):
-    """Cost of one knot-speed sequence ``j_seq (n_t,)`` (host numpy, independent of the DP's
-    band and gathers: the brute-force reference). ``inf`` when not a valid profile."""
+    """Cost of one knot-speed sequence ``j_seq (n_t,)`` (host numpy loops, independent of the
+    DP's band and windows: the brute-force reference). ``inf`` when not a valid profile."""
     c = config
     table, node, terminal = (np.asarray(a, np.float64) for a in (d.table, d.node, d.terminal))
     first, accel, gv, gk = (np.asarray(a, np.float64) for a in (d.first, d.accel, d.goal_v, d.goal_k))
@@ -691,12 +727,17 @@ def profile_cost(d: DPCosts, config: SpeedConfig, j_seq):
         if j2 - j not in offs or not 0 <= j2 < c.n_v:
             return np.inf
         m = j2 - j
-        for q in range(1, ns + 1):
-            x = i + 2 * j * q / ns + m * (q / ns) ** 2
+        inside_prev = None
+        for q in range(0, ns + 1):
             u = min(max(U0 + i + int(np.round(2 * j * q / ns + m * (q / ns) ** 2)), 0), X - 1)
-            slow = int((j + m * q / ns) * c.dv < c.keep_clear_v)
-            del x
-            cost += table[slow, k * ns + q, u]
+            v = (j + m * q / ns) * c.dv
+            g = table[int(v < c.keep_clear_v), k * ns + q, u]
+            inside = g >= 0.5 * c.big
+            if q > 0:
+                cost += g - c.big if inside else g
+                if inside and not inside_prev:
+                    cost += c.big * (1.0 + v / COLLISION_V)
+            inside_prev = inside
         cost += accel[offs.index(m)]
         i = i + j + j2
         cost += node[min(U0 + i, X - 1), j2] + (gv[j2] if gk[k] else 0.0)
@@ -733,13 +774,13 @@ def _expected_one(path, obstacles, v0, a0, s0, keep_clear, road, vehicle, config
     _, scene = make_scene(path, obstacles, config, vehicle, s0, keep_clear, v0, road)
     d = stage_costs(scene, config, weights, v0, a0)
     bw = band_widths(config)
-    probes = [jnp.zeros(b, d.table.dtype) for b in bw]
+    probes = [jnp.zeros((b[1], b[0]), d.table.dtype) for b in bw]
     value, p = jax.value_and_grad(lambda pr: soft_value(d, config, temperature, pr))(probes)
     dtype = d.table.dtype
     es, ev = [], []
     for k, (pk, (S, V)) in enumerate(zip(p, bw)):
-        i = (d.ilo[k] + jnp.arange(S)).astype(dtype)[:, None]
-        j = (d.jlo[k] + jnp.arange(V)).astype(dtype)[None, :]
+        i = (d.ilo[k] + jnp.arange(S)).astype(dtype)[None, :]
+        j = (d.jlo[k] + jnp.arange(V)).astype(dtype)[:, None]
         es.append(d.c0 + config.ds * jnp.sum(pk * i))
         ev.append(config.dv * jnp.sum(pk * j))
     v0c = jnp.clip(jnp.asarray(v0, dtype), 0.0, config.v_max)

@@ -1,29 +1,33 @@
 """The smoothing QP after the DP: the executed speed profile (piecewise-jerk, every ``qp_dt``).
 
 Variables: the accelerations ``a_1..a_n`` at the times ``k h`` (``h = qp_dt``, ``n h`` the
-horizon) and two slacks ``eps_s, eps_v >= 0``; the acceleration is linear between samples (constant
-jerk), starting at the car's ``a_0``, and speed and station are its exact integrals from
-``v_0`` (``v_{k+1} = v_k + h (a_k + a_{k+1}) / 2``, ``s_{k+1} = s_k + h v_k + h^2 (a_k / 3 +
+horizon); the acceleration is linear between samples (constant jerk), starting at the
+car's ``a_0``, and speed and station are its exact integrals from ``v_0``
+(``v_{k+1} = v_k + h (a_k + a_{k+1}) / 2``, ``s_{k+1} = s_k + h v_k + h^2 (a_k / 3 +
 a_{k+1} / 6)``). So the speed difference over a step is the mean of two sampled
 accelerations: bounding the samples bounds what a finite difference of the executed
 states sees. Minimise
 
-    sum_k  w_ref (s_k - s_dp)^2 + w_vref (v_k - v_dp)^2 + w_acc a_k^2 + w_jerk j_k^2  (times h)
-    + w_eps2 eps_s^2 + w_eps1 eps_s + w_lim2 eps_v^2 + w_lim1 eps_v
+    sum_k  w_ref (s_k - s_ref)^2 + w_vref (v_k - v_ref)^2 + w_acc a_k^2 + w_jerk j_k^2  (times h)
 
-subject to ``a_brake <= a_k <= a_max``, ``|j_k| <= jerk_max``, ``v_k >= 0``, the speed limit
-``v_k <= v_limit(s_dp) + eps_v`` and the station corridor the DP chose, per obstacle and
-time (behind every blocking boundary the DP stayed behind: ``s_k <= lower + eps_s``; ahead of
-every one it passed: ``s_k >= upper - eps_s``). The slacks make the QP always feasible: when
-the DP could not avoid a boundary, the QP brakes as hard as the limits allow; a speed limit
-it cannot meet in time (a curve that starts too close) costs far less than the corridor.
+subject to ``a_brake <= a_k <= a_max``, ``|j_k| <= jerk_max``, ``0 <= v_k <= v_limit_k`` and
+``lower_k <= s_k <= upper_k``: the station corridor the DP chose, per obstacle and time
+(behind every blocking boundary the DP stayed behind, ahead of every one it passed).
+
+The QP is always feasible: the corridor and the speed limit are relaxed to what the
+hardest braking the limits allow reaches (``hardest_braking``: the jerk-limited stop at
+``a_brake``): ``upper_k >= s_brake_k``, ``lower_k <= s_brake_k``, and the limit to what braking
+at ``LIMIT_DECEL`` reaches. Where the DP could not avoid a boundary, only the hardest braking
+is left there, and ``slack`` (how far the corridor had to be widened) says so. The
+references are clipped into the corridor, so the QP tracks the boundary, not the DP's
+profile through an obstacle.
 
 The solver is ADMM (OSQP's iteration) on the fixed matrices of this QP: the Hessian and the
 constraint matrix depend only on the weights and the grid, so they are equilibrated
 (Ruiz) and the KKT matrix is inverted once on the host for a ladder of step sizes ``rho``;
 each iteration is a few dense matrix-vector products, and ``rho`` adapts (OSQP's rule,
-snapped to the ladder) between phases of iterations. ``ok`` reports the primal and dual
-residuals at the end.
+snapped to the ladder) between phases of iterations, until the primal and dual residuals
+are small (``ok``) or a phase budget is spent.
 """
 from __future__ import annotations
 
@@ -40,6 +44,8 @@ from jaxplan.speed.dp import SpeedConfig, SpeedPlan, profile_at
 INF = 1e20
 RHO_LADDER = tuple(float(r) for r in 10.0 ** np.linspace(-3, 3, 13))
 SIGMA = 1e-6  # proximal term of the x-update
+LIMIT_DECEL = 3.0  # m/s^2: the speed limit of the QP is relaxed to what braking at this meets
+V_TOL = 0.01  # m/s: speeds down to -V_TOL are feasible in the QP (the output is held at 0)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -50,23 +56,21 @@ class SmoothWeights:
     w_vref: float = 1.0
     w_acc: float = 1.0
     w_jerk: float = 0.3
-    w_eps2: float = 1e3
-    w_eps1: float = 1e2
-    w_lim2: float = 10.0
-    w_lim1: float = 10.0
 
 
 @dataclasses.dataclass(frozen=True)
 class SolverConfig:
-    """ADMM settings: ``phases`` of ``iters`` iterations, relaxation ``alpha``, the first
-    step size ``rho0`` and the residuals under which ``ok`` holds."""
+    """ADMM settings: at least ``min_phases`` and at most ``phases`` phases of ``iters``
+    iterations (it stops once the residuals are below ``eps_prim`` / ``eps_dual``; under
+    ``vmap`` when every scene is), relaxation ``alpha``, the first step size ``rho0``."""
 
-    phases: int = 10
+    phases: int = 16
+    min_phases: int = 4
     iters: int = 25
     alpha: float = 1.6
     rho0: float = 0.1
-    eps_prim: float = 5e-2
-    eps_dual: float = 5e-2
+    eps_prim: float = 1e-2
+    eps_dual: float = 5e-3
 
 
 @jax.tree_util.register_dataclass
@@ -77,9 +81,10 @@ class SpeedProfile:
     Attributes:
         t, s, v, a: ``(..., n + 1)`` at ``k qp_dt`` from now (``s[0] = 0``, ``v[0] = v0``).
         jerk: ``(..., n)``.
-        ok: ``(...)`` the QP converged (else the DP's profile is returned).
-        slack: ``(...)`` the QP's corridor slack (m): > 0 when the DP's corridor could not be
-            kept within the acceleration limits.
+        ok: ``(...)`` the QP converged (else its last iterate, clipped and integrated, is
+            returned; the DP's profile only if that is not finite).
+        slack: ``(...)`` how far (m) the DP's corridor had to be widened to what the hardest
+            braking reaches: > 0 when it could not be kept within the limits.
         r_prim, r_dual: ``(...)`` the solver's final residuals.
     """
 
@@ -120,28 +125,18 @@ def _maps(n: int, h: float):
 
 @functools.lru_cache(maxsize=None)
 def qp_matrices(n: int, h: float, w: SmoothWeights):
-    """The constant QP data (float64 numpy): ``P (n+2, n+2)``, the dense constraint matrix
-    ``A (6n+2, n+2)`` with its row blocks [a, jerk, v, v - eps_v, s - eps_s, s + eps_s, eps_s,
-    eps_v] (variables: n accelerations, eps_s, eps_v), the
-    affine parts, the Ruiz scalings ``D, E, c`` and the KKT inverses for ``RHO_LADDER``."""
+    """The constant QP data (float64 numpy): ``P (n, n)``, the constraint matrix ``A (4n, n)``
+    with its row blocks [a, jerk, v, s], the affine parts (``Va, Vy, Sa, Sy, Ja, Jy``), the
+    Ruiz scalings ``D, E, c`` and the KKT inverses for ``RHO_LADDER``."""
     Va, Vy, Sa, Sy = _maps(n, h)
     I = np.eye(n)
     Ja = (I - np.eye(n, k=-1)) / h  # j_k = (a_{k+1} - a_k) / h, a_0 in Jy
     Jy = np.zeros((n, 2))
     Jy[0, 0] = -1.0 / h
-    N = n + 2  # accelerations, eps_s, eps_v
-    z1 = np.zeros((n, 1))
-    one = np.ones((n, 1))
-    pad = lambda M, cs, cv: np.concatenate([M, cs, cv], 1)
-    e = np.zeros((2, N))
-    e[0, n], e[1, n + 1] = 1.0, 1.0
-    A = np.concatenate([pad(I, z1, z1), pad(Ja, z1, z1), pad(Va, z1, z1), pad(Va, z1, -one), pad(Sa, -one, z1),
-                        pad(Sa, one, z1), e])
-    P = np.zeros((N, N))
-    P[:n, :n] = 2.0 * h * (w.w_ref * Sa.T @ Sa + w.w_vref * Va.T @ Va + w.w_acc * I + w.w_jerk * Ja.T @ Ja)
-    P[n, n], P[n + 1, n + 1] = 2.0 * w.w_eps2, 2.0 * w.w_lim2
+    A = np.concatenate([I, Ja, Va, Sa])
+    P = 2.0 * h * (w.w_ref * Sa.T @ Sa + w.w_vref * Va.T @ Va + w.w_acc * I + w.w_jerk * Ja.T @ Ja)
     # Ruiz equilibration of the KKT matrix [[P, A^T], [A, 0]]
-    D, E, c = np.ones(N), np.ones(A.shape[0]), 1.0
+    D, E = np.ones(n), np.ones(A.shape[0])
     Ps, As = P.copy(), A.copy()
     for _ in range(25):
         d = 1.0 / np.sqrt(np.maximum(np.maximum(np.abs(Ps).max(0), np.abs(As).max(0)), 1e-4))
@@ -151,34 +146,81 @@ def qp_matrices(n: int, h: float, w: SmoothWeights):
         D, E = D * d, E * ee
     c = 1.0 / max(np.abs(Ps).max(1).mean(), 1e-4)
     Ps = c * Ps
-    inv = np.stack([np.linalg.inv(Ps + SIGMA * np.eye(N) + r * As.T @ As) for r in RHO_LADDER])
+    inv = np.stack([np.linalg.inv(Ps + SIGMA * np.eye(n) + r * As.T @ As) for r in RHO_LADDER])
     return dict(Va=Va, Vy=Vy, Sa=Sa, Sy=Sy, Ja=Ja, Jy=Jy, A=A, P=P, D=D, E=E, c=c, Ps=Ps, As=As, inv=inv)
 
 
+def hardest_braking(a0, v0, n: int, h: float, config: SpeedConfig):
+    """The jerk-limited hardest braking from ``(a0, v0)`` in the QP's discretisation: the
+    acceleration falls at ``jerk_max`` to ``a_brake`` and rises again at ``jerk_max`` to 0 as
+    the car comes to a stop (early enough never to reverse, so it may end creeping at a few
+    tenths of a m/s). Returns
+    ``(s, v, a)`` each ``(n,)`` at ``k h``, k = 1..n: a profile within every limit, close
+    to the least station the limits allow."""
+    J, ab = config.jerk_max, config.a_brake
+
+    def step(c, _):
+        a, v, s = c
+        # keep braking harder unless the speed left after that step would be less than what
+        # the jerk-limited rise back to 0 still takes away: then rise
+        a_f = jnp.maximum(a - J * h, ab)
+        v_f = v + 0.5 * h * (a + a_f)
+        rising = v_f <= 0.5 * a_f * a_f / J + 0.5 * h * jnp.abs(a_f)
+        a1 = jnp.where(rising, jnp.minimum(a + J * h, 0.0), a_f)
+        v1 = v + 0.5 * h * (a + a1)
+        s1 = s + h * v + h * h * (a / 3.0 + a1 / 6.0)
+        return (a1, v1, s1), (s1, v1, a1)
+
+    f = jnp.result_type(a0, v0, jnp.float32)
+    _, out = jax.lax.scan(step, (jnp.asarray(a0, f), jnp.asarray(v0, f), jnp.zeros((), f)), None, length=n)
+    return out
+
+
+def leavable_a0(a0, v0, config: SpeedConfig):
+    """The car's acceleration as the QP starts from it: within ``[a_brake, a_max]``, and no
+    harder braking than the jerk limit can still end at rest without reversing
+    (``a0 >= -sqrt(jerk_max v0)``)."""
+    a0 = jnp.clip(a0, config.a_brake, config.a_max)
+    return jnp.maximum(a0, -jnp.sqrt(config.jerk_max * jnp.maximum(v0, 0.0)))
+
+
 def qp_problem(s_ref, v_ref, lower, upper, v_lim, a0, v0, config: SpeedConfig, w: SmoothWeights):
-    """The QP of one scene: ``(q (n+2,), l (6n+2,), u (6n+2,))`` for the constant ``P``, ``A``
-    of ``qp_matrices`` (all references ``(n,)`` at ``k h``, k = 1..n)."""
+    """The QP of one scene: ``(q (n,), l (4n,), u (4n,), slack ())`` for the constant ``P``,
+    ``A`` of ``qp_matrices`` (references, bounds and limits ``(n,)`` at ``k h``, k = 1..n;
+    ``a0`` one the car can leave, ``leavable_a0``)."""
     n = s_ref.shape[-1]
     h = config.qp_dt
     m = qp_matrices(n, h, w)
     f = s_ref.dtype
+    tk = h * jnp.arange(1, n + 1, dtype=f)
+    s_b, v_b, _ = hardest_braking(a0, v0, n, h, config)
+    # always feasible: the corridor widened to the hardest braking, the limit to braking at
+    # LIMIT_DECEL (and never below the hardest braking)
+    slack = jnp.max(jnp.maximum(s_b - upper, 0.0))
+    upper = jnp.maximum(upper, s_b + 0.02)
+    lower = jnp.minimum(lower, jnp.minimum(s_b, upper) - 0.02)
+    v_lim = jnp.maximum(v_lim, jnp.maximum(jnp.asarray(v0, f) - LIMIT_DECEL * tk, v_b) + 0.02)
+    # references inside the corridor: where the DP's profile leaves it, track the boundary
+    over = s_ref > upper
+    du = jnp.diff(jnp.concatenate([upper[:1], upper])) / h
+    v_ref = jnp.where(over, jnp.clip(du, 0.0, v_ref), v_ref)
+    s_ref = jnp.clip(s_ref, lower, upper)
     y = jnp.stack([jnp.asarray(a0, f), jnp.asarray(v0, f)])
     cv = jnp.asarray(m["Vy"], f) @ y
     cs = jnp.asarray(m["Sy"], f) @ y
     cj = jnp.asarray(m["Jy"], f) @ y
     Va, Sa, Ja = (jnp.asarray(m[k], f) for k in ("Va", "Sa", "Ja"))
     q = 2.0 * h * (w.w_ref * Sa.T @ (cs - s_ref) + w.w_vref * Va.T @ (cv - v_ref) + w.w_jerk * Ja.T @ cj)
-    q = jnp.concatenate([q, jnp.array([w.w_eps1, w.w_lim1], f)])
     full = lambda x: jnp.full((n,), x, f)
     J = config.jerk_max
-    l = jnp.concatenate([full(config.a_brake), -J - cj, -cv, full(-INF), full(-INF), lower - cs, jnp.zeros((2,), f)])
-    u = jnp.concatenate([full(config.a_max), J - cj, full(INF), v_lim - cv, upper - cs, full(INF), jnp.full((2,), INF, f)])
-    return q, l, u
+    l = jnp.concatenate([full(config.a_brake), -J - cj, -V_TOL - cv, lower - cs])
+    u = jnp.concatenate([full(config.a_max), J - cj, v_lim - cv, upper - cs])
+    return q, l, u, slack
 
 
 def admm(q, l, u, n: int, h: float, w: SmoothWeights, x0=None, solver: SolverConfig = SolverConfig()):
     """OSQP-style ADMM for ``min 1/2 x'Px + q'x, l <= Ax <= u`` with the constant ``P, A`` of
-    ``qp_matrices(n, h, w)``. Returns (x ``(n+2,)``, primal residual, dual residual)."""
+    ``qp_matrices(n, h, w)``. Returns (x ``(n,)``, primal residual, dual residual)."""
     m = qp_matrices(n, h, w)
     f = q.dtype
     Ps, As = jnp.asarray(m["Ps"], f), jnp.asarray(m["As"], f)
@@ -219,11 +261,22 @@ def admm(q, l, u, n: int, h: float, w: SmoothWeights, x0=None, solver: SolverCon
         nd = rd / jnp.maximum(jnp.maximum(jnp.max(jnp.abs(px)), jnp.maximum(jnp.max(jnp.abs(aty)), jnp.max(jnp.abs(qs)))), 1e-8)
         want = rho * jnp.sqrt(np_ / jnp.maximum(nd, 1e-12))
         k_new = jnp.argmin(jnp.abs(jnp.log(ladder) - jnp.log(jnp.maximum(want, 1e-12)))).astype(jnp.int32)
-        return (x, z, y, k_new), None
+        return x, z, y, k_new
 
-    (x, z, y, _), _ = jax.lax.scan(phase, (x, z, y, jnp.int32(k0)), None, length=solver.phases)
-    r_prim = jnp.max(jnp.abs((As @ x - z) / E))
-    r_dual = jnp.max(jnp.abs((Ps @ x + qs + As.T @ y) / (c * D)))
+    def residuals(x, z, y):
+        return jnp.max(jnp.abs((As @ x - z) / E)), jnp.max(jnp.abs((Ps @ x + qs + As.T @ y) / (c * D)))
+
+    def more(carry):
+        x, z, y, k, i = carry
+        rp, rd = residuals(x, z, y)
+        return (i < solver.min_phases) | ((i < solver.phases) & ((rp >= solver.eps_prim) | (rd >= solver.eps_dual)))
+
+    def body(carry):
+        x, z, y, k, i = carry
+        return (*phase((x, z, y, k), None), i + 1)
+
+    x, z, y, _, _ = jax.lax.while_loop(more, body, (x, z, y, jnp.int32(k0), jnp.int32(0)))
+    r_prim, r_dual = residuals(x, z, y)
     return D * x, r_prim, r_dual
 
 
@@ -259,29 +312,31 @@ def smooth_plan(plan: SpeedPlan, v0, a0, config: SpeedConfig, w: SmoothWeights =
     f = plan.s.dtype
     t = jnp.arange(n + 1, dtype=f) * h
     v0 = jnp.maximum(jnp.asarray(v0, f), 0.0)
-    J = config.jerk_max
-    # an acceleration the car can leave without reversing (braking towards a stop)
-    a0 = jnp.clip(jnp.asarray(a0, f), config.a_brake, config.a_max)
-    a0 = jnp.maximum(a0, -jnp.sqrt(J * v0))
+    a0 = leavable_a0(a0, v0, config)
     s_ref, v_ref, a_ref = profile_at(plan, t[1:])
     lower, upper = corridor(plan, config, t[1:])
     vl = plan.scene.v_limit
     qi = jnp.clip(s_ref / config.ds, 0.0, vl.shape[0] - 1.0)
     k = jnp.clip(jnp.floor(qi).astype(jnp.int32), 0, vl.shape[0] - 2)
     v_lim = vl[k] + (qi - k) * (vl[k + 1] - vl[k])
-    q, l, u = qp_problem(s_ref, v_ref, lower, upper, v_lim, a0, v0, config, w)
-    x, rp, rd = admm(q, l, u, n, h, w, jnp.concatenate([a_ref, jnp.zeros((2,), f)]), solver)
+    q, l, u, slack = qp_problem(s_ref, v_ref, lower, upper, v_lim, a0, v0, config, w)
+    x, rp, rd = admm(q, l, u, n, h, w, a_ref, solver)
     m = qp_matrices(n, h, w)
-    acc = jnp.clip(x[:n], config.a_brake, config.a_max)
+    acc = jnp.clip(x, config.a_brake, config.a_max)
     y = jnp.stack([a0, v0])
     v = jnp.asarray(m["Va"], f) @ acc + jnp.asarray(m["Vy"], f) @ y
     s = jnp.asarray(m["Sa"], f) @ acc + jnp.asarray(m["Sy"], f) @ y
-    ok = (rp < solver.eps_prim) & (rd < solver.eps_dual) & jnp.all(jnp.isfinite(x))
+    finite = jnp.all(jnp.isfinite(x))
+    ok = (rp < solver.eps_prim) & (rd < solver.eps_dual) & finite
+    # the iterate, clipped to the acceleration bounds and integrated exactly, is a valid
+    # profile even where the solver stopped early (held at a stop, never backwards)
+    acc = jnp.where(v <= 0.0, jnp.maximum(acc, 0.0), acc)
     z = jnp.zeros((1,), f)
-    qp = (jnp.concatenate([z, s]), jnp.concatenate([v0[None], jnp.maximum(v, 0.0)]), jnp.concatenate([a0[None], acc]))
+    qp = (jax.lax.cummax(jnp.concatenate([z, s])), jnp.concatenate([v0[None], jnp.maximum(v, 0.0)]),
+          jnp.concatenate([a0[None], acc]))
     s_d, v_d, a_d = profile_at(plan, t)
-    s, v, a = (jnp.where(ok, p, d) for p, d in zip(qp, (s_d, v_d, a_d)))
-    return SpeedProfile(t, s, v, a, jnp.diff(a) / h, ok, jnp.where(ok, jnp.maximum(x[n], 0.0), 0.0), rp, rd)
+    s, v, a = (jnp.where(finite, p, d) for p, d in zip(qp, (s_d, v_d, a_d)))
+    return SpeedProfile(t, s, v, a, jnp.diff(a) / h, ok, slack, rp, rd)
 
 
 smooth_plan_jit = jax.jit(smooth_plan, static_argnames=("config", "w", "solver"))
