@@ -195,7 +195,10 @@ class PathSpeedPlanner:
         ahead = self.speed.v_max * self.horizon + 30.0
         return route_path(scene, ctx, ego, self.path_points, 20.0, ahead)
 
-    def plan(self, scene, ego: EgoState, step) -> PlanOutput:
+    def speed_plan(self, scene, ego: EgoState, step):
+        """One cycle up to the speed profile: ``(ctx, path, ref, s0, plan, profile)`` (the
+        road context, the path, it as a reference line and the car's station on it, the
+        DP's ``SpeedPlan`` and the executed ``SpeedProfile``)."""
         H = self.horizon_steps
         ctx = road_context(scene, ego, step, H, self.vehicle)
         f = scene.route.xy.dtype
@@ -209,11 +212,21 @@ class PathSpeedPlanner:
         obs = Obstacles(obs.boxes, obs.valid, obs.t - obs.t[0], obs.static)
         plan = _plan_one(ref, obs, v0, a0, s0, None, road, self.vehicle, self.speed, w)
         prof = smooth_plan(plan, v0, a0, self.speed, self.smooth)
+        return ctx, path, ref, s0, plan, prof
+
+    def plan(self, scene, ego: EgoState, step) -> PlanOutput:
+        _, path, ref, s0, plan, prof = self.speed_plan(scene, ego, step)
         traj = compose_profile(ref, s0, prof)
         finite = jnp.all(jnp.isfinite(traj.x)) & jnp.all(jnp.isfinite(traj.y)) & jnp.all(jnp.isfinite(traj.v))
         cl = plan.scene.classified
         ok = plan.feasible & prof.ok & (prof.slack < 0.05) & finite & path.ok
-        info = {"dp_feasible": plan.feasible, "qp_ok": prof.ok, "qp_slack": prof.slack, "qp_r_prim": prof.r_prim, "qp_r_dual": prof.r_dual, "v_cruise": w.v_cruise,
-                "blocking": cl.is_blocking, "behind": cl.behind, "no_bypass": cl.no_bypass,
-                "blind_zone": cl.blind_zone}
+        info = {"dp_feasible": plan.feasible, "qp_ok": prof.ok, "qp_slack": prof.slack, "qp_r_prim": prof.r_prim,
+                "qp_r_dual": prof.r_dual, "blocking": cl.is_blocking, "behind": cl.behind,
+                "no_bypass": cl.no_bypass, "blind_zone": cl.blind_zone}
         return PlanOutput(traj, ok, info)
+
+
+def plan_speed_for(planner: PathSpeedPlanner, scene, ego: EgoState, step):
+    """The DP plan and the executed profile of one cycle (for pictures): ``(plan, profile)``."""
+    *_, plan, prof = planner.speed_plan(scene, ego, step)
+    return plan, prof
