@@ -10,6 +10,7 @@ $(BIN)/jaxplan: pyproject.toml
 	touch $@
 
 demo: $(BIN)/jaxplan
+	$(BIN)/jaxplan drive --builtin --quick --planner all --out results/drive
 	$(BIN)/jaxplan eval all --quick --out results
 	$(BIN)/jaxplan report results
 
@@ -18,7 +19,7 @@ test: $(BIN)/jaxplan
 
 bench: $(BIN)/jaxplan
 	$(BIN)/pip install -q -e ".[test,bench]"
-	for b in geometry bounds lattice speed parkout; do \
+	for b in geometry bounds lattice speed parkout sim; do \
 	  $(BIN)/python experiments/bench_$$b.py --out results/bench_$$b.json || exit 1; done
 
 .PHONY: demo test bench

@@ -33,7 +33,7 @@ def route_sample(scene, values, s):
 
 @_pytree(data_fields=("obstacles", "obstacle_s", "obstacle_l", "s", "l", "v_set", "lane_offset", "lane_width",
                       "lane_valid", "lane_same_dir", "road_left", "road_right", "t_now", "goal_t", "goal_s",
-                      "goal_l", "goal_v", "route_end_s", "leader_gap", "leader_v", "leader_index"))
+                      "goal_l", "goal_v", "route_end_s", "leader_gap", "leader_v", "leader_index", "ego"))
 class RoadContext:
     """One planning cycle's view of the scene (``K`` obstacles, ``H`` steps, ``L`` lanes).
 
@@ -50,6 +50,7 @@ class RoadContext:
         leader_gap: ``()`` bumper-to-bumper distance (m) along the route to the leader now
             (``NO_LEADER`` without one); leader_v: ``()`` its speed along the route;
             leader_index: ``()`` its obstacle index (-1 without one).
+        ego: the ``EgoState`` the context was built for (heading, speed, curvature).
     """
 
     obstacles: Any
@@ -73,6 +74,7 @@ class RoadContext:
     leader_gap: Any
     leader_v: Any
     leader_index: Any
+    ego: Any = None
 
 
 def road_context(scene, ego: EgoState, step, horizon_steps: int, vehicle: VehicleParams) -> RoadContext:
@@ -117,7 +119,7 @@ def road_context(scene, ego: EgoState, step, horizon_steps: int, vehicle: Vehicl
                        at(scene.road_left), at(scene.road_right), t_now, scene.goal.time - t_now, scene.goal.s_range,
                        scene.goal.l_range, scene.goal.speed, scene.route_end_s,
                        jnp.where(has, gap[k], NO_LEADER), jnp.where(has, v_along[k], 0.0),
-                       jnp.where(has, k, -1))
+                       jnp.where(has, k, -1), ego)
 
 
 def _heading_at(ref, s):

@@ -20,6 +20,7 @@ use (``make_planner("lattice")``). Nothing in the simulator knows a planner's in
 from __future__ import annotations
 
 import importlib
+import importlib.util
 from typing import Any, Callable, Protocol
 
 import jax.numpy as jnp
@@ -90,8 +91,9 @@ _BUILTIN = {
     "idm": "jaxplan.baselines:IDMPlanner",
 }
 PLANNERS: dict[str, Callable[..., Any]] = {}
-# Planners a closed-loop comparison drives by default (baselines are opt-in).
+# The road planners; the baselines (brake, idm) are the references they are read against.
 ROAD_PLANNERS = ("lattice", "pathspeed")
+BASELINES = ("idm", "brake")
 
 
 def register_planner(name: str):
@@ -112,6 +114,20 @@ def planner_names() -> list[str]:
         if importlib.util.find_spec(mod) is not None:
             names.add(name)
     return sorted(names)
+
+
+def loadable_planners() -> list[str]:
+    """Road planners, then baselines, then other registered planners: every one whose module imports."""
+    out = []
+    for name in list(ROAD_PLANNERS) + list(BASELINES) + sorted(PLANNERS):
+        if name in out:
+            continue
+        try:
+            get_factory(name)
+        except ValueError:
+            continue
+        out.append(name)
+    return out
 
 
 def get_factory(name: str):

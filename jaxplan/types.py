@@ -37,6 +37,9 @@ def check_finite(name: str, x: Any) -> np.ndarray:
     return a
 
 
+# Times within this fraction of a step of a time stamp take that stamp exactly (``Obstacles.at_times``).
+SNAP = 1e-4
+
 # Beyond this distance from the origin float32 keeps less than about 1 cm.
 FLOAT32_MAX_COORD = 1e5
 
@@ -114,6 +117,21 @@ def check_polygons(vertices: Any, valid: Any = None, name: str = "polygon",
     if np.any(m & (cross < -1e-9 * scale[..., None] ** 2)):
         raise ValueError(f"{name}: polygon is not convex")
     return v, m
+
+
+def check_weights(weights) -> None:
+    """Host-side check of a weights dataclass: every field finite and >= 0, the field named."""
+    cls = type(weights).__name__
+    for f in dataclasses.fields(weights):
+        v = getattr(weights, f.name)
+        try:
+            a = np.asarray(v, dtype=np.float64)
+        except (TypeError, ValueError):
+            raise ValueError(f"{cls}.{f.name}: expected a number, got {v!r}") from None
+        if a.size and not np.all(np.isfinite(a)):
+            raise ValueError(f"{cls}.{f.name}: must be finite, got {v!r}")
+        if a.size and np.any(a < 0):
+            raise ValueError(f"{cls}.{f.name}: must be >= 0, got {v!r}")
 
 
 def is_concrete(*xs) -> bool:
@@ -268,7 +286,8 @@ class Obstacles:
 
         Steps past the end of the recording are invalid for dynamic obstacles and
         held for static ones; so are steps before the start (``start < 0``). The time
-        stamps continue at the recording's step.
+        stamps count from the window's first step (``t[0] + k * dt``, ``dt`` the
+        recording's step): step ``start`` is "now", as the planners read ``t``.
 
         Args:
             start: ``()`` int, first step.
@@ -285,7 +304,7 @@ class Obstacles:
         v = jnp.take(self.valid, kc, axis=-1) & inside
         v = jnp.where(static[..., None], jnp.any(self.valid, axis=-1, keepdims=True), v)
         dt = self.t[..., 1:2] - self.t[..., :1] if T > 1 else jnp.ones_like(self.t[..., :1])
-        t = self.t[..., :1] + dt * k.astype(self.t.dtype)
+        t = self.t[..., :1] + dt * jnp.arange(n_steps, dtype=self.t.dtype)
         return Obstacles(self.window_of(self.boxes, start, n_steps), v, t, static)
 
     def window_of(self, values, start, n_steps: int):
@@ -302,6 +321,57 @@ class Obstacles:
         moving = jnp.take(values, k, axis=nb - 1)
         st = jnp.asarray(self.static, bool).reshape(self.static.shape + (1,) * (extra + 1))
         return jnp.where(st, held, moving)
+
+    def at_times(self, t) -> "Obstacles":
+        """Predictions at times ``t`` ``(T2,)`` (jittable): what the planners see at their own time grid.
+
+        Poses and sizes are interpolated linearly between the two neighbouring stamps of
+        ``self.t`` (heading along the shorter turn); a time within ``SNAP`` of a step of a
+        stamp takes that stamp's box exactly, so predictions already on the grid come back
+        unchanged. A dynamic obstacle is valid where both neighbours are (or the stamp it
+        sits on), and never outside ``[t[0], t[-1]]``; a static one is held at every time
+        (the box of its first valid step). Leading batch dimensions of ``self.t`` are
+        mapped over.
+
+        Args:
+            t: ``(T2,)`` increasing times, on the same clock as ``self.t`` (seconds from now).
+
+        Returns:
+            ``Obstacles`` with boxes ``(..., K, T2, 5)`` and ``t`` broadcast to ``(..., T2)``.
+        """
+        if jnp.ndim(self.t) > 1:
+            return jax.vmap(lambda o: o.at_times(t))(self)
+        dtype = self.boxes.dtype
+        t = jnp.asarray(t, dtype)
+        tt = jnp.asarray(self.t, dtype)
+        n = tt.shape[-1]
+        K = self.boxes.shape[-3]
+        static = jnp.asarray(self.static, bool)
+        lead = self.boxes.shape[:-2]
+        if n == 0:
+            return Obstacles(jnp.zeros(lead + (t.shape[-1], 5), dtype).at[..., 2:4].set(1.0),
+                             jnp.zeros(lead + (t.shape[-1],), bool), t, static)
+        if n == 1:
+            b = jnp.broadcast_to(self.boxes, lead + (t.shape[-1], 5))
+            ok = self.valid & (jnp.abs(t - tt[0]) <= SNAP)
+        else:
+            i = jnp.clip(jnp.searchsorted(tt, t, side="right") - 1, 0, n - 2)
+            f = jnp.clip((t - tt[i]) / (tt[i + 1] - tt[i]), 0.0, 1.0)
+            f = jnp.where(f < SNAP, 0.0, jnp.where(f > 1.0 - SNAP, 1.0, f))
+            b0, b1 = self.boxes[..., i, :], self.boxes[..., i + 1, :]
+            turn = jnp.arctan2(jnp.sin(b1[..., 4] - b0[..., 4]), jnp.cos(b1[..., 4] - b0[..., 4]))
+            mix = (b0 + f[:, None] * (b1 - b0)).at[..., 4].set(b0[..., 4] + f * turn)
+            b = jnp.where(f[:, None] == 0.0, b0, jnp.where(f[:, None] == 1.0, b1, mix))
+            v0, v1 = self.valid[..., i], self.valid[..., i + 1]
+            ok = jnp.where(f == 0.0, v0, jnp.where(f == 1.0, v1, v0 & v1))
+            pad = SNAP * (tt[1] - tt[0])
+            ok = ok & (t >= tt[0] - pad) & (t <= tt[-1] + pad)
+        if K:
+            first = jnp.argmax(self.valid, axis=-1)  # (..., K) first valid step of each obstacle
+            held = jnp.take_along_axis(self.boxes, first[..., None, None], axis=-2)  # (..., K, 1, 5)
+            b = jnp.where(static[..., None, None], held, b)
+            ok = jnp.where(static[..., None], jnp.any(self.valid, axis=-1, keepdims=True), ok)
+        return Obstacles(b, ok, t, static)
 
     def aligned(self, n_steps: int) -> "Obstacles":
         """The first ``n_steps`` predictions (``window(0, n_steps)``): cut, or padded past the end."""
@@ -320,8 +390,10 @@ class Obstacles:
         if st.shape != b.shape[:-2] or st.dtype != bool:
             raise ValueError(f"Obstacles.static: expected bool of shape {b.shape[:-2]}, got {st.dtype} {st.shape}")
         t = check_finite("Obstacles.t", self.t)
-        if t.shape[-1] != b.shape[-2]:
-            raise ValueError(f"Obstacles.t: {t.shape[-1]} time stamps for {b.shape[-2]} poses")
+        if t.ndim < 1 or t.shape[-1] != b.shape[-2]:
+            raise ValueError(f"Obstacles.t: {t.shape[-1] if t.ndim else 0} time stamps for {b.shape[-2]} poses")
+        if t.shape[-1] > 1 and np.any(np.diff(t, axis=-1) <= 0):
+            raise ValueError("Obstacles.t: time stamps must increase strictly")
         return self
 
     def check_time_grid(self, dt: float, name: str = "obstacles") -> "Obstacles":
@@ -341,3 +413,7 @@ class Obstacles:
                              f"{step:g} s, but the planner's grid is t = k * {dt:g} s; resample them to that grid "
                              f"(jaxplan.speed.path_profile.resample_obstacles)")
         return self
+
+
+# ``Obstacles.at_times`` compiled once per shape, for host code that reads many recordings.
+at_times_jit = jax.jit(lambda obstacles, t: obstacles.at_times(t))

@@ -3,7 +3,8 @@ import os
 import numpy as np
 import pytest
 
-SHARED = os.path.join(os.path.dirname(__file__), "..", "..", "shared")
+# ../shared beside the repository; JAXPLAN_SHARED points elsewhere (a git worktree outside the checkout)
+SHARED = os.environ.get("JAXPLAN_SHARED") or os.path.join(os.path.dirname(__file__), "..", "..", "shared")
 DATA_DIR = os.path.abspath(os.path.join(SHARED, "data"))
 
 

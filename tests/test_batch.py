@@ -65,7 +65,7 @@ def test_sharded_equals_single_device_and_resume(tmp_path):
     killed = _run(tmp_path, tmp_path / "resume", 4, fail_at=40)
     assert killed.returncode == 3 and "INTERRUPTED" in killed.stdout
     files = sorted(os.listdir(tmp_path / "resume"))
-    assert files == ["chunk_00000.npz", "chunk_00001.npz"]
+    assert files == ["chunk_00000.npz", "chunk_00001.npz", "manifest.json"]
     again = _run(tmp_path, tmp_path / "resume", 4)
     assert again.returncode == 0, again.stderr
     assert '"chunks_skipped": 2' in again.stdout and '"chunks_run": 3' in again.stdout

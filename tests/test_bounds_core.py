@@ -9,7 +9,7 @@ from jaxplan.bounds import (CASE_DEEPEST, CASE_NO_CORNER, CASE_NONE, CASE_OFF_ED
 from jaxplan.bounds.corners import contour_construction_jit as construct
 from jaxplan.bounds.distance import exact_avoid_distance_jit as exact_jit
 from jaxplan.bounds.frenet_bounds import path_bounds_jit
-from jaxplan.bounds.optimize import PathQPConfig, PathWeights, optimize_path_jit, qp_matrices
+from jaxplan.bounds.optimize import PathQPConfig, PathWeights, optimize_path_jit, state_problem
 from jaxplan.geometry import ReferenceLine, box_corners, has_overlap, to_cartesian
 from jaxplan.types import VehicleParams
 
@@ -283,15 +283,20 @@ CFG = PathQPConfig()
 
 def _scipy_qp(lo, up, ds, l_ref, init):
     opt = pytest.importorskip("scipy.optimize")
-    Q, q, A, b, G, h = (np.asarray(x, np.float64) for x in qp_matrices(
-        len(lo), ds, jnp.asarray(l_ref, jnp.float32), jnp.asarray(lo), jnp.asarray(up), jnp.asarray(init),
-        PathWeights(), CFG))
-    res = opt.minimize(lambda x: 0.5 * x @ Q @ x + q @ x, np.zeros(len(q)), jac=lambda x: Q @ x + q,
-                       constraints=[{"type": "eq", "fun": lambda x: A @ x - b, "jac": lambda x: A},
-                                    {"type": "ineq", "fun": lambda x: h - G @ x, "jac": lambda x: -G}],
+    T_ = len(lo)
+    P, q, A, l_, u_ = (np.asarray(x, np.float64) for x in state_problem(
+        ds, jnp.asarray(l_ref, jnp.float32), jnp.asarray(lo), jnp.asarray(up), jnp.full(T_, -CFG.dl_max),
+        jnp.full(T_, CFG.dl_max), jnp.full(T_, -CFG.ddl_max), jnp.full(T_, CFG.ddl_max), CFG.jerk_max,
+        jnp.asarray(init), PathWeights()))
+    eq = u_ - l_ <= 1e-9
+    res = opt.minimize(lambda x: 0.5 * x @ P @ x + q @ x, np.zeros(len(q)), jac=lambda x: P @ x + q,
+                       constraints=[{"type": "eq", "fun": lambda x: A[eq] @ x - l_[eq], "jac": lambda x: A[eq]},
+                                    {"type": "ineq", "fun": lambda x: np.concatenate([u_ - A @ x, A @ x - l_])[
+                                        np.concatenate([~eq, ~eq])],
+                                     "jac": lambda x: np.concatenate([-A, A])[np.concatenate([~eq, ~eq])]}],
                        method="SLSQP", options={"maxiter": 500, "ftol": 1e-12})
     assert res.success
-    return res.x[:len(lo)]
+    return res.x[:T_]
 
 
 def test_path_qp_against_scipy_and_flags():
@@ -309,7 +314,7 @@ def test_path_qp_against_scipy_and_flags():
     assert ok[0] and ok[1] and not ok[2]
     assert not np.asarray(r.feasible)[2] and np.all(np.isnan(np.asarray(r.l)[2]))
     for f in range(2):
-        np.testing.assert_allclose(np.asarray(r.l)[f], _scipy_qp(lo[f], up[f], 1.0, l_ref[f], init[f]), atol=5e-4)
+        np.testing.assert_allclose(np.asarray(r.l)[f], _scipy_qp(lo[f], up[f], 1.0, l_ref[f], init[f]), atol=1e-3)
     assert np.all(np.asarray(r.max_violation)[:2] <= 1e-3)
 
 
@@ -317,20 +322,25 @@ def test_jerk_map_matches_equality_constraints():
     from jaxplan.bounds.optimize import jerk_map
 
     M, H = jerk_map(T, 0.7)
-    _, _, A, b, _, _ = qp_matrices(T, 0.7, jnp.zeros(T), jnp.zeros(T), jnp.zeros(T), jnp.array([0.3, -0.1, 0.05]),
-                                   PathWeights(), CFG)
+    x0 = np.array([0.3, -0.1, 0.05])
+    _, _, A, lo, hi = state_problem(0.7, jnp.zeros(T), jnp.zeros(T), jnp.zeros(T), jnp.zeros(T), jnp.zeros(T),
+                                    jnp.zeros(T), jnp.zeros(T), 1.0, jnp.asarray(x0), PathWeights())
     j = np.random.default_rng(0).normal(size=T - 1)
-    x = np.asarray(M) @ j + np.asarray(H) @ np.array([0.3, -0.1, 0.05])
-    np.testing.assert_allclose(np.asarray(A) @ x, np.asarray(b), atol=1e-4)
+    x = np.asarray(M) @ j + np.asarray(H) @ x0
+    rows = 4 * T - 1  # boxes (3T) and jerks (T-1) come first, then the integration equalities
+    np.testing.assert_allclose(np.asarray(A)[rows:] @ x, 0.0, atol=1e-4)
+    np.testing.assert_allclose(np.asarray(A)[3 * T:rows] @ x, j, atol=1e-4)  # the jerk rows give the jerks back
 
 
 def test_path_qp_gradient_finite_difference():
     lo = np.full((3, T), -3.0, np.float32)
     up = np.full((3, T), 3.0, np.float32)
 
+    cfg = PathQPConfig(early_exit=False, max_iter=400, rho_updates=1)
+
     def f(bound):
         r = optimize_path_jit(jnp.asarray(lo), jnp.asarray(up).at[0, 8:12].set(bound), 1.0,
-                              jnp.zeros((3, T)), jnp.zeros((3, 3)))
+                              jnp.zeros((3, T)), jnp.zeros((3, 3)), config=cfg)
         return jnp.sum(r.l[0])
 
     g = jax.grad(f)(jnp.float32(-1.0))

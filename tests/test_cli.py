@@ -22,11 +22,12 @@ def test_unknown_suite_is_an_error(tmp_path, capsys):
 def test_report_lists_figures_and_plots(tmp_path):
     out = str(tmp_path / "res")
     assert main(["eval", "geometry", "--quick", "--n", "200", "--out", out]) == 0
-    open(os.path.join(out, "zz_extra.png"), "wb").close()  # a plot no suite claims
+    open(os.path.join(out, "zz_extra.png"), "wb").close()  # a plot the run did not write
     assert main(["report", out]) == 0
     text = open(os.path.join(out, "report.md")).read()
     assert "## geometry" in text and "overlap_agreement" in text and "![geometry.png](geometry.png)" in text
-    assert "## other plots" in text and "![zz_extra.png](zz_extra.png)" in text
+    assert "zz_extra.png" not in text  # only the plots recorded in the run's run.json
+    assert main(["report", out]) == 0  # its own report: replaced
     assert main(["report", str(tmp_path / "missing")]) == 2
 
 

@@ -66,3 +66,94 @@ def test_malformed_xml_is_a_scenario_error(tmp_path):
     empty.write_text("")
     with pytest.raises(ScenarioError, match="empty.xml"):
         load_commonroad(str(empty))
+
+
+def _same_goal(a: dict, b: dict) -> None:
+    assert set(a) == set(b)
+    for key in ("time", "orientation", "velocity"):
+        if key in a:
+            np.testing.assert_allclose(b[key], a[key], atol=1e-9)
+    if "rectangle" in a:
+        for f in ("length", "width", "orientation"):
+            assert b["rectangle"][f] == pytest.approx(a["rectangle"][f])
+        np.testing.assert_allclose(b["rectangle"]["center"], a["rectangle"]["center"])
+    if "lanelets" in a:
+        assert b["lanelets"] == a["lanelets"]
+
+
+def test_shared_json_round_trips_through_commonroad():
+    """dict -> commonroad-io -> dict keeps every obstacle (static ones as StaticObstacle), lanelet and goal."""
+    import json
+
+    from jaxplan.scenarios.commonroad import commonroad_to_dict, dict_to_commonroad
+    from jaxplan.scenarios.loader import parse_scenario
+
+    files = sorted(glob.glob(os.path.join(shared_data_or_skip("commonroad2018a"), "*.json")))
+    assert len(files) == 46
+    statics = 0
+    for f in files:
+        with open(f) as fh:
+            d = json.load(fh)
+        id_map = {}
+        sc, pps = dict_to_commonroad(d, f, id_map)
+        back = commonroad_to_dict(sc, pps, id_map)
+        assert back["id"] == d["id"] and back["dt"] == d["dt"]
+        # obstacles: what the loader makes of them (boxes per step, valid, static flag, ids, types)
+        a, b = parse_scenario(d, f), parse_scenario(back, f)
+        assert list(b.obstacle_ids) == list(a.obstacle_ids) and b.obstacle_types == a.obstacle_types, f
+        np.testing.assert_array_equal(np.asarray(b.obstacles.valid), np.asarray(a.obstacles.valid))
+        np.testing.assert_array_equal(np.asarray(b.obstacles.static), np.asarray(a.obstacles.static))
+        np.testing.assert_allclose(np.asarray(b.obstacles.boxes), np.asarray(a.obstacles.boxes), atol=1e-4)
+        n_static = sum(o["role"] == "static" for o in d["obstacles"])
+        assert len(sc.static_obstacles) == n_static == sum(o["role"] == "static" for o in back["obstacles"]), f
+        statics += n_static
+        # dynamic obstacles keep every recorded row
+        rows = {o["id"]: o["states"] for o in back["obstacles"] if o["role"] == "dynamic"}
+        for o in d["obstacles"]:
+            if o["role"] == "dynamic" and o.get("states"):
+                want, got = np.asarray(o["states"], dtype=float)[:, :5], np.asarray(rows[o["id"]], dtype=float)[:, :5]
+                known = np.isfinite(want)  # the files leave some speeds out (null)
+                np.testing.assert_allclose(got[known], want[known], atol=1e-9)
+        # lanelets: bounds, topology, adjacency with direction, speed limits
+        mine = {ln["id"]: ln for ln in back["lanelets"]}
+        assert set(mine) == {ln["id"] for ln in d["lanelets"]}
+        for ln in d["lanelets"]:
+            m = mine[ln["id"]]
+            np.testing.assert_allclose(m["left"], ln["left"])
+            np.testing.assert_allclose(m["right"], ln["right"])
+            assert sorted(m["successors"]) == sorted(ln["successors"])
+            assert sorted(m["predecessors"]) == sorted(ln["predecessors"])
+            for side in ("adjacentLeft", "adjacentRight", "speed_limit"):
+                assert m.get(side) == ln.get(side), (f, ln["id"], side)
+        # goals and start
+        p, q = d["planning_problems"][0], back["planning_problems"][0]
+        assert q["id"] == p["id"] and len(q["goals"]) == len(p["goals"])
+        for ga, gb in zip(p["goals"], q["goals"]):
+            _same_goal(ga, gb)
+        for key in ("position", "orientation", "velocity"):
+            np.testing.assert_allclose(q["initial_state"][key], p["initial_state"][key])
+    assert statics == 3  # ZAM_Over-1_1, DEU_Muc-2_1_T-1, DEU_B471-1_1_T-1
+
+
+def test_dict_to_commonroad_rejects_what_commonroad_cannot_hold():
+    from jaxplan.scenarios.commonroad import dict_to_commonroad
+
+    base = {"id": "ZAM_Test-1_1_T-1", "dt": 0.1, "lanelets": [
+        {"id": 1, "left": [[0, 2], [50, 2]], "right": [[0, -2], [50, -2]], "predecessors": [], "successors": []}],
+        "obstacles": [], "planning_problems": [{"id": 9, "initial_state": {
+            "position": [1.0, 0.0], "orientation": 0.0, "velocity": 5.0}, "goals": [{"time": [0.0, 2.0]}]}]}
+    sc, pps = dict_to_commonroad(base)
+    assert len(sc.lanelet_network.lanelets) == 1 and 9 in pps.planning_problem_dict
+    cases = [
+        ({"obstacles": [{"id": 5, "role": "dynamic", "type": "spaceship", "length": 4, "width": 2,
+                         "states": [[0, 1, 1, 0, 1, 0]]}]}, "obstacles\\[0\\].type 'spaceship'"),
+        ({"obstacles": [{"id": 5, "role": "dynamic", "type": "car", "length": 4, "width": 2,
+                         "states": [[0, 1, 1, 0, 1, 0], [0.3, 2, 1, 0, 1, 0]]}]}, "without gaps"),
+        ({"planning_problems": [{**base["planning_problems"][0], "goals": [{"lanelets": [77], "time": [0, 1]}]}]},
+         "lanelets that do not exist"),
+        ({"planning_problems": [{**base["planning_problems"][0], "goals": [{"lanelets": [1]}]}]}, "goals\\[0\\].time"),
+        ({"dt": -0.1}, "dt must be positive"),
+    ]
+    for change, message in cases:
+        with pytest.raises(ScenarioError, match=message):
+            dict_to_commonroad({**base, **change}, "bad.json")

@@ -98,3 +98,24 @@ def test_polyline_tools_against_brute_force(rng):
         seg = xy[j + 1] - xy[j]
         q = xy[j] + along * seg / max(np.linalg.norm(seg), 1e-12)
         assert np.linalg.norm(q - p) == pytest.approx(d, abs=1e-9)
+
+
+def test_scenario_keys_are_unique_per_file(tmp_path):
+    import json as _json
+
+    from jaxplan.scenarios.files import expand_paths, scenario_keys
+
+    folder = shared_data_or_skip("commonroad2018a")
+    keys = scenario_keys([folder])
+    assert len(keys) == 46 and len(set(keys.values())) == 46
+    # two files carry the id DEU_Muc-3_1_T-1: the second is told apart by its file name
+    assert keys["DEU_Muc-3_1_T-1"].endswith("DEU_Muc-3_1_T-1.json")
+    assert keys["DEU_Muc-3_1_T-1@DEU_Muc-3_1_T-1_Pedo.json"].endswith("_Pedo.json")
+    for key, path in keys.items():
+        with open(path) as f:
+            assert key.split("@")[0] == _json.load(f)["id"]
+    (tmp_path / "notes.txt").write_text("x")
+    for bad, message in (([str(tmp_path / "missing.json")], "no such file"), ([str(tmp_path / "notes.txt")],
+                         "not a scenario file"), ([str(tmp_path)], "holds no .json or .xml")):
+        with pytest.raises(ValueError, match=message):
+            expand_paths(bad)

@@ -242,9 +242,10 @@ def test_first_collision_point_and_contact_against_shapely(rng):
     assert nf > 10
 
 
-def _ref_decision(strategy, stopped, at_gs, at_bs, moved, new_col, lost_stopped, since, done, cfg, blocked_end):
+def _ref_decision(strategy, stopped, at_gs, at_bs, moved, new_col, lost_stopped, since, done, cfg, blocked_end,
+                  busy=False):
     """Straight from the issue text, written independently of the implementation."""
-    if done:
+    if done or busy:
         return NO_REPLAN
     if lost_stopped:
         return LOST
@@ -265,6 +266,8 @@ def _ref_strategy(strategy, stopped, at_gs, at_bs, moved, new_col, since, cfg):
         return NO_REPLAN
     if strategy == PERIODIC:
         return PERIOD if since >= 1.0 / cfg.periodic_hz else NO_REPLAN
+    if since < cfg.debounce_s:  # immediate re-plans are debounced
+        return NO_REPLAN
     if new_col:
         return OBSTACLE
     return GOAL if moved else NO_REPLAN
@@ -273,22 +276,24 @@ def _ref_strategy(strategy, stopped, at_gs, at_bs, moved, new_col, since, cfg):
 def test_replan_decision_truth_table():
     cfg = SupervisorConfig()
     rows = [(s, *flags, since) for s in (LAZY, PERIODIC, IMMEDIATE)
-            for flags in itertools.product([False, True], repeat=8) for since in (0.3, 1.0, 2.5)]
+            for flags in itertools.product([False, True], repeat=9) for since in (0.2, 0.7, 1.0, 2.5)]
     cols = list(zip(*rows))
     strategy = np.array(cols[0])
-    f = [np.array(c) for c in cols[1:9]]
-    since = np.array(cols[9], np.float32)
+    f = [np.array(c) for c in cols[1:10]]
+    since = np.array(cols[10], np.float32)
     replan, reason = jax.jit(lambda *a: replan_decision(a[0], cfg, stopped=a[1], at_gear_shift=a[2],
                                                         at_brake_stop=a[3], goal_moved=a[4], new_collision=a[5],
-                                                        lost_stopped=a[6], since_replan=a[9], done=a[7],
-                                                        at_blocked_end=a[8]))(strategy, *f, since)
+                                                        lost_stopped=a[6], since_replan=a[10], done=a[7],
+                                                        at_blocked_end=a[8], busy=a[9]))(strategy, *f, since)
     for i, r in enumerate(rows):
-        s, stopped, at_gs, at_bs, moved, new_col, lost, done, blocked_end, sn = r
-        ref = _ref_decision(s, stopped, at_gs, at_bs, moved, new_col, lost, sn, done, cfg, blocked_end)
+        s, stopped, at_gs, at_bs, moved, new_col, lost, done, blocked_end, busy, sn = r
+        ref = _ref_decision(s, stopped, at_gs, at_bs, moved, new_col, lost, sn, done, cfg, blocked_end, busy)
         assert int(reason[i]) == ref, r
         assert bool(replan[i]) == (ref != NO_REPLAN)
         if s == LAZY and not stopped and not lost:
             assert not bool(replan[i])  # never while moving
+        if s == IMMEDIATE and sn < cfg.debounce_s and not lost and not (blocked_end and stopped):
+            assert not bool(replan[i])  # debounced
 
 
 def test_bad_input_gets_a_clear_error():
@@ -300,6 +305,12 @@ def test_bad_input_gets_a_clear_error():
         SupervisorConfig(queue_size=0)
     with pytest.raises(ValueError, match="strategy"):
         simulate(None, 3, SimConfig())
+    with pytest.raises(ValueError, match="limits"):
+        from jaxplan.replan import ApproachPlanner, MotionLimits
+        SimConfig(planner=ApproachPlanner(limits=MotionLimits(v_fwd=5.0)))
+    with pytest.raises(ValueError, match="radius_factor"):
+        from jaxplan.replan import ApproachPlanner
+        ApproachPlanner(radius_factor=0.9)
     from jaxplan.replan import sample_scenarios
     with pytest.raises(ValueError, match="kind"):
         sample_scenarios(0, 1, "valet")

@@ -11,7 +11,6 @@ import dataclasses
 import jax.numpy as jnp
 
 from jaxplan.baselines.route_follow import braking_profile, follow_route
-from jaxplan.geometry.frenet import to_frenet
 from jaxplan.planner import EgoState, PlanOutput
 from jaxplan.types import VehicleParams
 
@@ -38,7 +37,6 @@ class BrakePlanner:
     def plan(self, scene, ego: EgoState, step) -> PlanOutput:
         f = scene.route.xy.dtype
         t = jnp.arange(self.horizon_steps, dtype=f) * self.dt
-        s0, l0 = to_frenet(scene.route, jnp.stack([ego.x, ego.y]).astype(f))
         ds, v, a = braking_profile(ego.v, -self.decel, t)
-        traj = follow_route(scene.route, s0 + ds, l0, v, a, t)
+        traj = follow_route(scene.route, ego, ds, v, a, t)
         return PlanOutput(traj, jnp.asarray(True), {})

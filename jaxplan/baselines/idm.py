@@ -100,5 +100,5 @@ class IDMPlanner:
 
         _, (s, v, a) = lax.scan(step_fn, (ctx.s, jnp.asarray(ego.v, f)), jnp.arange(H))
         t = jnp.arange(H, dtype=f) * dt
-        traj = follow_route(scene.route, s, ctx.l, v, a, t)
+        traj = follow_route(scene.route, ego, s - ctx.s, v, a, t)
         return PlanOutput(traj, jnp.asarray(True), {})

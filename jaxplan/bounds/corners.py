@@ -105,7 +105,7 @@ def _next_index(valid):
     return jnp.where(nxt_ok, idx + 1, 0)
 
 
-def _single(car, obs, obs_valid, u):
+def _single(car, obs, obs_valid, u, with_exact=True):
     """The construction for one car ``(4, 2)``, obstacle ``(M, 2)`` + mask, direction ``u (2,)``."""
     dtype = car.dtype
     car_valid = jnp.ones(car.shape[0], bool)
@@ -184,7 +184,7 @@ def _single(car, obs, obs_valid, u):
                                jnp.where(seed & ahead, case_seed, CASE_DEEPEST)))
     dist_seed = jnp.where(on_edge, jnp.maximum(t1, 0.0), jnp.maximum(t2, 0.0))
     un = jnp.linalg.norm(u)
-    exact = exact_avoid_distance(car, obs, u, car_valid, obs_valid)
+    exact = exact_avoid_distance(car, obs, u, car_valid, obs_valid) if with_exact else jnp.nan
     dist = jnp.where(case == CASE_NONE, 0.0,
                      jnp.where((case == CASE_ON_EDGE) | (case == CASE_OFF_EDGE), dist_seed,
                                jnp.where(case == CASE_DEEPEST, exit_t, exact)))
@@ -195,7 +195,7 @@ def _single(car, obs, obs_valid, u):
                                depth)
 
 
-def contour_construction(vehicle_corners, obstacle_corners, normal, obstacle_valid=None):
+def contour_construction(vehicle_corners, obstacle_corners, normal, obstacle_valid=None, with_exact: bool = True):
     """The seed's construction with all its points, batched over leading dims.
 
     Args:
@@ -204,6 +204,8 @@ def contour_construction(vehicle_corners, obstacle_corners, normal, obstacle_val
         normal: ``(..., 2)`` unit direction in which the car moves (along the trajectory
             normal l1, away from the obstacle).
         obstacle_valid: ``(..., K)`` prefix mask or None.
+        with_exact: compute the exact distance for the cases outside the seed (static);
+            False leaves NaN there (for callers that have the exact distance already).
 
     Returns:
         ``ContourConstruction`` with leading dims the broadcast of the inputs'.
@@ -225,7 +227,7 @@ def contour_construction(vehicle_corners, obstacle_corners, normal, obstacle_val
     obs = jnp.broadcast_to(obs, lead + (K, 2)).reshape((-1, K, 2))
     ov = jnp.broadcast_to(ov, lead + (K,)).reshape((-1, K))
     u = jnp.broadcast_to(u, lead + (2,)).reshape((-1, 2))
-    out = jax.vmap(_single)(car, obs, ov, u)
+    out = jax.vmap(lambda a, b, c, d: _single(a, b, c, d, with_exact))(car, obs, ov, u)
     return jax.tree_util.tree_map(lambda x: x.reshape(lead + x.shape[1:]), out)
 
 

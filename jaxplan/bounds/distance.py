@@ -76,6 +76,49 @@ def overlap_interval(poly_a, poly_b, direction, valid_a=None, valid_b=None):
     return jnp.where(hit, t_lo, jnp.inf), jnp.where(hit, t_hi, -jnp.inf), hit
 
 
+def box_overlap_interval(center_a, axis_a, half_a, center_b, axis_b, half_b, direction):
+    """``overlap_interval`` for two rectangles in closed form (SAT on their 4 axes).
+
+    ``A + t d`` and B overlap iff on every axis ``nu`` of either box
+    ``|nu.(c_B - c_A) - t nu.d| < r_A(nu) + r_B(nu)`` (the boxes' projected radii), an open
+    interval of ``t`` per axis; their intersection is the answer. About 60 flops a pair:
+    the fast path of ``path_bounds`` (``rectangles=True``) and the planner.
+
+    Args:
+        center_a, center_b: ``(..., 2)``; axis_a, axis_b: ``(..., 2)`` unit heading vectors;
+        half_a, half_b: ``(..., 2)`` half length and half width; direction: ``(..., 2)``.
+
+    Returns:
+        (t_lo, t_hi, hit), as ``overlap_interval``.
+    """
+    ca, cb = jnp.asarray(center_a), jnp.asarray(center_b)
+    ua, ub, d = jnp.asarray(axis_a), jnp.asarray(axis_b), jnp.asarray(direction)
+    ha, hb = jnp.asarray(half_a), jnp.asarray(half_b)
+    dtype = jnp.result_type(ca, cb, ua, ub, ha, hb, d, float)
+    perp = lambda v: jnp.stack([-v[..., 1], v[..., 0]], -1)
+    dot = lambda x, y: x[..., 0] * y[..., 0] + x[..., 1] * y[..., 1]
+    va, vb = perp(ua), perp(ub)
+    delta = cb - ca
+    eps = 64 * jnp.finfo(dtype).eps * jnp.maximum(jnp.linalg.norm(d, axis=-1), 1e-30)
+    t_lo = jnp.full(jnp.broadcast_shapes(delta.shape[:-1], d.shape[:-1], ua.shape[:-1], ub.shape[:-1]),
+                    -jnp.inf, dtype)
+    t_hi = -t_lo
+    flat_sep = jnp.zeros(t_lo.shape, bool)
+    for nu in (ua, va, ub, vb):
+        r = (ha[..., 0] * jnp.abs(dot(nu, ua)) + ha[..., 1] * jnp.abs(dot(nu, va))
+             + hb[..., 0] * jnp.abs(dot(nu, ub)) + hb[..., 1] * jnp.abs(dot(nu, vb)))
+        p = dot(nu, delta)
+        c = dot(nu, d)
+        moving = jnp.abs(c) > eps
+        cs = jnp.where(moving, c, 1.0)
+        e1, e2 = (p - r) / cs, (p + r) / cs
+        t_lo = jnp.where(moving, jnp.maximum(t_lo, jnp.minimum(e1, e2)), t_lo)
+        t_hi = jnp.where(moving, jnp.minimum(t_hi, jnp.maximum(e1, e2)), t_hi)
+        flat_sep = flat_sep | (~moving & (jnp.abs(p) >= r))
+    hit = (t_lo < t_hi) & ~flat_sep
+    return jnp.where(hit, t_lo, jnp.inf), jnp.where(hit, t_hi, -jnp.inf), hit
+
+
 def exact_avoid_distance(vehicle_poly, obstacle_poly, direction, vehicle_valid=None, obstacle_valid=None):
     """Smallest ``t >= 0`` such that the car moved by ``t * direction`` no longer overlaps.
 

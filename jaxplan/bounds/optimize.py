@@ -1,38 +1,37 @@
-"""A piecewise-jerk path planned inside per-point bounds, as a QP (ADMM; qpax optional).
+"""A piecewise-jerk path planned inside per-point bounds: an OSQP-style ADMM on the jerks.
 
-Variables on a uniform s grid of T points (spacing ``ds``): ``x = [l, l', l'']``
-(``3T``). Between grid points the jerk is constant, so
+Variables on a uniform s grid of T points (spacing ``ds``): the states ``x = [l, l', l'']``
+(``3T``) and the constant jerk ``j_i = (l''_{i+1} - l''_i) / ds`` on each interval, so
 
-    l'_{i+1} = l'_i + ds/2 (l''_i + l''_{i+1})
-    l_{i+1}  = l_i + ds l'_i + ds^2/3 l''_i + ds^2/6 l''_{i+1}
+    l''_{i+1} = l''_i + ds j_i
+    l'_{i+1}  = l'_i + ds l''_i + ds^2/2 j_i
+    l_{i+1}   = l_i + ds l'_i + ds^2/2 l''_i + ds^3/6 j_i
 
-are equality constraints, with the initial state ``(l_0, l'_0, l''_0)``. The
-cost is ``w_ref sum (l - l_ref)^2 + w_dl sum l'^2 + w_ddl sum l''^2 +
-w_dddl sum ((l''_{i+1} - l''_i)/ds)^2``; the bounds ``lower <= l <= upper``,
-``|l'| <= dl_max`` and ``|l''| <= ddl_max`` are inequalities.
+from the initial state ``x0 = (l_0, l'_0, l''_0)``: the states are a linear map of the
+jerks, ``x = M j + H x0`` (``jerk_map``), and the QP is in the ``T - 1`` jerks alone:
 
-Solvers (``PathQPConfig.backend``):
+    min  w_ref sum (l - l_ref)^2 + w_dl sum l'^2 + w_ddl sum l''^2 + w_dddl sum j^2
+    s.t. lower <= l <= upper,  dl_lower <= l' <= dl_upper,  ddl_lower <= l'' <= ddl_upper,
+         |j| <= jerk_max                                   (points 1 .. T-1; point 0 is x0)
 
-* ``"admm"`` (default): the equalities are eliminated in closed form (the
-  states are a linear map of the jerks, ``jerk_map``) and an OSQP-style ADMM
-  runs on the jerks for a fixed number of iterations. The ADMM matrix depends
-  only on the weights and ``ds``, so it is inverted once for all frames and
-  each iteration is a batched matmul; differentiable by unrolling.
-* ``"qpax"``: qpax's primal-dual interior point (``solve_qp_primal``,
-  implicit-function gradients), vmapped. Why it is not the default, measured
-  on this jax 0.10.2 CPU build (shared 2-core machine): 1.6 s for one frame
-  (warm), 3.3 s for 8 vmapped frames, 84 frames did not finish in 150 s; and in
-  float32 its convergence flag is never set (it floors s, z at sqrt(eps), the
-  KKT residual stalls near 1e-2) although its x matched a float64 SLSQP oracle
-  to 1e-7. The ADMM matches the same oracle to ~4e-5 m in 1000 iterations
-  (tests/test_bounds_core.py) for every frame of a batch in one call.
+``ddl`` bounds carry the curvature limit from the steering limit (``curvature_bounds``:
+``kappa = l'' + kappa_ref`` to first order, so ``-kappa_max - kappa_ref <= l'' <=
+kappa_max - kappa_ref``), the jerk bound bounds the steering rate.
 
-Infeasible input is reported, not solved into garbage: where any ``lower >
-upper`` (or the initial ``l_0`` is outside its bounds) ``feasible`` is False,
-the solver runs on repaired bounds and the returned path is NaN. ``ok`` also
-requires convergence (qpax's flag or a relative KKT residual below ``rel_tol``:
-in float32 qpax's absolute flag is unreachable, see ``_single``) and a bound
-violation below ``tol_violation``.
+The solver (``_admm``, one frame, batched with ``jax.vmap``) is OSQP's ADMM (Stellato et
+al. 2020) for ``min 1/2 z'Pz + q'z s.t. lo <= C z <= hi``: modified Ruiz equilibration of
+the KKT matrix and cost scaling, over-relaxation ``alpha = 1.6``, the convergence test on
+the unscaled primal and dual residuals (``eps_abs``, ``eps_rel``), the adaptive ``rho``
+(every ``check_every`` iterations, ``rho *= sqrt(scaled primal / scaled dual residual)``,
+refactorised when it moves by more than 5x) and the primal-infeasibility certificate
+(``delta y`` with ``||C' dy|| <= eps_pinf ||dy||`` and ``hi' dy+ + lo' dy- < -eps_pinf
+||dy||``). The ``T - 1`` by ``T - 1`` matrix is inverted densely (it is small), so an
+iteration is two small matrix-vector products. Warm starts (``z0``, ``y0``) are accepted.
+
+Infeasible input is reported, never returned as a path: where ``lower > upper``
+somewhere, the initial state lies outside its bounds, or the certificate fires,
+``feasible`` is False and ``l`` is NaN. ``ok`` = feasible, converged, and every bound met
+within ``tol_violation``.
 """
 from __future__ import annotations
 
@@ -41,10 +40,9 @@ from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
-import qpax
 
-# Infinite bounds become this (m) for the interior point method.
-_FAR = 1e3
+# Infinite bounds become this (m, or its unit) inside the solver.
+_FAR = 1e4
 
 
 @jax.tree_util.register_dataclass
@@ -60,88 +58,68 @@ class PathWeights:
 
 @dataclasses.dataclass(frozen=True)
 class PathQPConfig:
-    """Static settings of the path QP."""
+    """Static settings of the path QP.
+
+    Attributes:
+        dl_max: ``|l'|`` bound (default when no per-point bound is given).
+        ddl_max: ``|l''|`` bound (default when no per-point bound is given), 1/m.
+        jerk_max: ``|l'''|`` bound, 1/m^2.
+        eps_abs, eps_rel: OSQP's convergence tolerances (unscaled residuals).
+        eps_pinf: tolerance of the primal-infeasibility certificate.
+        rho: initial ADMM step; adapted (``adaptive_rho``) at most ``rho_updates`` times.
+        check_every: iterations between residual / certificate checks.
+        max_iter: iteration cap (a multiple of ``check_every``).
+        tol_violation: bound violation (m) above which a solution is not ``ok``.
+        ruiz_iters: equilibration passes.
+        early_exit: stop when converged (``lax.while_loop``); False runs every iteration
+            (``fori_loop``), so that ``jax.grad`` can differentiate through the solve by
+            unrolling (solved problems keep their state).
+    """
 
     dl_max: float = 2.0
     ddl_max: float = 1.0
-    max_iter: int = 40
-    solver_tol: float = 1e-5
-    tol_violation: float = 1e-3
-    rel_tol: float = 1e-4
-    backend: str = "admm"  # "admm" (default) or "qpax"
-    admm_iters: int = 1000
+    jerk_max: float = 1.0
+    eps_abs: float = 1e-4
+    eps_rel: float = 1e-4
+    eps_pinf: float = 1e-5
     rho: float = 0.1
+    adaptive_rho: bool = True
+    check_every: int = 25
+    rho_updates: int = 3
+    early_exit: bool = True
+    max_iter: int = 4000
+    tol_violation: float = 1e-3
+    ruiz_iters: int = 10
 
 
 class PathQPResult(NamedTuple):
-    """Solution per frame: ``l, dl, ddl (..., T)`` (NaN where not feasible), flags ``(...)``."""
+    """Solution per frame: ``l, dl, ddl (..., T)``, ``jerk (..., T-1)`` (NaN where not
+    feasible); flags and figures ``(...)``.
+
+    Attributes:
+        feasible: bounds consistent, start inside, no infeasibility certificate.
+        infeasible_certificate: the ADMM's primal-infeasibility certificate fired.
+        converged: OSQP's residual test passed.
+        ok: feasible, converged and every bound met within ``tol_violation``.
+        max_violation: largest bound violation of ``l`` (m).
+        iterations: ADMM iterations run.
+        rho: the final step size.
+        z, y: the solver's states ``(..., 3T)`` and duals ``(..., 6T-3)`` (warm start of a later solve).
+    """
 
     l: jnp.ndarray
     dl: jnp.ndarray
     ddl: jnp.ndarray
+    jerk: jnp.ndarray
     feasible: jnp.ndarray
+    infeasible_certificate: jnp.ndarray
     converged: jnp.ndarray
     ok: jnp.ndarray
     max_violation: jnp.ndarray
-
-
-def qp_matrices(T: int, ds, l_ref, lower, upper, init, weights: PathWeights, config: PathQPConfig):
-    """Dense QP data ``(Q, q, A, b, G, h)`` for one frame (``l_ref, lower, upper (T,)``, ``init (3,)``)."""
-    dtype = l_ref.dtype
-    n = 3 * T
-    eye = jnp.eye(T, dtype=dtype)
-    D = (jnp.eye(T - 1, T, 1, dtype=dtype) - jnp.eye(T - 1, T, dtype=dtype)) / ds  # (T-1, T)
-    Z = jnp.zeros((T, T), dtype)
-    Q = 2 * jnp.block([[weights.ref * eye, Z, Z], [Z, weights.dl * eye, Z],
-                       [Z, Z, weights.ddl * eye + weights.dddl * D.T @ D]])
-    q = jnp.concatenate([-2 * weights.ref * l_ref, jnp.zeros(2 * T, dtype)])
-    I0 = jnp.eye(T - 1, T, dtype=dtype)
-    I1 = jnp.eye(T - 1, T, 1, dtype=dtype)
-    A_pos = jnp.concatenate([I1 - I0, -ds * I0, -(ds ** 2 / 3) * I0 - (ds ** 2 / 6) * I1], axis=1)
-    A_vel = jnp.concatenate([jnp.zeros((T - 1, T), dtype), I1 - I0, -(ds / 2) * (I0 + I1)], axis=1)
-    A_init = jnp.zeros((3, n), dtype).at[0, 0].set(1.0).at[1, T].set(1.0).at[2, 2 * T].set(1.0)
-    A = jnp.concatenate([A_pos, A_vel, A_init], axis=0)
-    b = jnp.concatenate([jnp.zeros(2 * (T - 1), dtype), init])
-    G1 = jnp.eye(n, dtype=dtype)
-    G = jnp.concatenate([G1, -G1], axis=0)
-    hi = jnp.concatenate([upper, jnp.full((T,), config.dl_max, dtype), jnp.full((T,), config.ddl_max, dtype)])
-    lo = jnp.concatenate([lower, jnp.full((T,), -config.dl_max, dtype), jnp.full((T,), -config.ddl_max, dtype)])
-    h = jnp.concatenate([hi, -lo])
-    return Q, q, A, b, G, h
-
-
-def _single(lower, upper, l_ref, init, ds, weights, config):
-    T = lower.shape[0]
-    dtype = l_ref.dtype
-    lower = jnp.maximum(lower, -_FAR)
-    upper = jnp.minimum(upper, _FAR)
-    feasible = jnp.all(lower <= upper) & (init[0] >= lower[0]) & (init[0] <= upper[0])
-    # Repaired bounds for infeasible input keep the solver well posed; the answer is masked.
-    mid = 0.5 * (lower + upper)
-    lo_s = jnp.where(lower <= upper, lower, mid - 1.0)
-    up_s = jnp.where(lower <= upper, upper, mid + 1.0)
-    init_s = init.at[0].set(jnp.clip(init[0], lo_s[0], up_s[0]))
-    Q, q, A, b, G, h = qp_matrices(T, ds, l_ref, lo_s, up_s, init_s, weights, config)
-    x = qpax.solve_qp_primal(Q, q, A, b, G, h, solver_tol=config.solver_tol, max_iter=config.max_iter)
-    # Convergence of the same solve (forward only): qpax's own flag, or a relative KKT
-    # residual. qpax floors s and z at sqrt(eps), so in float32 its absolute residual
-    # stalls near 1e-2 on this problem even when x agrees with a float64 oracle to
-    # 1e-7; the relative test is the float32-meaningful one.
-    sg = jax.lax.stop_gradient
-    xs, ss, zs, ys, flag, _ = qpax.solve_qp(sg(Q), sg(q), sg(A), sg(b), sg(G), sg(h),
-                                            solver_tol=config.solver_tol, max_iter=config.max_iter)
-    scale = 1.0 + jnp.max(jnp.abs(Q)) * (1.0 + jnp.max(jnp.abs(xs))) + jnp.max(jnp.abs(q))
-    stat = jnp.max(jnp.abs(Q @ xs + q + A.T @ ys + G.T @ zs)) / scale
-    comp = jnp.max(ss * zs) / scale
-    prim = jnp.maximum(jnp.max(jnp.abs(A @ xs - b)), jnp.max(jnp.maximum(G @ xs - h, 0.0)))
-    rel_ok = (stat <= config.rel_tol) & (comp <= config.rel_tol) & (prim <= config.tol_violation)
-    l, dl, ddl = x[:T], x[T:2 * T], x[2 * T:]
-    viol = jnp.maximum(jnp.max(jnp.maximum(l - upper, lower - l)), 0.0)
-    converged = (flag == 1) | rel_ok
-    ok = feasible & converged & (viol <= config.tol_violation)
-    nan = jnp.asarray(jnp.nan, dtype)
-    mask = lambda v: jnp.where(feasible, v, nan)
-    return PathQPResult(mask(l), mask(dl), mask(ddl), feasible, converged, ok, viol)
+    iterations: jnp.ndarray
+    rho: jnp.ndarray
+    z: jnp.ndarray
+    y: jnp.ndarray
 
 
 def jerk_map(T: int, ds, dtype=jnp.float32):
@@ -168,83 +146,276 @@ def jerk_map(T: int, ds, dtype=jnp.float32):
     return jnp.concatenate([m_l, m_d, m_a], axis=0), H
 
 
-def _admm(lower, upper, l_ref, init, ds, weights, config):
-    """OSQP-style ADMM on the jerks, all frames at once. Inputs ``(F, T)``, ``(F, 3)``."""
-    F, T = lower.shape
-    dtype = lower.dtype
-    M, H = jerk_map(T, ds, dtype)
-    Q, _, _, _, _, _ = qp_matrices(T, ds, l_ref[0], lower[0], upper[0], init[0], weights, config)
-    q = jnp.concatenate([-2 * weights.ref * l_ref, jnp.zeros((F, 2 * T), dtype)], axis=1)  # (F, 3T)
-    P = M.T @ Q @ M  # (T-1, T-1), shared by all frames
-    c = 1.0 / jnp.max(jnp.abs(jnp.diag(P)))  # cost scaling (same minimiser)
-    P = c * P
-    off = init @ H.T  # (F, 3T) state from the initial condition alone
-    qz = c * (off @ Q + q) @ M  # (F, T-1)
-    # Constraint scaling: rows of M normalised so that one rho fits l, l' and l''.
-    rs = 1.0 / jnp.maximum(jnp.linalg.norm(M, axis=1), 1e-6)
-    rs = jnp.where(jnp.linalg.norm(M, axis=1) > 1e-9, rs, 0.0)  # rows fixed by x0 alone
-    A = M * rs[:, None]
+def curvature_bounds(kappa_ref, kappa_max, margin: float = 0.9):
+    """``l''`` bounds ``(lower, upper)`` from the steering limit: ``|l'' + kappa_ref| <=
+    margin * kappa_max`` (the path's curvature to first order in ``l, l'``).
+
+    Args:
+        kappa_ref: ``(..., T)`` curvature of the reference line.
+        kappa_max: ``()`` or ``(...)`` ``tan(max_steer) / wheelbase``.
+    """
+    km = margin * jnp.asarray(kappa_max)[..., None]
+    return -km - kappa_ref, km - kappa_ref
+
+
+def state_problem(ds, l_ref, lower, upper, dl_lo, dl_hi, ddl_lo, ddl_hi, jerk_max, init, weights: PathWeights):
+    """The QP in the states ``x = [l, l', l''] (3T)`` for one frame (Apollo's piecewise-jerk
+    form): ``min 1/2 x'Px + q'x, lo <= A x <= hi`` with equality rows where ``lo = hi``.
+
+    Rows of ``A`` (``m = 6T - 3``): the boxes on ``l, l', l''`` (``3T``; point 0 fixed to
+    ``init``), the jerks ``(l''_{i+1} - l''_i) / ds`` (``T - 1``), the two integration
+    equalities (``2 (T - 1)``).
+
+    Args:
+        ds: ``()``; l_ref, lower, upper, dl_lo, dl_hi, ddl_lo, ddl_hi: ``(T,)``; jerk_max:
+        ``()``; init: ``(3,)``.
+
+    Returns:
+        (P ``(3T, 3T)``, q ``(3T,)``, A ``(m, 3T)``, lo ``(m,)``, hi ``(m,)``).
+    """
+    T = l_ref.shape[-1]
+    dtype = l_ref.dtype
+    ds = jnp.asarray(ds, dtype)
+    eye = jnp.eye(T, dtype=dtype)
+    D = (jnp.eye(T - 1, T, 1, dtype=dtype) - jnp.eye(T - 1, T, dtype=dtype)) / ds  # (T-1, T)
+    Z = jnp.zeros((T, T), dtype)
+    P = 2 * jnp.block([[weights.ref * eye, Z, Z], [Z, weights.dl * eye, Z],
+                       [Z, Z, weights.ddl * eye + weights.dddl * D.T @ D]])
+    q = jnp.concatenate([-2 * weights.ref * l_ref, jnp.zeros(2 * T, dtype)])
+    I0 = jnp.eye(T - 1, T, dtype=dtype)
+    I1 = jnp.eye(T - 1, T, 1, dtype=dtype)
+    Zr = jnp.zeros((T - 1, T), dtype)
+    A_pos = jnp.concatenate([I1 - I0, -ds * I0, -(ds ** 2 / 3) * I0 - (ds ** 2 / 6) * I1], axis=1)
+    A_vel = jnp.concatenate([Zr, I1 - I0, -(ds / 2) * (I0 + I1)], axis=1)
+    A_jerk = jnp.concatenate([Zr, Zr, D], axis=1)
+    A = jnp.concatenate([jnp.eye(3 * T, dtype=dtype), A_jerk, A_pos, A_vel], axis=0)
     big = jnp.asarray(_FAR, dtype)
-    lim = jnp.concatenate([jnp.full((T,), config.dl_max, dtype), jnp.full((T,), config.ddl_max, dtype)])
-    hi = (jnp.concatenate([upper, jnp.broadcast_to(lim, (F, 2 * T))], 1) - off) * rs
-    lo = (jnp.concatenate([lower, jnp.broadcast_to(-lim, (F, 2 * T))], 1) - off) * rs
-    hi, lo = jnp.minimum(hi, big), jnp.maximum(lo, -big)
-    rho, sigma, alpha = config.rho, 1e-6, 1.6
-    K = P + sigma * jnp.eye(T - 1, dtype=dtype) + rho * A.T @ A
-    Kinv = jnp.linalg.inv(K)  # one small matrix for every frame: no batched solve
-
-    def step(_, st):
-        z, w, y = st  # jerks (F, T-1), constraint copy (F, 3T), duals (F, 3T)
-        rhs = sigma * z - qz + (rho * w - y) @ A
-        zt = rhs @ Kinv.T
-        wt = zt @ A.T
-        wr = alpha * wt + (1 - alpha) * w
-        wn = jnp.clip(wr + y / rho, lo, hi)
-        y = y + rho * (wr - wn)
-        z = alpha * zt + (1 - alpha) * z
-        return z, wn, y
-
-    z0 = jnp.zeros((F, T - 1), dtype)
-    w0 = jnp.clip(jnp.zeros((F, 3 * T), dtype), lo, hi)
-    z, w, y = jax.lax.fori_loop(0, config.admm_iters, step, (z0, w0, jnp.zeros((F, 3 * T), dtype)))
-    x = z @ M.T + off
-    prim = jnp.max(jnp.abs(z @ A.T - w) / jnp.maximum(rs, 1e-6) * (rs > 0), axis=1)
-    dual = jnp.max(jnp.abs(z @ P + qz + y @ A), axis=1)
-    return x, (prim <= config.tol_violation) & (dual <= config.rel_tol)
+    fix0 = lambda v, x0: v.at[0].set(x0)
+    hi_x = jnp.concatenate([fix0(upper, init[0]), fix0(dl_hi, init[1]), fix0(ddl_hi, init[2])])
+    lo_x = jnp.concatenate([fix0(lower, init[0]), fix0(dl_lo, init[1]), fix0(ddl_lo, init[2])])
+    jm = jnp.full((T - 1,), jerk_max, dtype)
+    zeq = jnp.zeros(2 * (T - 1), dtype)
+    hi = jnp.clip(jnp.concatenate([hi_x, jm, zeq]), -big, big)
+    lo = jnp.clip(jnp.concatenate([lo_x, -jm, zeq]), -big, big)
+    return P, q, A, lo, hi
 
 
-def _admm_frames(lower, upper, l_ref, init, ds, weights, config):
+def _tri_inverse(L):
+    """Inverse of a lower-triangular ``(n, n)`` matrix by blocks (matrix products; blocks of
+    at most 32 rows by triangular solves): on XLA's CPU backend far faster than one
+    ``n x n`` triangular solve or ``jnp.linalg.inv``."""
+    n = L.shape[-1]
+    if n <= 32:
+        return jax.lax.linalg.triangular_solve(L, jnp.eye(n, dtype=L.dtype), left_side=True, lower=True)
+    k = n // 2
+    Ai, Ci = _tri_inverse(L[:k, :k]), _tri_inverse(L[k:, k:])
+    low = -Ci @ (L[k:, :k] @ Ai)
+    return jnp.concatenate([jnp.concatenate([Ai, jnp.zeros((k, n - k), L.dtype)], 1),
+                            jnp.concatenate([low, Ci], 1)], 0)
+
+
+def spd_inverse(K):
+    """Inverse of a symmetric positive definite ``(n, n)`` matrix (Cholesky, then ``_tri_inverse``)."""
+    Li = _tri_inverse(jnp.linalg.cholesky(K))
+    return Li.T @ Li
+
+
+def _ruiz(P, C, iters):
+    """Modified Ruiz equilibration of ``[[P, C'], [C, 0]]``: column scaling ``d (n,)``, row
+    scaling ``e (m,)``, cost scaling ``c``."""
+    n, m = P.shape[0], C.shape[0]
+    d = jnp.ones(n, P.dtype)
+    e = jnp.ones(m, P.dtype)
+
+    def body(_, st):
+        d, e = st
+        Ps = d[:, None] * P * d[None, :]
+        Cs = e[:, None] * C * d[None, :]
+        col = jnp.maximum(jnp.max(jnp.abs(Ps), 0), jnp.max(jnp.abs(Cs), 0))
+        row = jnp.max(jnp.abs(Cs), 1)
+        d = d / jnp.sqrt(jnp.clip(col, 1e-4, 1e4))
+        e = e / jnp.sqrt(jnp.clip(row, 1e-4, 1e4))
+        return d, e
+
+    d, e = jax.lax.fori_loop(0, iters, body, (d, e))
+    Ps = d[:, None] * P * d[None, :]
+    return d, e, Ps
+
+
+def admm_solve(P, q, C, lo, hi, config: PathQPConfig, z0=None, y0=None, matvec=None):
+    """OSQP's ADMM for ``min 1/2 z'Pz + q'z, lo <= C z <= hi`` (one problem; vmap it).
+
+    The iterations run in stages: ``rho`` is adapted (and the matrix refactorised) only
+    between stages, at most ``config.rho_updates`` times (stage ``k`` runs up to
+    ``2^(k+1)`` blocks of ``check_every`` iterations, the last one up to ``max_iter``), so
+    a batch pays a fixed, small number of factorisations.
+
+    Args:
+        P: ``(n, n)`` positive definite; q: ``(n,)``; C: ``(m, n)``; lo, hi: ``(m,)``
+            finite (rows with ``lo == hi`` are equalities and get ``1e3 rho``).
+        config: tolerances and iteration counts.
+        z0, y0: optional warm start ``(n,)``, ``(m,)`` (unscaled).
+        matvec: optional function ``z -> C z`` exploiting ``C``'s structure (the dense
+            ``C`` is then used only for the equilibration).
+
+    Returns:
+        (z ``(n,)``, y ``(m,)``, converged, infeasible, iterations, rho).
+    """
+    dtype = P.dtype
+    n, m = P.shape[0], C.shape[0]
+    d, e, Ps = _ruiz(P, C, config.ruiz_iters)
+    qs = d * q
+    c = 1.0 / jnp.maximum(jnp.maximum(jnp.max(jnp.abs(Ps)), jnp.max(jnp.abs(qs))), 1e-6)
+    c = jnp.clip(c, 1e-4, 1e4)
+    Ps, qs = c * Ps, c * qs
+    Cs = e[:, None] * C * d[None, :]
+    if matvec is None:
+        cz = lambda z: Cs @ z
+        cty = lambda y: Cs.T @ y
+    else:
+        cz = lambda z: e * matvec(d * z)
+        tr = jax.linear_transpose(matvec, jnp.zeros(n, dtype))
+        cty = lambda y: d * tr(e * y)[0]
+    los, his = e * lo, e * hi
+    sigma, alpha = 1e-6, 1.6
+    eye = jnp.eye(n, dtype=dtype)
+    eq = (hi - lo) <= 1e-9 * (1.0 + jnp.abs(hi))  # equality rows get 1e3 rho (as OSQP)
+    rho_scale = jnp.where(eq, 1e3, 1.0).astype(dtype)
+    CtC = Cs.T * rho_scale
+
+    def factor(rho):
+        return spd_inverse(Ps + sigma * eye + rho * CtC @ Cs)
+
+    zs = jnp.zeros(n, dtype) if z0 is None else z0 / d
+    ys = jnp.zeros(m, dtype) if y0 is None else y0 * c / e
+    ws = jnp.clip(cz(zs), los, his)
+
+    def residuals(zs, ws, ys):
+        Cz = cz(zs)
+        prim = jnp.max(jnp.abs((Cz - ws) / e))
+        Pz = Ps @ zs
+        Cty = cty(ys)
+        dual = jnp.max(jnp.abs((Pz + qs + Cty) / d)) / c
+        prim_scale = jnp.maximum(jnp.max(jnp.abs(Cz / e)), jnp.max(jnp.abs(ws / e)))
+        dual_scale = jnp.maximum(jnp.maximum(jnp.max(jnp.abs(Pz / d)), jnp.max(jnp.abs(Cty / d))),
+                                 jnp.max(jnp.abs(qs / d))) / c
+        return prim, dual, prim_scale, dual_scale
+
+    def run_stage(st, rho, Kinv, n_blocks_max):
+        rv = rho * rho_scale
+
+        def block(st):
+            zs, ws, ys, it, nb, done, conv, infeas, prim, dual, ps_, ds_ = st
+
+            def step(_, inner):
+                zs, ws, ys, _ = inner
+                rhs = sigma * zs - qs + cty(rv * ws - ys)
+                zt = Kinv @ rhs
+                wt = cz(zt)
+                wr = alpha * wt + (1 - alpha) * ws
+                wn = jnp.clip(wr + ys / rv, los, his)
+                yn = ys + rv * (wr - wn)
+                zn = alpha * zt + (1 - alpha) * zs
+                return zn, wn, yn, ys
+
+            zn, wn, yn, yprev = jax.lax.fori_loop(0, config.check_every, step, (zs, ws, ys, ys))
+            pr, du, pscale, dscale = residuals(zn, wn, yn)
+            c_ok = (pr <= config.eps_abs + config.eps_rel * pscale) & (du <= config.eps_abs + config.eps_rel * dscale)
+            # Primal infeasibility certificate on the unscaled dual step dy = E (y_k - y_{k-1}) / c.
+            dy = e * (yn - yprev) / c
+            ndy = jnp.max(jnp.abs(dy))
+            ctdy = jnp.max(jnp.abs(cty(yn - yprev) / d / c))
+            support = jnp.sum(hi * jnp.maximum(dy, 0.0) + lo * jnp.minimum(dy, 0.0))
+            inf_ok = (ndy > 1e-12) & (ctdy <= config.eps_pinf * ndy) & (support < -config.eps_pinf * ndy)
+            keep = done  # finished problems keep their state (vmap runs every lane)
+            pick = lambda a, b: jnp.where(keep, a, b)
+            return (pick(zs, zn), pick(ws, wn), pick(ys, yn), pick(it, it + config.check_every), nb + 1,
+                    done | c_ok | inf_ok, pick(conv, c_ok), pick(infeas, inf_ok), pick(prim, pr), pick(dual, du),
+                    pick(ps_, pscale), pick(ds_, dscale))
+
+        st = st[:4] + (jnp.asarray(0, jnp.int32),) + st[5:]
+        if config.early_exit:
+            return jax.lax.while_loop(lambda s: (~s[5]) & (s[4] < n_blocks_max), block, st)
+        return jax.lax.fori_loop(0, n_blocks_max, lambda _, s: block(s), st)  # reverse-differentiable
+
+    z0_ = jnp.asarray(0.0, dtype)
+    st = (zs, ws, ys, jnp.asarray(0, jnp.int32), jnp.asarray(0, jnp.int32), jnp.asarray(False), jnp.asarray(False),
+          jnp.asarray(False), z0_, z0_, z0_, z0_)
+    rho = jnp.asarray(config.rho, dtype)
+    total = max(config.max_iter // config.check_every, 1)
+    n_stages = config.rho_updates + 1 if config.adaptive_rho else 1
+    used = 0
+    for k in range(n_stages):
+        last = k == n_stages - 1
+        budget = total - used if last else min(2 ** (k + 1), total - used)
+        if budget <= 0:
+            break
+        used += budget
+        st = run_stage(st, rho, factor(rho), budget)
+        if not last:
+            prim, dual, ps_, ds_ = st[8:12]
+            ratio = (prim / jnp.maximum(ps_, 1e-10)) / jnp.maximum(dual / jnp.maximum(ds_, 1e-10), 1e-10)
+            rho = jnp.clip(rho * jnp.sqrt(ratio), 1e-6, 1e6)
+    zs, ws, ys, it, _, _, conv, infeas = st[:8]
+    return d * zs, e * ys / c, conv, infeas, it, rho
+
+
+def state_matvec(ds, T):
+    """``x -> A x`` of ``state_problem`` in O(T) (the rows' structure), for ``admm_solve``."""
+
+    def mv(x):
+        l, dl, ddl = x[:T], x[T:2 * T], x[2 * T:]
+        jerk = (ddl[1:] - ddl[:-1]) / ds
+        pos = l[1:] - l[:-1] - ds * dl[:-1] - (ds ** 2 / 3) * ddl[:-1] - (ds ** 2 / 6) * ddl[1:]
+        vel = dl[1:] - dl[:-1] - (ds / 2) * (ddl[:-1] + ddl[1:])
+        return jnp.concatenate([x, jerk, pos, vel])
+
+    return mv
+
+
+def _frame(lower, upper, dl_lo, dl_hi, ddl_lo, ddl_hi, l_ref, init, ds, weights, config, z0, y0):
     T = lower.shape[-1]
-    lower = jnp.maximum(lower, -_FAR)
-    upper = jnp.minimum(upper, _FAR)
-    feasible = jnp.all(lower <= upper, -1) & (init[:, 0] >= lower[:, 0]) & (init[:, 0] <= upper[:, 0])
-    mid = 0.5 * (lower + upper)
-    lo_s = jnp.where(lower <= upper, lower, mid)
-    up_s = jnp.where(lower <= upper, upper, mid)
-    init_s = init.at[:, 0].set(jnp.clip(init[:, 0], lo_s[:, 0], up_s[:, 0]))
-    x, converged = _admm(lo_s, up_s, l_ref, init_s, ds, weights, config)
-    l, dl, ddl = x[:, :T], x[:, T:2 * T], x[:, 2 * T:]
-    viol = jnp.maximum(jnp.max(jnp.maximum(l - upper, lower - l), -1), 0.0)
-    ok = feasible & converged & (viol <= config.tol_violation)
-    nan = jnp.asarray(jnp.nan, x.dtype)
-    mask = lambda v: jnp.where(feasible[:, None], v, nan)
-    return PathQPResult(mask(l), mask(dl), mask(ddl), feasible, converged, ok, viol)
+    dtype = lower.dtype
+    bad_bounds = jnp.any(lower[1:] > upper[1:]) | jnp.any(dl_lo[1:] > dl_hi[1:]) | jnp.any(ddl_lo[1:] > ddl_hi[1:])
+    start_out = ((init[0] < lower[0] - config.tol_violation) | (init[0] > upper[0] + config.tol_violation)
+                 | (init[1] < dl_lo[0] - 1e-6) | (init[1] > dl_hi[0] + 1e-6)
+                 | (init[2] < ddl_lo[0] - 1e-6) | (init[2] > ddl_hi[0] + 1e-6))
+    # Repaired bounds keep the solver well posed on bad input; the answer is masked.
+    fix = lambda a, b: (jnp.where(a <= b, a, 0.5 * (a + b)), jnp.where(a <= b, b, 0.5 * (a + b)))
+    lo_s, up_s = fix(lower, upper)
+    dlo, dhi = fix(dl_lo, dl_hi)
+    alo, ahi = fix(ddl_lo, ddl_hi)
+    P, q, A, lo, hi = state_problem(ds, l_ref, lo_s, up_s, dlo, dhi, alo, ahi, config.jerk_max, init, weights)
+    z, y, conv, infeas, it, rho = admm_solve(P, q, A, lo, hi, config, z0, y0, state_matvec(ds, T))
+    l, dl, ddl = z[:T], z[T:2 * T], z[2 * T:]
+    viol = jnp.maximum(jnp.max(jnp.maximum(l[1:] - upper[1:], lower[1:] - l[1:])), 0.0)
+    feasible = ~bad_bounds & ~start_out & ~infeas
+    ok = feasible & conv & (viol <= config.tol_violation)
+    nan = jnp.asarray(jnp.nan, dtype)
+    mask = lambda v: jnp.where(feasible, v, nan)
+    jerk = (ddl[1:] - ddl[:-1]) / ds
+    return PathQPResult(mask(l), mask(dl), mask(ddl), mask(jerk), feasible, infeas, conv, ok, viol, it, rho, z, y)
 
 
 def optimize_path(lower, upper, ds, l_ref=None, init=None, weights: PathWeights | None = None,
-                  config: PathQPConfig = PathQPConfig()) -> PathQPResult:
-    """Piecewise-jerk path inside bounds, batched over frames.
+                  config: PathQPConfig = PathQPConfig(), dl_bounds=None, ddl_bounds=None,
+                  warm=None) -> PathQPResult:
+    """Piecewise-jerk path inside bounds, batched over frames (``jax.vmap`` of one frame).
 
     Args:
         lower, upper: ``(..., T)`` bounds on ``l`` (``+-inf`` allowed).
-        ds: grid spacing (m), a scalar.
+        ds: grid spacing (m), a scalar or ``(...)``.
         l_ref: ``(..., T)`` reference offset (default 0).
         init: ``(..., 3)`` initial ``(l, l', l'')`` (default zeros).
-        weights: ``PathWeights`` (arrays; differentiable).
+        weights: ``PathWeights`` (arrays; differentiable by unrolling).
         config: ``PathQPConfig`` (static).
+        dl_bounds: ``(lo, hi)`` each ``(..., T)``; default ``+-config.dl_max``.
+        ddl_bounds: ``(lo, hi)`` each ``(..., T)`` (e.g. ``curvature_bounds``); default
+            ``+-config.ddl_max``.
+        warm: optional ``(z (..., 3T), y (..., 6T-3))`` from an earlier result.
 
     Returns:
-        ``PathQPResult``.
+        ``PathQPResult`` with leading dims ``...``.
     """
     lower, upper = jnp.asarray(lower), jnp.asarray(upper)
     dtype = jnp.result_type(lower, upper, float)
@@ -256,14 +427,20 @@ def optimize_path(lower, upper, ds, l_ref=None, init=None, weights: PathWeights 
     init = jnp.zeros(lead + (3,), dtype) if init is None else jnp.asarray(init, dtype)
     weights = PathWeights() if weights is None else weights
     weights = jax.tree_util.tree_map(lambda w: jnp.asarray(w, dtype), weights)
-    flat = lambda x, tail: jnp.broadcast_to(x.astype(dtype), lead + tail).reshape((-1,) + tail)
-    ds = jnp.asarray(ds, dtype)
-    if config.backend == "admm":
-        out = _admm_frames(flat(lower, (T,)), flat(upper, (T,)), flat(l_ref, (T,)), flat(init, (3,)),
-                           ds, weights, config)
-        return jax.tree_util.tree_map(lambda x: x.reshape(lead + x.shape[1:]), out)
-    out = jax.vmap(lambda lo, up, r, i0: _single(lo, up, r, i0, ds, weights, config))(
-        flat(lower, (T,)), flat(upper, (T,)), flat(l_ref, (T,)), flat(init, (3,)))
+    if dl_bounds is None:
+        dl_bounds = (jnp.full((T,), -config.dl_max, dtype), jnp.full((T,), config.dl_max, dtype))
+    if ddl_bounds is None:
+        ddl_bounds = (jnp.full((T,), -config.ddl_max, dtype), jnp.full((T,), config.ddl_max, dtype))
+    flat = lambda x, tail: jnp.broadcast_to(jnp.asarray(x, dtype), lead + tail).reshape((-1,) + tail)
+    args = [flat(lower, (T,)), flat(upper, (T,)), flat(dl_bounds[0], (T,)), flat(dl_bounds[1], (T,)),
+            flat(ddl_bounds[0], (T,)), flat(ddl_bounds[1], (T,)), flat(l_ref, (T,)), flat(init, (3,)),
+            flat(ds, ())]
+    if warm is None:
+        fn = lambda *a: _frame(*a, weights, config, None, None)
+    else:
+        args += [flat(warm[0], (3 * T,)), flat(warm[1], (6 * T - 3,))]
+        fn = lambda *a: _frame(*a[:9], weights, config, a[9], a[10])
+    out = jax.vmap(fn)(*args)
     return jax.tree_util.tree_map(lambda x: x.reshape(lead + x.shape[1:]), out)
 
 

@@ -1,13 +1,23 @@
-"""Suite ``bounds``: contour-corner vs centre-line path bounds against the exact bound.
+"""Suite ``bounds``: path bounds against the exact bound, and paths planned inside them.
 
 Curved roads (radius 5 ... 80 m and straight), frames of 20 points over 4 s,
 obstacles of random size, offset and heading near the path (a third of them
-moving along the road). For each method (centre-line baseline, contour, exact):
-mean / 95th-percentile ``|bound - exact bound|`` per radius over the pairs
-(point, obstacle) where the car on the decision trajectory overlaps the
-obstacle, the share of unsafe bounds (the car placed at the bound still
-overlaps), the share more than 0.2 m over-conservative, and the share of frames
-whose optimised path collides. Plots: error against radius; one frame.
+moving along the road), none overlapping the car's first pose. For each bound
+method (centre-line baseline, Apollo-style SL box, contour along the Frenet
+normal, contour along the trajectory normal, exact): mean / 95th-percentile
+``|bound - exact bound|`` per radius over the pairs (point, obstacle) where the
+car on the decision trajectory overlaps the obstacle, the share of unsafe bounds
+(the car placed at the bound still overlaps), the share more than 0.2 m
+over-conservative; the share of frames whose path optimised inside the bounds
+(at the decision trajectory's heading, no decision) collides.
+
+The planner's path (``path.*``: ``jaxplan.bounds.path_planner.solve_path`` on a
+grid twice as dense as the frame, obstacles at each station's time): side
+decisions against the free corridor, buffer, cut at a blockage, bounds recomputed
+at the optimised heading; the share of frames with a path, the share blocked, the
+QP's success on frames whose corridor is feasible, and the share of solved paths
+that collide (SAT at every station and between stations). Plots: error against
+radius; one frame.
 """
 from __future__ import annotations
 
@@ -18,14 +28,18 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxplan.bounds.frenet_bounds import path_bounds
-from jaxplan.bounds.optimize import optimize_path
+from jaxplan.bounds.optimize import PathQPConfig, curvature_bounds, optimize_path
+from jaxplan.bounds.path_planner import PathConfig, solve_path
 from jaxplan.eval.registry import SuiteArgs, register
 from jaxplan.geometry import (ReferenceLine, box_corners, has_overlap, headings_from_path, ref_state,
                               reference_line, to_cartesian, vehicle_corners)
 from jaxplan.types import VehicleParams
 
 RADII = (5.0, 8.0, 12.0, 20.0, 40.0, 80.0, np.inf)
-METHODS = ("centerline", "contour", "contour_frenet", "exact")
+METHODS = ("centerline", "slbox", "contour", "contour_traj", "exact")
+# The car's front reaches 3.68 m ahead of its reference point and an obstacle's half
+# diagonal is at most 2.75 m: obstacles start (t = 0) at s >= 9 m, the car at s = 2 m.
+OBSTACLE_MIN_S = 9.0
 T = 20
 HORIZON = 4.0
 N_REF = 161
@@ -43,8 +57,13 @@ def _road(radius, length):
 
 
 def make_scenarios(rng, n_frames, n_obs, radii=RADII):
-    """Per radius: reference polylines, decision trajectories and obstacle contours (numpy)."""
-    refs, S, L, OBS, VEL = [], [], [], [], []
+    """Per radius: reference polylines, decision trajectories, obstacle contours (numpy).
+
+    Returns:
+        (refs ``(R, N_REF, 2)``, s ``(R, F, T)``, l ``(R, F, T)``, corners ``(R, F, K, T, 4, 2)``,
+        speeds ``(R,)``, boxes ``(R, F, K, T, 5)``).
+    """
+    refs, S, L, OBS, VEL, BOX = [], [], [], [], [], []
     t = np.linspace(0.0, HORIZON, T)
     for r in radii:
         v = 8.0 if np.isinf(r) else min(8.0, np.sqrt(2.5 * r))
@@ -53,12 +72,11 @@ def make_scenarios(rng, n_frames, n_obs, radii=RADII):
         s = np.broadcast_to(2.0 + v * t, (n_frames, T))
         l = rng.uniform(-0.3, 0.3, (n_frames, 1)) + rng.uniform(-0.1, 0.1, (n_frames, 1)) * np.sin(t / HORIZON * np.pi)
         ref = ReferenceLine.from_polyline(refs[-1])
-        s_o = rng.uniform(4.0, s_end, (n_frames, n_obs))
+        s_o = rng.uniform(OBSTACLE_MIN_S, max(s_end, OBSTACLE_MIN_S + 4.0), (n_frames, n_obs))
         l_o = rng.choice([-1.0, 1.0], (n_frames, n_obs)) * rng.uniform(1.0, 3.2, (n_frames, n_obs))
         moving = rng.uniform(size=(n_frames, n_obs)) < 1 / 3
         v_o = np.where(moving, rng.uniform(0.5, 0.6 * v, (n_frames, n_obs)), 0.0)
-        s_ot = s_o[..., None] + v_o[..., None] * t  # (F, K, T)
-        s_ot = s_ot - np.where(moving, v_o * HORIZON / 2, 0.0)[..., None]
+        s_ot = s_o[..., None] + v_o[..., None] * t  # (F, K, T), at t = 0 from OBSTACLE_MIN_S on
         xy = np.asarray(to_cartesian(ref, jnp.asarray(s_ot, jnp.float32),
                                      jnp.asarray(np.broadcast_to(l_o[..., None], s_ot.shape), jnp.float32)))
         _, th, _, _ = ref_state(ref, jnp.asarray(s_ot, jnp.float32))
@@ -66,11 +84,12 @@ def make_scenarios(rng, n_frames, n_obs, radii=RADII):
         size = np.stack([rng.uniform(1.0, 5.0, (n_frames, n_obs)), rng.uniform(0.5, 2.2, (n_frames, n_obs))], -1)
         boxes = np.concatenate([xy, np.broadcast_to(size[..., None, :], s_ot.shape + (2,)), head[..., None]], -1)
         OBS.append(np.asarray(box_corners(jnp.asarray(boxes, jnp.float32))))
+        BOX.append(boxes)
         S.append(s)
         L.append(l)
         VEL.append(v)
     return (np.stack(refs).astype(np.float32), np.stack(S).astype(np.float32), np.stack(L).astype(np.float32),
-            np.stack(OBS).astype(np.float32), np.asarray(VEL))
+            np.stack(OBS).astype(np.float32), np.asarray(VEL), np.stack(BOX).astype(np.float32))
 
 
 def _at_bound(ref, s, l, heading, bound, obs):
@@ -83,26 +102,68 @@ def _at_bound(ref, s, l, heading, bound, obs):
     return has_overlap(car, jnp.swapaxes(obs, -3, -4))
 
 
-def _one_radius(ref_xy, s, l, obs):
+QP = PathQPConfig(jerk_max=0.2)
+PATH = PathConfig(vehicle=CAR, lat_buffer=0.3, lon_buffer=0.2, buffer_ramp=2.0)
+
+
+def _densify(x, axis):
+    """Insert the midpoint between consecutive entries along ``axis`` (``T -> 2T - 1``)."""
+    x = jnp.moveaxis(x, axis, 0)
+    mid = 0.5 * (x[1:] + x[:-1])
+    out = jnp.concatenate([jnp.stack([x[:-1], mid], 1).reshape((-1,) + x.shape[1:]), x[-1:]], 0)
+    return jnp.moveaxis(out, 0, axis)
+
+
+def _frame_path(ref, s, l, boxes):
+    """The planner's path for one frame: ``s, l (T,)``, ``boxes (K, T, 5)``."""
+    st = _densify(s, 0)
+    bx = jnp.swapaxes(_densify(boxes, 1), 0, 1)  # (N, K, 5)
+    N = st.shape[0]
+    edge = jnp.full((N,), LANE + 0.5 * CAR.width, st.dtype)
+    res = solve_path(ref, st, st[1] - st[0], bx, jnp.ones(bx.shape[:2], bool), edge, -edge, jnp.zeros_like(st),
+                     jnp.stack([l[0], 0.0, 0.0]).astype(st.dtype), PATH)
+    cor, qp = res["corridor"], res["qp"]
+    return dict(ok=qp.ok & res["clear"] & (cor.blocked_index > 1), qp_ok=qp.ok, clear=res["clear"],
+                blocked=cor.blocked_index < N, corridor_ok=cor.blocked_index > 1, qp_infeasible=~qp.feasible,
+                rounds=res["rounds"], l=res["l"], lower=cor.lower, upper=cor.upper, valid=cor.valid,
+                theta=res["theta"], xy=res["xy"])
+
+
+def _one_radius(ref_xy, s, l, obs, boxes):
     ref = reference_line(ref_xy)
     out = {}
+    ds = s[:, 1] - s[:, 0]
+    k_max = jnp.tan(CAR.max_steer) / CAR.wheelbase
+    _, _, k_r, _ = ref_state(ref, s)
+    ddl = curvature_bounds(k_r, k_max)
+    bs = {}
     for m in METHODS:
         method = "contour" if m.startswith("contour") else m
-        normal = "frenet" if m == "contour_frenet" else "trajectory"
-        b = path_bounds(ref, s, l, CAR, obs, lane_lower=-LANE, lane_upper=LANE, method=method, normal=normal)
+        normal = "trajectory" if m == "contour_traj" else "frenet"
+        bs[m] = path_bounds(ref, s, l, CAR, obs, lane_lower=-LANE, lane_upper=LANE, method=method, normal=normal,
+                            rectangles=True)
+    # One QP call for every method's bounds (one compiled solver).
+    M = len(METHODS)
+    init = jnp.stack([l[:, 0], jnp.zeros_like(l[:, 0]), jnp.zeros_like(l[:, 0])], -1)
+    rep = lambda x: jnp.concatenate([x] * M, 0)
+    qp_all = optimize_path(jnp.concatenate([bs[m].lower for m in METHODS]),
+                           jnp.concatenate([bs[m].upper for m in METHODS]), rep(ds), rep(l), rep(init), config=QP,
+                           ddl_bounds=(rep(ddl[0]), rep(ddl[1])))
+    F = s.shape[0]
+    for j, m in enumerate(METHODS):
+        b = bs[m]
+        qp = jax.tree_util.tree_map(lambda x: x[j * F:(j + 1) * F], qp_all)
         bound = jnp.where(b.left, b.obstacle_upper, b.obstacle_lower)  # (F, T, K)
         # 1 mm towards the safe side, so that touching is not counted as unsafe.
         safe = jnp.where(b.left, bound - 1e-3, bound + 1e-3)
         unsafe = _at_bound(ref, s, l, b.heading, safe, obs) | ~jnp.isfinite(bound)
-        ds = s[:, 1] - s[:, 0]
-        init = jnp.stack([l[:, 0], jnp.zeros_like(l[:, 0]), jnp.zeros_like(l[:, 0])], -1)
-        qp = optimize_path(b.lower, b.upper, ds[0], l, init)
         path = to_cartesian(ref, s, jnp.where(qp.ok[:, None], qp.l, l))
         cars = vehicle_corners(path, CAR, headings_from_path(path))  # (F, T, 4, 2)
         hit = has_overlap(cars[:, None], obs)  # (F, K, T)
         out[m] = dict(bound=bound, unsafe=unsafe, overlap=b.overlap, left=b.left, case=b.case,
-                      collide=jnp.any(hit, axis=(1, 2)), qp_ok=qp.ok, qp_feasible=qp.feasible, qp_l=qp.l, lower=b.lower, upper=b.upper,
-                      heading=b.heading)
+                      collide=jnp.any(hit, axis=(1, 2)), qp_ok=qp.ok, qp_feasible=qp.feasible, qp_l=qp.l,
+                      lower=b.lower, upper=b.upper, heading=b.heading)
+    out["path"] = jax.vmap(lambda s1, l1, b1: _frame_path(ref, s1, l1, b1))(s, l, boxes)
     return out
 
 
@@ -155,8 +216,24 @@ def _figures(res, radii):
                                                      / max(m["contour.r_le12.mean_err"], 1e-9), 3)
     m["claim.r_le12.contour_3x_better"] = float(m["claim.r_le12.centerline_over_contour"] >= 3.0)
     case = np.asarray(res["contour"]["case"])[ov & np.isfinite(ex)]
-    for c, name in enumerate(["none", "on_edge", "off_edge", "deepest", "no_corner", "degenerate"]):
+    for c, name in enumerate(["none", "on_edge", "off_edge", "deepest", "no_corner", "degenerate", "exact",
+                              "unconstructed"]):
         m[f"contour.case_share.{name}"] = round(float(np.mean(case == c)), 4)
+    m["claim.r_le12.slbox_over_contour"] = round(m["slbox.r_le12.mean_err"] / max(m["contour.r_le12.mean_err"], 1e-9), 3)
+    p = {k: np.asarray(v) for k, v in res["path"].items()}
+    for i, rad in enumerate(radii):
+        tag = "straight" if np.isinf(rad) else f"r{int(rad)}"
+        m[f"path.{tag}.ok_share"] = round(float(p["ok"][i].mean()), 4)
+    feas = p["corridor_ok"] & ~p["qp_infeasible"]
+    solved = p["qp_ok"] & p["corridor_ok"]
+    m["path.frames"] = int(p["ok"].size)
+    m["path.ok_share"] = round(float(p["ok"].mean()), 4)
+    m["path.blocked_share"] = round(float(p["blocked"].mean()), 4)
+    m["path.corridor_feasible_share"] = round(float(p["corridor_ok"].mean()), 4)
+    m["path.qp_infeasible_share"] = round(float((p["corridor_ok"] & p["qp_infeasible"]).mean()), 4)
+    m["path.qp_success_on_feasible"] = round(float(p["qp_ok"][feas].mean()) if feas.any() else float("nan"), 4)
+    m["path.collide_share_of_solved"] = round(float((~p["clear"][solved]).mean()) if solved.any() else float("nan"), 4)
+    m["path.mean_rounds"] = round(float(p["rounds"].mean()), 3)
     return m, per
 
 
@@ -165,9 +242,9 @@ def bounds_suite(args: SuiteArgs) -> dict:
     n_frames = args.n or (12 if args.quick else 200)
     n_obs = 4 if args.quick else 8
     rng = np.random.default_rng(args.seed)
-    refs, S, L, OBS, _ = make_scenarios(rng, n_frames, n_obs)
+    refs, S, L, OBS, _, BOX = make_scenarios(rng, n_frames, n_obs)
     res = jax.tree_util.tree_map(np.asarray, _all_radii(jnp.asarray(refs), jnp.asarray(S), jnp.asarray(L),
-                                                         jnp.asarray(OBS)))
+                                                         jnp.asarray(OBS), jnp.asarray(BOX)))
     m, per = _figures(res, RADII)
     m["frames_per_radius"] = n_frames
     m["obstacles_per_frame"] = n_obs
@@ -185,6 +262,8 @@ def _plot_error(per, out):
     x = np.arange(len(RADII))
     fig, ax = plt.subplots(1, 2, figsize=(11, 4))
     for meth in METHODS:
+        if meth == "exact":
+            continue
         ax[0].plot(x, [r["mean_err"] for r in per[meth]], "o-", label=meth)
         ax[1].plot(x, [r["p95_err"] for r in per[meth]], "o-", label=meth)
     for a, t in zip(ax, ["mean |bound - exact|", "95th percentile |bound - exact|"]):
@@ -226,7 +305,7 @@ def _plot_frame(refs, S, L, OBS, res, out, radius_index=1):
     for tt in range(0, T, 3):
         c = np.vstack([cars[tt], cars[tt][:1]])
         ax.plot(c[:, 0], c[:, 1], color="0.5", lw=0.7)
-    for meth, col in (("centerline", "C0"), ("contour", "C2"), ("exact", "k")):
+    for meth, col in (("centerline", "C0"), ("slbox", "C1"), ("contour", "C2")):
         r = res[meth]
         for key, ls in (("upper", "--"), ("lower", "-.")):
             b = np.clip(r[key][i, f], -LANE, LANE)
@@ -235,7 +314,17 @@ def _plot_frame(refs, S, L, OBS, res, out, radius_index=1):
         if r["qp_ok"][i, f]:
             p = np.asarray(to_cartesian(ref, s, jnp.asarray(r["qp_l"][i, f])))
             ax.plot(p[:, 0], p[:, 1], "-", color=col, lw=2.2, alpha=0.6, label=f"optimised path ({meth})")
+    pp = res["path"]
+    if pp["qp_ok"][i, f]:
+        xy = pp["xy"][i, f]
+        ax.plot(xy[:, 0], xy[:, 1], "-", color="C4", lw=2.5, label="planner's path (decision, buffer, heading rounds)")
+        cars = np.asarray(vehicle_corners(jnp.asarray(xy), CAR, jnp.asarray(pp["theta"][i, f])))
+        for tt in range(0, len(xy), 6):
+            c = np.vstack([cars[tt], cars[tt][:1]])
+            ax.plot(c[:, 0], c[:, 1], color="C4", lw=0.8)
     ax.set_aspect("equal")
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("y [m]")
     ax.legend(fontsize=7, loc="best")
     ax.set_title(f"radius {RADII[i]:g} m, frame {f}: bounds and optimised paths")
     fig.tight_layout()

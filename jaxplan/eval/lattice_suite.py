@@ -24,10 +24,10 @@ import numpy as np
 
 from jaxplan.eval.registry import SuiteArgs, register
 from jaxplan.geometry import ReferenceLine
-from jaxplan.lattice import CostWeights, LatticeConfig, PlanState, plan_batch
+from jaxplan.lattice import MODE_NAMES, CostWeights, LatticeConfig, PlanState, plan_batch
 from jaxplan.lattice.plan import _plan_jit
 from jaxplan.scenarios.polylines import uniform_resample
-from jaxplan.types import Obstacles
+from jaxplan.types import Obstacles, at_times_jit
 
 KINDS = ("following", "cut_in", "slow_leader", "congestion", "lane_change", "crossroad")
 # small lattices: the dense collision check compiles faster and costs little here
@@ -100,7 +100,7 @@ def _outcome(res, cfg):
     free = ~col
     return {"chosen_free": ~np.take_along_axis(col, chosen[..., None], -1)[..., 0],
             "fixed_free": (free & fixed).any(-1), "any_free": free.any(-1),
-            "level0_free": (free & (lvl == 0)).any(-1), "mode": np.asarray(res.mode)}
+            "level0_free": (free & (lvl == 0)).any(-1), "mode": np.asarray(res.mode), "ok": np.asarray(res.ok)}
 
 
 def _run_synthetic(n_per_kind, seed):
@@ -139,39 +139,45 @@ def _run_synthetic(n_per_kind, seed):
     return table, results, timing
 
 
-def _run_recorded(directory, limit, batch, cfg=NORMAL):
-    """Recorded scenes planned ``batch`` at a time (the synthetic batch's shapes: no new compile)."""
-    from jaxplan.scenarios.loader import lane_reference, load_scenario
-
-    files = sorted(f for f in os.listdir(directory) if f.endswith(".json"))[:limit]
+def recorded_obstacles(sc, cfg: LatticeConfig = NORMAL, k_max: int = K_SYN) -> Obstacles:
+    """The ``k_max`` recorded obstacles nearest the ego start, read at the planner's times
+    ``k * cfg.dt`` (``Obstacles.at_times``: any recording step; static obstacles held over the
+    whole horizon, dynamic ones gone when their recording ends), padded to ``k_max``."""
     T = cfg.n_steps
     t = np.arange(T) * cfg.dt
-    scenes, skipped = [], 0
-    for f in files:
+    obs = at_times_jit(sc.obstacles, jnp.asarray(t, sc.obstacles.boxes.dtype))
+    b, v, st = np.asarray(obs.boxes), np.asarray(obs.valid), np.asarray(obs.static)
+    d0 = np.where(v.any(1), np.min(np.where(v, np.hypot(b[..., 0], b[..., 1]), np.inf), 1), np.inf)
+    keep = np.argsort(d0)[:k_max]
+    bb = np.tile([0, 0, 1.0, 1.0, 0], (k_max, T, 1))
+    vv = np.zeros((k_max, T), bool)
+    ss = np.zeros(k_max, bool)
+    bb[:len(keep)], vv[:len(keep)], ss[:len(keep)] = b[keep], v[keep], st[keep]
+    return Obstacles(jnp.asarray(bb, jnp.float32), jnp.asarray(vv), jnp.asarray(t, jnp.float32), jnp.asarray(ss))
+
+
+def _run_recorded(directory, limit, batch, cfg=NORMAL):
+    """Recorded scenes planned ``batch`` at a time (the synthetic batch's shapes: no new compile).
+
+    Returns (table, (times, example), files skipped, scenes skipped)."""
+    import sys
+
+    from jaxplan.scenarios.loader import lane_reference, load_folder
+
+    folder = load_folder(directory, horizon=cfg.horizon, limit=limit)
+    scenes, unusable = [], 0
+    for f, sc in zip(folder.files, folder.scenarios):
         try:
-            sc = load_scenario(os.path.join(directory, f), horizon=cfg.horizon)
-            if abs(sc.dt - cfg.dt) > 1e-9:
-                skipped += 1
-                continue
             ref = ReferenceLine.from_polyline(uniform_resample(np.asarray(lane_reference(sc).xy), N_REF))
-        except ValueError:
-            skipped += 1
+        except ValueError as e:
+            print(f"jaxplan: lattice: no reference line in {f}: {e}", file=sys.stderr)
+            unusable += 1
             continue
-        b = np.asarray(sc.obstacles.boxes)
-        v = np.asarray(sc.obstacles.valid)
-        # the K_SYN recorded vehicles nearest to the ego start
-        d0 = np.where(v.any(1), np.min(np.where(v, np.hypot(b[..., 0], b[..., 1]), np.inf), 1), np.inf)
-        keep = np.argsort(d0)[:K_SYN]
-        bb = np.tile([0, 0, 1.0, 1.0, 0], (K_SYN, T, 1))
-        vv = np.zeros((K_SYN, T), bool)
-        n_t = min(T, b.shape[1])
-        bb[:len(keep), :n_t] = b[keep, :n_t]
-        vv[:len(keep), :n_t] = v[keep, :n_t]
-        obs = Obstacles(jnp.asarray(bb, jnp.float32), jnp.asarray(vv), jnp.asarray(t, jnp.float32))
-        st = PlanState.make(sc.ego.x, sc.ego.y, sc.ego.heading, max(sc.ego.v, 0.0), a=sc.ego.a)
+        obs = recorded_obstacles(sc, cfg)
+        st = PlanState.make(sc.ego.x, sc.ego.y, sc.ego.heading, sc.ego.v, a=sc.ego.a)
         scenes.append((st, ref, obs, sc.id))
     if not scenes:
-        return {}, None, skipped
+        return {}, None, len(folder.skipped), unusable
     rows, times, example = [], [], None
     for i in range(0, len(scenes), batch):
         chunk = scenes[i:i + batch]
@@ -186,7 +192,7 @@ def _run_recorded(directory, limit, batch, cfg=NORMAL):
             if example is None or (not rows[-1]["level0_free"] and rows[-1]["any_free"]):
                 example = (jax.tree_util.tree_map(lambda a: a[j], res), cfg, chunk[j][0], chunk[j][2], chunk[j][3])
     table = {k: np.array([r[k] for r in rows]) for k in rows[0]}
-    return table, (times, example), skipped
+    return table, (times, example), len(folder.skipped), unusable
 
 
 def _figures(table, prefix=""):
@@ -195,7 +201,8 @@ def _figures(table, prefix=""):
             f"{prefix}share_chosen_collision_free": float(np.mean(table["chosen_free"])),
             f"{prefix}share_speed_variation_found_free": float(np.mean(table["any_free"] & ~table["fixed_free"])),
             f"{prefix}share_escalated": float(np.mean(table["mode"] == 1)),
-            f"{prefix}share_all_collide": float(np.mean(table["mode"] == 2))}
+            f"{prefix}share_all_collide": float(np.mean(table["mode"] == 2)),
+            f"{prefix}share_not_ok": float(np.mean(~table["ok"]))}
 
 
 @register("lattice")
@@ -229,8 +236,9 @@ def lattice_suite(args: SuiteArgs) -> dict:
         m["time_per_plan_ms_single"] = 1e3 * float(np.median(ts))
     _plot_fan(results, args.out)
     if args.scenarios:
-        rec, extra, skipped = _run_recorded(args.scenarios, 8 if args.quick else 10_000, timing[NORMAL][2])
-        m["recorded_skipped"] = skipped
+        rec, extra, skipped, unusable = _run_recorded(args.scenarios, 8 if args.quick else None, timing[NORMAL][2])
+        m["skipped_files"] = skipped
+        m["recorded_skipped_scenes"] = unusable
         if rec:
             m.update(_figures(rec, "recorded_"))
             m["recorded_time_per_plan_ms_batched"] = 1e3 * float(np.median(extra[0]))
@@ -306,7 +314,7 @@ def _plot_fan(results, out):
         modes = np.asarray(res.mode)
         i = int(np.argmax(modes)) if modes.max() > 0 else 0
         _draw(ax, res, i, cfg, np.asarray(res.obstacles.boxes[i]), np.asarray(res.obstacles.valid[i]),
-              f"{kind}: {cfg.n_candidates} candidates, mode {['free', 'escalated', 'risk'][modes[i]]}; "
+              f"{kind}: {cfg.n_candidates} candidates, mode {MODE_NAMES[modes[i]]}; "
               f"obstacles every 1 s (darker = later; crossroad stop box included), collided candidates dotted")
         ax.set_xlim(-10, 110)
         ax.set_ylim(-8, 10)

@@ -38,20 +38,42 @@ CLAIM_BLIND_REDUCTION = 0.5
 CLAIM_TIME_RATIO = 1.10
 
 
-def _records(args: SuiteArgs) -> tuple[list, str]:
-    if args.scenarios:
-        from jaxplan.scenarios.scene import load_records
-        from jaxplan.sim.drive import expand_paths
+def recorded_scenes(directories, n: int | None = None) -> tuple[list, int]:
+    """``(records, skipped_files)``: the ``SceneRecord``s of the recorded scenarios in
+    ``directories`` (a folder or a list of them; read by ``load_folder``, the one loading
+    path of the suites, each file that fails named on stderr and counted; a scenario whose
+    route cannot be built counts as skipped), at most ``n``, names unique."""
+    import sys
 
-        files, problems = expand_paths([p for p in args.scenarios.split(",") if p])
-        if problems:
-            raise ValueError(f"speed suite --scenarios: {problems[0]}")
-        recs = load_records(files[:args.n] if args.n else files)
-        return recs, "recorded."
+    from jaxplan.scenarios.loader import load_folder
+    from jaxplan.scenarios.route import RouteError
+    from jaxplan.scenarios.scene import SceneRecord, build_scene, unique_names
+
+    recs, skipped = [], 0
+    for d in [directories] if isinstance(directories, str) else directories:
+        folder = load_folder(d)
+        skipped += len(folder.skipped)
+        for f, sc in zip(folder.files, folder.scenarios):
+            if n is not None and len(recs) >= n:
+                break
+            try:
+                scene, route = build_scene(sc)
+            except RouteError as e:
+                print(f"jaxplan: speed: skipping {f}: {e}", file=sys.stderr)
+                skipped += 1
+                continue
+            recs.append(SceneRecord(sc.id, scene, sc, route, f))
+    return unique_names(recs), skipped
+
+
+def _records(args: SuiteArgs) -> tuple[list, str, int | None]:
+    if args.scenarios:
+        recs, skipped = recorded_scenes([p for p in args.scenarios.split(",") if p], args.n)
+        return recs, "recorded.", skipped
     from jaxplan.scenarios.builtin import builtin_records
 
     recs = builtin_records(quick=args.quick, seed=args.seed)
-    return (recs[:args.n] if args.n else recs), "builtin."
+    return (recs[:args.n] if args.n else recs), "builtin.", None
 
 
 @jax.jit
@@ -244,7 +266,7 @@ def speed_suite(args: SuiteArgs) -> dict:
     from jaxplan.sim.rollout import SimConfig
     from jaxplan.speed.planner import PathSpeedPlanner
 
-    records, prefix = _records(args)
+    records, prefix, skipped = _records(args)
     if not records:
         raise ValueError("speed suite: no scenes")
     config = SimConfig(n_steps=n_steps_for(records, 0.1, DEFAULT_MAX_STEPS))
@@ -257,6 +279,8 @@ def speed_suite(args: SuiteArgs) -> dict:
         res[tag] = _measure(records, planner, batch, config, log, metrics)
     m = _summary(prefix, res["with"], res["without"])
     m[f"{prefix}scenes"] = len(records)
+    if skipped is not None:
+        m["skipped_files"] = skipped
     with open(os.path.join(args.out, "speed_scenes.json"), "w") as f:
         json.dump(_per_scene(records, res["with"], res["without"]), f, indent=1)
     _plot(args.out, records, res["with"], res["without"], config, PathSpeedPlanner(), batch)

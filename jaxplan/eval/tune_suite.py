@@ -93,12 +93,13 @@ def plot_speed_demos(res: TuneResult, before: dict, path: str | None, n: int = 4
 
 
 def load_suite_weights(args: SuiteArgs) -> dict | None:
-    """Weights from ``--weights`` (or None)."""
+    """Lattice weights from ``--weights`` (or None); unknown names and weights of another planner are refused."""
     if not args.weights:
         return None
+    from jaxplan.tuning.lattice_tuning import WEIGHT_NAMES
     from jaxplan.tuning.train import load_weights
 
-    return load_weights(args.weights)
+    return load_weights(args.weights, allowed=WEIGHT_NAMES, planner="lattice")
 
 
 @register("tune")
@@ -106,11 +107,18 @@ def tune_suite(args: SuiteArgs) -> dict:
     from jaxplan.tuning.lattice_tuning import default_weights
 
     n = args.n or (24 if args.quick else 64)
-    train, val, source = demonstrations(args.scenarios, n_synthetic=n, max_files=6 if args.quick else None,
+    folder = None
+    if args.scenarios:
+        from jaxplan.scenarios.loader import load_folder
+
+        folder = load_folder(args.scenarios)
+    train, val, source = demonstrations(folder, n_synthetic=n, max_files=6 if args.quick else None,
                                         seed=args.seed)
     res = tune_lattice(train, val, steps=60 if args.quick else 300, seed=args.seed)
     m = {f"lattice.{k}": v for k, v in res.metrics.items()}
     m["source_recorded"] = int(source == "recorded")
+    if folder is not None:
+        m["skipped_files"] = len(folder.skipped)
     plot_training(res, os.path.join(args.out, "tune_lattice_training.png"), "lattice")
     plot_lattice_demos(res, default_weights(), os.path.join(args.out, "tune_lattice_demos.png"))
     if source == "synthetic":

@@ -24,6 +24,8 @@ from jaxplan.geometry.lines import (
     perpendicular,
     point_on_segment,
     project_point,
+    safe_norm,
+    safe_sqrt,
     segment_point_distance,
 )
 from jaxplan.geometry.polygons import (

@@ -16,7 +16,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxplan.geometry.lines import cross2, dot2
-from jaxplan.types import check_trailing
+from jaxplan.types import check_finite, check_trailing
 
 
 # Points closer than this (m) to the previous one are dropped.
@@ -69,13 +69,42 @@ class ReferenceLine:
             a = a[keep]
         if len(a) < 2:
             raise ValueError("reference line: needs at least two distinct points")
-        d = np.diff(a, axis=0)
-        cos_turn = np.sum(d[1:] * d[:-1], axis=1) / (np.linalg.norm(d[1:], axis=1) * np.linalg.norm(d[:-1], axis=1))
-        if np.any(cos_turn < MAX_TURN_COS):
-            i = int(np.argmax(cos_turn < MAX_TURN_COS)) + 1
-            raise ValueError(f"reference line: turns back on itself at point {i} "
-                             f"(more than {np.degrees(np.arccos(MAX_TURN_COS)):.0f} degrees between segments)")
+        _check_turns(a)
         return reference_line(jnp.asarray(a, dtype=jnp.result_type(float)))
+
+    def validate(self) -> "ReferenceLine":
+        """Host-side check of a line built by the jittable ``reference_line`` (any leading batch dims).
+
+        Refuses NaN / inf, fewer than two points, repeated points (a zero-length segment has
+        no heading: ``ReferenceLine.from_polyline`` drops them), lines that turn back on
+        themselves, coordinates too far from the origin for float32, and fields that disagree.
+        """
+        xy = check_trailing("reference line", self.xy, (2,), coords=2)
+        if xy.ndim < 2 or xy.shape[-2] < 2:
+            raise ValueError(f"reference line: expected shape (..., N, 2) with N >= 2, got {xy.shape}")
+        seg = np.linalg.norm(np.diff(xy, axis=-2), axis=-1)
+        if np.any(seg <= 0):
+            i = int(np.argwhere(seg <= 0)[0, -1])
+            raise ValueError(f"reference line: points {i} and {i + 1} coincide (a repeated point has no heading); "
+                             f"build it with ReferenceLine.from_polyline, which drops repeated points")
+        for name in ("s", "theta", "kappa"):
+            a = check_finite(f"reference line {name}", getattr(self, name))
+            if a.shape != xy.shape[:-1]:
+                raise ValueError(f"reference line: {name} has shape {a.shape}, xy has {xy.shape}")
+        _check_turns(xy)
+        return self
+
+
+def _check_turns(a: np.ndarray) -> None:
+    """Refuse consecutive segments of ``a (..., N, 2)`` that turn by more than ``MAX_TURN_COS``."""
+    d = np.diff(a, axis=-2)
+    n = np.linalg.norm(d, axis=-1)
+    cos_turn = np.sum(d[..., 1:, :] * d[..., :-1, :], axis=-1) / np.maximum(n[..., 1:] * n[..., :-1], 1e-300)
+    bad = cos_turn < MAX_TURN_COS
+    if np.any(bad):
+        i = int(np.argwhere(bad)[0, -1]) + 1
+        raise ValueError(f"reference line: turns back on itself at point {i} "
+                         f"(more than {np.degrees(np.arccos(MAX_TURN_COS)):.0f} degrees between segments)")
 
 
 def reference_line(xy) -> ReferenceLine:

@@ -18,6 +18,22 @@ def dot2(u, v):
     return jnp.sum(u * v, axis=-1)
 
 
+def safe_sqrt(x):
+    """``sqrt(max(x, 0))`` with a finite gradient everywhere (0 at and below 0).
+
+    The plain form has an infinite derivative at 0, and ``0 * inf = NaN`` poisons every
+    gradient that flows through it; the inner ``where`` keeps the square root away from
+    0 (the double-``where`` trick), the outer one gives the exact value.
+    """
+    pos = x > 0
+    return jnp.where(pos, jnp.sqrt(jnp.where(pos, x, 1.0)), 0.0)
+
+
+def safe_norm(d, axis=-1, keepdims=False):
+    """Euclidean norm of ``d`` along ``axis`` with a finite gradient at the zero vector (0 there)."""
+    return safe_sqrt(jnp.sum(d * d, axis=axis, keepdims=keepdims))
+
+
 def normalize(d, eps=1e-12):
     """Unit vectors ``(..., 2)``; a zero vector stays zero."""
     n = jnp.linalg.norm(d, axis=-1, keepdims=True)

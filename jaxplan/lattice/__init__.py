@@ -1,6 +1,6 @@
 """Quintic candidate lattice with velocity profiles, time-aware collision risk and cost selection."""
 from jaxplan.lattice.candidates import KMH, Candidates, LatticeConfig, PlanState, generate
-from jaxplan.lattice.cost import (ESCALATED, FEATURES, FREE, RISK, CostWeights, cost_features, costs, lam,
+from jaxplan.lattice.cost import (ESCALATED, FEATURES, FREE, INVALID, MODE_NAMES, RISK, CostWeights, cost_features, costs, lam,
                                   select, soft_select)
 from jaxplan.lattice.crossroad import stop_box, with_stop_target
 from jaxplan.lattice.plan import LatticeResult, plan, plan_batch

@@ -24,9 +24,10 @@ from jax import lax
 import numpy as np
 
 from jaxplan.geometry.frenet import ReferenceLine, ref_state
+from jaxplan.geometry.lines import safe_sqrt
 from jaxplan.lattice.profiles import accel_profile, jerk_profile
 from jaxplan.lattice.quintic import cartesian_to_frenet_state, quintic_coeffs, quintic_eval
-from jaxplan.types import Trajectory, VehicleParams, _pytree, check_finite
+from jaxplan.types import Trajectory, VehicleParams, _pytree, check_coordinates, check_finite
 
 KMH = 1.0 / 3.6
 CHUNK_POINTS = 1 << 12  # candidate points per chunk of the generator (at least one speed profile)
@@ -160,6 +161,7 @@ class PlanState:
     def validate(self) -> "PlanState":
         for name in ("x", "y", "heading", "kappa", "v", "a", "v_set"):
             check_finite(f"PlanState.{name}", getattr(self, name))
+        check_coordinates("PlanState x, y", np.stack(np.broadcast_arrays(np.asarray(self.x), np.asarray(self.y)), -1))
         if np.any(np.asarray(self.v) < 0):
             raise ValueError("PlanState.v must be >= 0")
         if np.any(np.isnan(np.asarray(self.d_crossroad))):
@@ -279,7 +281,7 @@ def generate(state: PlanState, ref: ReferenceLine, config: LatticeConfig) -> Can
         speed = sd_g * q
         # d(speed)/dt = s'' q + s'^2 dq/ds, with dq/ds = (one * d(one)/ds + l' l'') / q
         acc = sdd_g * q + sd_g ** 2 * (one * -(dkr_g * l + kr_g * dl) + dl * ddl) / q
-        seg = jnp.sqrt(jnp.diff(x, axis=-1) ** 2 + jnp.diff(y, axis=-1) ** 2)  # chord lengths
+        seg = safe_sqrt(jnp.diff(x, axis=-1) ** 2 + jnp.diff(y, axis=-1) ** 2)  # chord lengths (0 when stopped)
         arc = jnp.concatenate([jnp.zeros((P, 1), dtype), jnp.cumsum(seg, axis=-1)], axis=-1)
         return x, y, theta, kappa, speed, acc, arc, ux, uy, l, dl
 

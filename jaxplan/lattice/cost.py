@@ -29,11 +29,12 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 
-from jaxplan.types import _pytree
+from jaxplan.types import _pytree, check_weights
 
 FEATURES = ("d_lrp", "rho_max", "risk", "speed", "collision", "level_free")
-# The exact selection's modes.
-FREE, ESCALATED, RISK = 0, 1, 2
+# The exact selection's modes; INVALID: no candidate could be judged (NaN / inf in all of them).
+FREE, ESCALATED, RISK, INVALID = 0, 1, 2, 3
+MODE_NAMES = ("free", "escalated", "risk", "invalid")
 
 
 @_pytree(data_fields=("alpha", "beta", "gamma", "delta", "collision", "level"))
@@ -50,6 +51,11 @@ class CostWeights:
     delta: Any = 0.1
     collision: Any = 1e4
     level: Any = 1e3
+
+    def validate(self) -> "CostWeights":
+        """Host-side: every weight finite and >= 0 (a ``ValueError`` names the field)."""
+        check_weights(self)
+        return self
 
     def vector(self):
         """``(..., F)`` in the order of ``FEATURES``."""
@@ -113,20 +119,29 @@ def rule_cost(weights, features, collided):
     return lam(weights, features) + jnp.where(all_collide, weights.gamma * features[..., 2], 0.0)
 
 
-def select(weights: CostWeights, features, collided, level):
+def select(weights: CostWeights, features, collided, level, valid=None):
     """Exact selection (see the module docstring).
 
     Args:
         features: ``(..., N, F)``; collided: ``(..., N)`` bool; level: ``(..., N)`` int.
+        valid: ``(..., N)`` bool or None: candidates that can be judged (finite trajectory,
+            separation and features). The others count as colliding and are never chosen;
+            when no candidate is valid the mode is ``INVALID``.
 
     Returns:
-        (index ``(...)`` int, mode ``(...)`` in {FREE, ESCALATED, RISK}, selection cost ``(..., N)``
-        with ``inf`` for candidates the rule excluded).
+        (index ``(...)`` int, mode ``(...)`` in {FREE, ESCALATED, RISK, INVALID}, selection
+        cost ``(..., N)`` with ``inf`` for candidates the rule excluded).
     """
+    if valid is not None:
+        collided = collided | ~valid
     ok, any_free, first_level = eligible(collided, level)
+    if valid is not None:
+        ok = ok & valid
     c = jnp.where(ok, rule_cost(weights, features, collided), jnp.inf)
     idx = jnp.argmin(c, axis=-1)
     mode = jnp.where(any_free, jnp.where(first_level == 0, FREE, ESCALATED), RISK)
+    if valid is not None:
+        mode = jnp.where(jnp.any(valid, axis=-1), mode, INVALID)
     return idx, mode, c
 
 

@@ -21,7 +21,8 @@ from jaxplan.types import VehicleParams
 
 @dataclasses.dataclass(frozen=True)
 class LatticePlanner:
-    """The lattice planner (static config; ``weights`` as a tuple of ``CostWeights`` field values)."""
+    """The lattice planner (static config; ``weights``: ``CostWeights`` values as a hashable tuple of
+    ``(name, value)`` pairs, e.g. from ``jaxplan tune``; unnamed fields keep their defaults)."""
 
     vehicle: VehicleParams = SIM_VEHICLE
     dt: float = 0.1
@@ -40,7 +41,7 @@ class LatticePlanner:
         cfg = self.config
         ctx = road_context(scene, ego, step, cfg.n_steps, self.vehicle)
         state = PlanState(ego.x, ego.y, ego.heading, ego.kappa, ego.v, ego.a, ctx.v_set, jnp.inf)
-        w = CostWeights() if self.weights is None else CostWeights(*self.weights)
+        w = CostWeights() if self.weights is None else CostWeights(**dict(self.weights))
         res = _plan(state, scene.route, ctx.obstacles, cfg, w)
         traj = res.chosen_trajectory()
         finite = jnp.all(jnp.isfinite(traj.x)) & jnp.all(jnp.isfinite(traj.y))

@@ -38,6 +38,8 @@ from __future__ import annotations
 import jax.numpy as jnp
 from jax import lax
 
+from jaxplan.geometry.lines import safe_sqrt
+
 
 def _eval_segments(t, v_start, a_start, jerks, durations, v_hold):
     """Evaluate piecewise-constant-jerk segments followed by a hold at ``v_hold``.
@@ -111,12 +113,12 @@ def jerk_profile_params(v0, a0, v_end, jerk=2.0, a_min=-3.0, a_max=2.0):
     """
     v0, a0, v_end = jnp.broadcast_arrays(*(jnp.asarray(x, jnp.result_type(float)) for x in (v0, a0, v_end)))
     J = jnp.asarray(jerk, v0.dtype)
-    a0 = jnp.maximum(a0, -jnp.sqrt(2 * J * jnp.maximum(v0, 0.0)))
+    a0 = jnp.maximum(a0, -safe_sqrt(2 * J * v0))
     dv = v_end - v0
     sigma = jnp.where(dv >= a0 * jnp.abs(a0) / (2 * J), 1.0, -1.0)
     a0p, dvp = sigma * a0, sigma * dv
     cap = jnp.where(sigma > 0, a_max, -a_min)
-    ap_tri = jnp.sqrt(jnp.maximum(0.5 * (2 * J * dvp + a0p ** 2), 0.0))
+    ap_tri = safe_sqrt(0.5 * (2 * J * dvp + a0p ** 2))  # finite gradient at 0 (end speed = start speed)
     tri = ap_tri <= cap
     ap = jnp.where(tri, ap_tri, cap)
     sgn1 = jnp.where(ap >= a0p, 1.0, -1.0)

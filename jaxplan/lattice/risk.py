@@ -18,6 +18,7 @@ import jax.numpy as jnp
 from jax import lax
 
 from jaxplan.geometry.boxes import box_separation_axes, poses_to_boxes
+from jaxplan.geometry.lines import safe_norm
 from jaxplan.types import Obstacles, Trajectory, VehicleParams, _pytree
 
 BIG = 1e6  # separation reported when there is no obstacle
@@ -35,13 +36,14 @@ class Risk:
     ttc: Any
 
 
-def align_obstacles(obstacles: Obstacles, n_steps: int) -> Obstacles:
-    """Obstacle predictions cut or padded to ``n_steps`` samples (``Obstacles.aligned``):
-    dynamic obstacles are invalid past their recording, static ones are held.
+def align_obstacles(obstacles: Obstacles, t) -> Obstacles:
+    """Obstacle predictions at the candidates' times ``t`` ``(T,)`` (``Obstacles.at_times``).
 
-    Step ``k`` of the obstacles is taken to be time ``k * dt`` of the candidates.
+    The predictions are read at their own stamps ``obstacles.t`` (any step, seconds from
+    now) and interpolated to ``t``: dynamic obstacles are invalid outside their
+    recording, static ones are held.
     """
-    return obstacles.aligned(n_steps)
+    return obstacles.at_times(t)
 
 
 def _obstacle_parts(obstacles: Obstacles):
@@ -115,9 +117,9 @@ def min_separation_broad(center, axis, half, obstacles: Obstacles, group_size: i
     mid = 0.5 * (lo + hi)
     r_car = jnp.sqrt(jnp.sum(jnp.asarray(half) ** 2, -1)) if jnp.ndim(half) == 1 else \
         jnp.max(jnp.sqrt(jnp.sum(half ** 2, -1)))
-    r_grp = 0.5 * jnp.linalg.norm(hi - lo, axis=-1) + r_car  # (G, T)
-    r_obs = jnp.linalg.norm(oh, axis=-1)  # (K, T)
-    d = jnp.linalg.norm(mid[:, None] - oc[None], axis=-1) - r_grp[:, None] - r_obs[None]  # (G, K, T)
+    r_grp = 0.5 * safe_norm(hi - lo) + r_car  # (G, T); hi = lo at t = 0
+    r_obs = safe_norm(oh)  # (K, T)
+    d = safe_norm(mid[:, None] - oc[None]) - r_grp[:, None] - r_obs[None]  # (G, K, T)
     valid = obstacles.valid[None]
     near = valid & (d <= margin)
     stand_in = jnp.min(jnp.where(valid & ~near, d, BIG), axis=1)  # (G, T)
@@ -158,8 +160,8 @@ def trajectory_boxes(traj: Trajectory, vehicle: VehicleParams):
 
 
 def collision_risk(traj: Trajectory, obstacles: Obstacles, vehicle: VehicleParams) -> Risk:
-    """Risk of every candidate ``traj (N, T)`` against ``obstacles`` (aligned to T)."""
-    obstacles = align_obstacles(obstacles, traj.x.shape[-1])
+    """Risk of every candidate ``traj (N, T)`` against ``obstacles`` (read at the times ``traj.t``)."""
+    obstacles = align_obstacles(obstacles, traj.t[0])
     sep = min_separation(trajectory_boxes(traj, vehicle), obstacles)
     return risk_from_separation(sep, traj.t[0])
 

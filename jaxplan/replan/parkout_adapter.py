@@ -19,6 +19,7 @@ import jax.numpy as jnp
 from jaxplan.parking.config import ParkoutConfig
 from jaxplan.parking.parkout import plan_parkout
 from jaxplan.parking.scenes import Scene, render_grid
+from jaxplan.replan.longitudinal import MotionLimits
 from jaxplan.replan.planner import Plan, PlanRequest, finish_plan
 from jaxplan.types import VehicleParams
 
@@ -29,9 +30,7 @@ class ParkoutPlanner:
 
     config: ParkoutConfig = ParkoutConfig()
     vehicle: VehicleParams = VehicleParams()
-    v_fwd: float = 1.0
-    v_rev: float = 1.0
-    accel: float = 0.5
+    limits: MotionLimits = MotionLimits(v_fwd=1.0, v_rev=1.0, accel=0.5, decel=1.0)
 
     def __call__(self, r: PlanRequest) -> Plan:
         cfg, veh = self.config, self.vehicle
@@ -61,8 +60,7 @@ class ParkoutPlanner:
         poses = jnp.where(ok, poses, jnp.asarray(r.start, dtype))
         gear = jnp.where(valid, gear, gear[last])
         # ``ok``: the joined moves end fully out (else the car stops at the end and re-plans).
-        return finish_plan(poses[:, :2], poses[:, 2], gear, valid, r.speed, self.v_fwd, self.v_rev, self.accel,
-                           ok & out)
+        return finish_plan(poses[:, :2], poses[:, 2], gear, valid, jnp.abs(r.speed), self.limits, ok & out)
 
 
 def parkout_scenarios(seed: int, n: int, planner: ParkoutPlanner = ParkoutPlanner(), phantom: bool = True,
@@ -88,7 +86,8 @@ def parkout_scenarios(seed: int, n: int, planner: ParkoutPlanner = ParkoutPlanne
     boxes = jnp.asarray(scene.boxes, jnp.float32)
     valid = jnp.asarray(scene.valid)
     z3 = jnp.zeros((n, 3))
-    req = PlanRequest(z3, jnp.zeros(n), jnp.ones(n, jnp.int32), z3, boxes, valid, jnp.zeros(n, bool))
+    req = PlanRequest(z3, jnp.zeros(n), jnp.ones(n, jnp.int32), jnp.ones(n, jnp.int32), z3, boxes,
+                      jnp.zeros(boxes.shape[:-1] + (2,)), valid, jnp.zeros(n, bool), z3, z3)
     nominal = jax.jit(jax.vmap(planner))(req)
     last = jnp.sum(nominal.valid, -1) - 1
     take = lambda a: jnp.take_along_axis(a, last[:, None], -1)[:, 0]  # noqa: E731

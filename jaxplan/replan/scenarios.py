@@ -15,18 +15,23 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxplan.replan.planner import SimplePlanner
+from jaxplan.replan.path_planner import ApproachPlanner, nominal_forward_path
 from jaxplan.replan.simulator import Scenario
 
 R, P, D = 1, 2, 1
 
 
-def sample_scenarios(seed: int, n: int, kind: str = "park", planner: SimplePlanner = SimplePlanner(),
+def sample_scenarios(seed: int, n: int, kind: str = "park", planner: ApproachPlanner = ApproachPlanner(),
                      max_bias: float = 0.8, p_real: float = 0.5, p_phantom: float = 0.6, p_dyn: float = 0.35,
-                     goal_sigma: float = 0.15) -> Scenario:
-    """``n`` scenarios of ``kind`` ``"park"`` or ``"drive"``, stacked on a leading axis."""
+                     goal_sigma: float = 0.15, yaw_sigma: float = 0.02) -> Scenario:
+    """``n`` scenarios of ``kind`` ``"park"`` or ``"drive"``, stacked on a leading axis.
+
+    Goal noise: ``goal_sigma`` m (drives: at most 0.1) and ``yaw_sigma`` rad per observation;
+    the bias far from the slot is ``0.3 .. max_bias`` m (parking only)."""
     if kind not in ("park", "drive"):
         raise ValueError(f"kind must be 'park' or 'drive', got {kind!r}")
+    if n < 1:
+        raise ValueError(f"n must be >= 1, got {n}")
     rng = np.random.default_rng(seed)
     park = kind == "park"
     out = []
@@ -36,12 +41,12 @@ def sample_scenarios(seed: int, n: int, kind: str = "park", planner: SimplePlann
         if park:
             goal = np.array([rng.uniform(14, 20), -7 + rng.uniform(-0.2, 0.2), np.pi / 2 + rng.uniform(-0.05, 0.05)])
             ang = rng.uniform(0, 2 * np.pi)
-            mag = rng.uniform(0.3, max_bias)
+            mag = rng.uniform(min(0.3, max_bias), max_bias)
             bias = np.array([mag * np.cos(ang), mag * np.sin(ang), rng.uniform(-0.06, 0.06)])
         else:
             goal = np.array([rng.uniform(25, 35), rng.uniform(-0.5, 0.5), rng.uniform(-0.05, 0.05)])
             bias = np.zeros(3)
-        xy = planner.nominal_forward_path(start, goal, park)
+        xy = nominal_forward_path(planner, start, goal, park)
         d = np.diff(xy, axis=0)
         th = np.arctan2(d[:, 1], d[:, 0])
 
@@ -63,7 +68,7 @@ def sample_scenarios(seed: int, n: int, kind: str = "park", planner: SimplePlann
         dyn_dir = sgn * np.array([[-np.sin(h), np.cos(h)]])
         out.append(Scenario(
             start=start, goal=goal, park=np.array(park), goal_bias=bias,
-            goal_sigma=np.array(goal_sigma if park else 0.1), yaw_sigma=np.array(0.02),
+            goal_sigma=np.array(goal_sigma if park else min(goal_sigma, 0.1)), yaw_sigma=np.array(yaw_sigma),
             real=real, real_valid=real_valid, phantom=np.array(ph), phantom_valid=np.array(ph_valid),
             phantom_range=rng.uniform(6, 10, P), phantom_dur=rng.uniform(0.2, 1.0, P),
             dyn_point=p[None], dyn_dir=dyn_dir, dyn_speed=rng.uniform(1.0, 1.5, D), dyn_size=np.array([[0.6, 0.6]]),

@@ -10,7 +10,7 @@ ahead, with a time window that a car keeping about half its start speed meets.
 Kinds (``KINDS``): ``stopped_car`` (a stopped car in the ego lane), ``slow_leader``,
 ``cut_in`` (a slower car from the next lane cuts in ahead), ``parked_cars`` (parked cars
 on the road's right edge reaching into the ego lane), ``curve_stop`` (a stopped car on a
-curve of radius 60-200 m) and ``dense_next_lane`` (a stopped car ahead, a faster platoon
+curve of radius 80-200 m) and ``dense_next_lane`` (a stopped car ahead, a faster platoon
 in the next lane).
 
 A generated scene is kept only if plain in-lane braking at ``-5 m/s^2`` from ``t = 0``
@@ -52,7 +52,8 @@ class _Road:
 
 
 def _lanelets(road: _Road, n_lanes: int, limit: float) -> list:
-    s = np.arange(0.0, ROAD_LENGTH + 1e-6, 2.0)
+    length = ROAD_LENGTH if abs(road.kappa) < 1e-9 else min(ROAD_LENGTH, 0.95 * math.pi / abs(road.kappa))
+    s = np.arange(0.0, length + 1e-6, 2.0)  # a curve turns by less than 180 degrees
     out = []
     for i in range(n_lanes):
         left, _ = road.pose(s, (i + 0.5) * LANE)
@@ -88,7 +89,7 @@ def scene_dict(kind: str, rng: np.random.Generator, index: int) -> dict:
     if kind not in KINDS:
         raise ValueError(f"unknown built-in scene kind {kind!r}; known: {', '.join(KINDS)}")
     curved = kind == "curve_stop" or (kind != "parked_cars" and rng.random() < 0.3)
-    radius = rng.uniform(60.0, 200.0) if kind == "curve_stop" else rng.uniform(250.0, 600.0)
+    radius = rng.uniform(80.0, 200.0) if kind == "curve_stop" else rng.uniform(250.0, 600.0)
     kappa = (rng.choice([-1.0, 1.0]) / radius) if curved else 0.0
     road = _Road(kappa, rng.uniform(-math.pi, math.pi))
     n_lanes = 3 if kind in ("dense_next_lane", "cut_in") else int(rng.integers(2, 4))
@@ -155,7 +156,8 @@ def scene_dict(kind: str, rng: np.random.Generator, index: int) -> dict:
 
 
 def survivable(records) -> np.ndarray:
-    """``(n,)`` bool: in-lane braking at ``SURVIVAL_DECEL`` from ``t = 0`` touches no obstacle."""
+    """``(n,)`` bool: in-lane braking at ``SURVIVAL_DECEL`` from ``t = 0`` touches no obstacle
+    (driven to the end of each goal's time window, at most 20 s)."""
     from jaxplan.scenarios.scene import stack_scenes
     from jaxplan.sim.drive import n_steps_for, run_planner
     from jaxplan.baselines import BrakePlanner

@@ -157,6 +157,12 @@ def load_scenario(path: str, horizon: float | None = None) -> Scenario:
     try:
         with open(path) as f:
             d = json.load(f)
+    except FileNotFoundError:
+        raise ScenarioError(f"{path}: no such file") from None
+    except IsADirectoryError:
+        raise ScenarioError(f"{path}: is a folder, not a scenario file") from None
+    except PermissionError:
+        raise ScenarioError(f"{path}: not readable (permission denied)") from None
     except json.JSONDecodeError as e:
         raise ScenarioError(f"{path}: not valid JSON ({e.msg} at line {e.lineno})") from None
     except UnicodeDecodeError:
@@ -385,12 +391,93 @@ def parse_scenario(d: Any, path: str, horizon: float | None = None) -> Scenario:
                     if "id" in problems[0] else 0)
 
 
-def load_dir(directory: str, pattern: str = "*.json", **kw) -> list[Scenario]:
-    """Load every scenario file in ``directory`` (sorted by name)."""
-    files = sorted(glob.glob(os.path.join(directory, pattern)))
+def scenario_files(directory: str, pattern: str = "*.json") -> list[str]:
+    """The scenario files of a folder (sorted by name); a ``ScenarioError`` names a folder
+    that does not exist, is a file, or holds no file matching ``pattern``."""
+    if not os.path.exists(directory):
+        raise ScenarioError(f"{directory}: no such folder")
+    if not os.path.isdir(directory):
+        raise ScenarioError(f"{directory}: is a file, not a folder of scenarios")
+    files = sorted(f for f in glob.glob(os.path.join(directory, pattern)) if os.path.isfile(f))
     if not files:
         raise ScenarioError(f"{directory}: no scenario files matching {pattern}")
-    return [load_scenario(f, **kw) for f in files]
+    return files
+
+
+def load_dir(directory: str, pattern: str = "*.json", **kw) -> list[Scenario]:
+    """Load every scenario file in ``directory`` (sorted by name); the first bad file raises.
+
+    Suites use ``load_folder``, which skips bad files and names them."""
+    return [load_scenario(f, **kw) for f in scenario_files(directory, pattern)]
+
+
+@dataclasses.dataclass(frozen=True)
+class Folder:
+    """Scenarios loaded from a folder by ``load_folder``.
+
+    Attributes:
+        directory: the folder.
+        scenarios: the scenarios that loaded, in file-name order.
+        files: their files.
+        skipped: ``(file, reason)`` of every file that did not load.
+    """
+
+    directory: str
+    scenarios: tuple
+    files: tuple
+    skipped: tuple
+
+    def __len__(self) -> int:
+        return len(self.scenarios)
+
+
+def load_folder(directory: str, pattern: str = "*.json", horizon: float | None = None,
+                limit: int | None = None, stderr=None) -> Folder:
+    """Every loadable scenario of a folder; each file that fails is named on stderr and counted.
+
+    The one loading path of every suite that reads ``--scenarios DIR`` (their metrics
+    report ``skipped_files = len(folder.skipped)``).
+
+    Args:
+        directory: folder of scenario files.
+        pattern: file-name pattern.
+        horizon: keep obstacle predictions up to this time (s); default all.
+        limit: read at most this many files (the first by name).
+        stderr: where skipped files are named (default ``sys.stderr``).
+
+    Raises:
+        ScenarioError: the folder does not exist, holds no matching file, or none of them loads.
+    """
+    import sys
+
+    out = sys.stderr if stderr is None else stderr
+    files = scenario_files(directory, pattern)[:limit]
+    scenarios, loaded, skipped = [], [], []
+    for f in files:
+        try:
+            scenarios.append(load_scenario(f, horizon=horizon))
+            loaded.append(f)
+        except ScenarioError as e:
+            skipped.append((f, str(e)))
+            print(f"jaxplan: skipping {e}", file=out)
+    if not scenarios:
+        raise ScenarioError(f"{directory}: none of its {len(files)} scenario files could be loaded "
+                            f"(first: {skipped[0][1]})")
+    return Folder(directory, tuple(scenarios), tuple(loaded), tuple(skipped))
+
+
+def first_loadable(directory: str, pattern: str = "*.json") -> str:
+    """The first file of a folder that loads (a cheap check before heavy work); a
+    ``ScenarioError`` names the folder when none does."""
+    files = scenario_files(directory, pattern)
+    first = None
+    for f in files:
+        try:
+            load_scenario(f)
+            return f
+        except ScenarioError as e:
+            first = first or str(e)
+    raise ScenarioError(f"{directory}: none of its {len(files)} scenario files could be loaded (first: {first})")
 
 
 def lane_at(scenario: Scenario, xy, heading: float | None = None) -> Lane:

@@ -469,14 +469,19 @@ def pad_scene(scene: Scene, K: int, T: int, M: int, V: int, G: int, W: int) -> S
                                obstacle_type=ty, goal=goal)
 
 
-def stack_scenes(scenes: list, min_steps: int = 1) -> Scene:
+def stack_scenes(scenes: list, min_steps: int = 1, min_sizes: tuple | None = None) -> Scene:
     """One batched ``Scene`` (jnp leaves with a leading scene axis) from unbatched numpy scenes
-    of any sizes (same route points and lanes). ``min_steps``: pad obstacles to at least
-    this many steps."""
+    of any sizes (same route points and lanes).
+
+    Args:
+        min_steps: pad obstacles to at least this many steps.
+        min_sizes: optional lower bounds ``(K, T, M, V, G, W)`` of the padded sizes (one
+            compiled shape for several batches).
+    """
     if not scenes:
         raise ValueError("stack_scenes: no scenes")
     dims = np.array([[s.obstacles.boxes.shape[0], s.obstacles.boxes.shape[1], *s.drivable.shape[:2],
-                      *s.goal.region.shape[:2]] for s in scenes])
+                      *s.goal.region.shape[:2]] for s in scenes] + ([list(min_sizes)] if min_sizes else []))
     K, T, M, V, G, W = dims.max(0)
     K = max(int(K), 1)  # one invalid obstacle at least: no zero-size arrays in the kernels
     padded = [pad_scene(s, int(K), int(max(T, min_steps)), int(M), int(V), int(G), int(W)) for s in scenes]
@@ -499,8 +504,7 @@ def index_scene(batch: Scene, i: int) -> Scene:
 def load_records(paths: list, config: SceneConfig = SceneConfig(), horizon: float | None = None) -> list:
     """``SceneRecord``s from scenario files (``.json`` shared format, ``.xml`` CommonRoad).
 
-    Names are the scenario ids; where two files share an id, their file names (without
-    extension) are used instead, so no output overwrites another.
+    Names are the scenario ids; give several files to ``unique_names`` to make them unique.
 
     Raises:
         ValueError naming the file: unreadable files, scenarios without a planning problem,
@@ -521,8 +525,24 @@ def load_records(paths: list, config: SceneConfig = SceneConfig(), horizon: floa
         except RouteError as e:
             raise ScenarioError(f"{p}: {e}") from None
         recs.append(SceneRecord(sc.id, scene, sc, route, p))
-    ids = [r.name for r in recs]
+    return recs
+
+
+def unique_names(records: list) -> list:
+    """The records renamed as ``jaxplan.scenarios.files.scenario_keys`` keys files: the first of
+    each id keeps it, later ones become ``<id>@<file name>``."""
     import os
 
-    return [dataclasses.replace(r, name=os.path.splitext(os.path.basename(r.path))[0]) if ids.count(r.name) > 1 else r
-            for r in recs]
+    seen, out = set(), []
+    for r in records:
+        name = r.name if r.name not in seen else f"{r.name}@{os.path.basename(r.path)}"
+        seen.add(name)
+        out.append(dataclasses.replace(r, name=name))
+    return out
+
+
+def world_route(path: str) -> np.ndarray:
+    """The route a jaxplan planner drives on in scenario ``path``, in world coordinates ``(R, 2)``
+    (for other planners run on the same route, ``experiments/compare_peers.py``)."""
+    rec = load_records([path])[0]
+    return np.asarray(rec.scene.route.xy, float) + np.asarray(rec.scenario.origin, float)

@@ -16,7 +16,8 @@ import numpy as np
 class RoadScenes:
     """``n`` scenes. ego ``(n, 5)`` [x, y, heading, v, a]; ref_xy ``(n, P, 2)``;
     boxes ``(n, K, T, 5)``, valid ``(n, K, T)``; t ``(n, T)``; cruise ``(n, T, 2)``, the
-    ego kept at its speed on the lane centre."""
+    ego kept at its speed on the lane centre; static ``(n, K)`` (every generated car drives:
+    all False, given so that batches carry the flag the planners read)."""
 
     ego: np.ndarray
     ref_xy: np.ndarray
@@ -24,6 +25,7 @@ class RoadScenes:
     valid: np.ndarray
     t: np.ndarray
     cruise: np.ndarray
+    static: np.ndarray
 
 
 def road_scenes(n: int, seed: int = 0, n_obstacles: int = 16, horizon: float = 5.0, dt: float = 0.1,
@@ -65,4 +67,5 @@ def road_scenes(n: int, seed: int = 0, n_obstacles: int = 16, horizon: float = 5
         ego[i] = [0.0, 0.0, th0, v0, 0.0]
         refs[i] = ref
         cruise[i] = on_road(v0 * t, np.zeros(n_t))
-    return RoadScenes(ego, refs, boxes, valid, np.broadcast_to(t, (n, n_t)).copy(), cruise)
+    return RoadScenes(ego, refs, boxes, valid, np.broadcast_to(t, (n, n_t)).copy(), cruise,
+                      np.zeros((n, n_obstacles), bool))

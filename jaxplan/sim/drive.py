@@ -8,10 +8,12 @@ bird's-eye PNG (``--animate``: a GIF too) and, for CommonRoad input, a solution 
 ``metrics.json`` (summary figures ``drive.<planner>.<figure>`` and one row per drive under
 ``rows``) and ``report.md``.
 
-``driven.json``: ``{"scenario": id, "planner": name, "dt": 0.1, "vehicle": {"length": L,
+``driven.json``: ``{"scenario": key, "planner": name, "dt": 0.1, "vehicle": {"length": L,
 "width": W}, "states": [[t, x, y, theta, v, a], ...]}``, ``(x, y)`` the centre of the car's
 box in the scenario's own (world) coordinates, ``t`` from the scenario start, one row per
-``dt`` from ``t = 0`` to the end of the drive.
+``dt`` from ``t = 0`` to the end of the drive. ``key`` is the scenario id, made unique over the
+files of one run as ``jaxplan.scenarios.files.scenario_keys`` does (``<id>@<file name>`` for a
+later file with the same id); the folder is named by it too.
 
 With one planner the per-scenario folders are ``OUT/<scenario>/``; with several,
 ``OUT/<planner>/<scenario>/``.
@@ -19,7 +21,7 @@ With one planner the per-scenario folders are ``OUT/<scenario>/``; with several,
 from __future__ import annotations
 
 import dataclasses
-import glob
+import functools
 import json
 import math
 import os
@@ -34,32 +36,7 @@ from jaxplan.planner import make_planner
 from jaxplan.sim.metrics.registry import evaluate_batch
 from jaxplan.sim.rollout import SimConfig, rollout
 
-SCENARIO_EXTENSIONS = (".json", ".xml")
 DEFAULT_MAX_STEPS = 200  # 20 s at dt 0.1
-
-
-def expand_paths(paths: list) -> tuple[list, list]:
-    """Scenario files from files and folders (sorted; folders give their ``*.json`` / ``*.xml``).
-
-    Returns:
-        (files, problems): ``problems`` names each argument that is not usable (missing, an
-        empty folder, a file of another type).
-    """
-    files, problems = [], []
-    for p in paths:
-        if os.path.isdir(p):
-            found = sorted(f for f in glob.glob(os.path.join(p, "*")) if f.lower().endswith(SCENARIO_EXTENSIONS))
-            if not found:
-                problems.append(f"{p}: folder has no scenario files (*.json, *.xml)")
-            files += found
-        elif os.path.isfile(p):
-            if not p.lower().endswith(SCENARIO_EXTENSIONS):
-                problems.append(f"{p}: not a scenario file (expected .json or .xml)")
-            else:
-                files.append(p)
-        else:
-            problems.append(f"{p}: no such file or folder")
-    return files, problems
 
 
 @dataclasses.dataclass
@@ -100,6 +77,7 @@ def summarize(rows: list) -> dict:
     out["time_to_goal_mean"] = float(np.mean(col("goal.time")[reached])) if reached.any() else float("nan")
     out["plan_not_ok_share"] = float(np.mean(col("plan_not_ok_share")))
     out["fallback_cycles"] = float(np.sum(col("fallback_cycles")))
+    out["replans_per_drive"] = float(np.mean(col("replans")))
     out["scenes"] = float(len(rows))
     return out
 
@@ -116,16 +94,20 @@ def time_plans(planner, batch, n: int) -> dict:
     90th percentile over the first ``n`` scenes at their start states (ms)."""
     from jaxplan.planner import EgoState
 
-    fn = jax.jit(lambda sc, ego: planner.plan(sc, ego, 0))
     times = []
     for i in range(n):
         sc = jax.tree_util.tree_map(lambda x: x[i], batch)
         ego = EgoState.from_box_centre(sc.start, planner.vehicle)
-        jax.block_until_ready(fn(sc, ego))  # compiles once (same shapes), then warm
+        jax.block_until_ready(_plan_once(planner, sc, ego))  # compiles once (same shapes), then warm
         t = time.perf_counter()
-        jax.block_until_ready(fn(sc, ego))
+        jax.block_until_ready(_plan_once(planner, sc, ego))
         times.append(1e3 * (time.perf_counter() - t))
     return {"plan_ms_median": float(np.median(times)), "plan_ms_p90": float(np.percentile(times, 90))}
+
+
+@functools.partial(jax.jit, static_argnames=("planner",))
+def _plan_once(planner, scene, ego):
+    return planner.plan(scene, ego, 0)
 
 
 def run_planner(planner, batch, config: SimConfig, chunk: int | None = None) -> tuple[dict, dict, dict]:
@@ -135,7 +117,7 @@ def run_planner(planner, batch, config: SimConfig, chunk: int | None = None) -> 
 
     B = int(batch.start.shape[0])
     chunk = chunk or B
-    fn = jax.jit(lambda sc: rollout(planner, sc, config))
+    fn = lambda sc: rollout(planner, sc, config)  # rollout is jitted (planner and config static): cached
     take = lambda a, lo, hi: jax.tree_util.tree_map(lambda x: x[lo:hi], a)
     t0 = time.perf_counter()
     first = sharded_map(fn, take(batch, 0, min(B, chunk)), pad_to=min(B, chunk))
@@ -162,9 +144,10 @@ def _row(i, rec, planner_name, metrics, log) -> dict:
     for k, v in metrics.items():
         x = v[i]
         row[k] = bool(x) if x.dtype == bool else (int(x) if np.issubdtype(x.dtype, np.integer) else float(x))
-    ok = np.asarray(log.plan_ok[i] if hasattr(log, "plan_ok") else log["plan_ok"][i])
+    ok = np.asarray(log.plan_ok[i])
     row["plan_not_ok_share"] = float(1.0 - np.mean(ok))
-    row["fallback_cycles"] = int(np.sum(log.fallback[i] if hasattr(log, "fallback") else log["fallback"][i]))
+    row["fallback_cycles"] = int(np.sum(log.fallback[i]))
+    row["replans"] = int(np.sum(log.replanned[i]))
     row["end_time"] = float(np.asarray(log.t[i])[int(log.end_step[i])])
     return row
 
@@ -186,7 +169,7 @@ def write_drive(folder: str, rec, planner_name: str, vehicle, log_i: dict, row: 
     states = [[round(float(log_i["t"][k]), 6), float(log_i["x"][k]) + ox, float(log_i["y"][k]) + oy,
                float(log_i["heading"][k]), float(log_i["v"][k]), float(log_i["a"][k])] for k in range(n)]
     _write_json(os.path.join(folder, "driven.json"),
-                {"scenario": rec.scenario.id, "planner": planner_name, "dt": float(rec.scenario.dt),
+                {"scenario": rec.name, "planner": planner_name, "dt": float(rec.scenario.dt),
                  "vehicle": {"length": float(vehicle.length), "width": float(vehicle.width)}, "states": states})
     title = f"{rec.name}: {planner_name}"
     plot_drive(os.path.join(folder, "drive.png"), rec.scene, row, log_i, vehicle, title)
@@ -237,6 +220,7 @@ def drive(records, planners: list, out: str, config: SimConfig, animate: bool = 
         all_rows[name], summary[name] = rows, summ
     figures = {f"drive.{p}.{k}": v for p, s in summary.items() for k, v in s.items()}
     run = {"kind": "jaxplan drive", "planners": list(planners), "replan_every": config.replan_every,
+           "replan": config.replan,
            "tracking": config.tracking, "n_steps": config.n_steps, "dt": config.dt,
            "scenarios": [r.name for r in records], "skipped_files": list(skipped)}
     _write_json(os.path.join(out, "metrics.json"),

@@ -14,6 +14,7 @@ HEADLINE = (  # column, figure, format
     ("max abs lat accel (m/s^2)", "max_abs_lat_accel", "{:.1f}"),
     ("max curvature (1/m)", "max_abs_curvature", "{:.3f}"),
     ("min TTC (s)", "min_ttc", "{:.1f}"),
+    ("re-plans per drive", "replans_per_drive", "{:.1f}"),
     ("plan ms (median)", "plan_ms_median", "{:.1f}"),
     ("scenario-steps/s", "scenario_steps_per_s", "{:.0f}"),
 )
@@ -28,6 +29,7 @@ DEFINITIONS = """\
 - **max abs accel / lat accel / curvature**: largest |dv/dt|, |v dtheta/dt|, |dtheta/ds| of the
   driven states (finite differences over 0.1 s).
 - **min TTC**: smallest constant-velocity time to collision with an obstacle ahead or static (3 s cap).
+- **re-plans per drive**: plans installed (periodic: every cycle; lazy: only when needed).
 - **plan ms**: wall time of one planning call for one scene (compile excluded), median over scenes.
 - **scenario-steps/s**: simulated steps per second of the whole batched closed loop (compile excluded).
 """
@@ -64,8 +66,9 @@ def write_drive_report(out: str, summary: dict, rows: dict, run: dict) -> str:
     """Write ``out/report.md``."""
     planners = list(summary)
     lines = ["# jaxplan drive", "",
-             f"{len(run['scenarios'])} scenarios, re-plan every {run['replan_every']} steps "
-             f"({run['replan_every'] * run['dt']:.1f} s), {run['tracking']} tracking, up to {run['n_steps']} steps.", ""]
+             f"{len(run['scenarios'])} scenarios, {run.get('replan', 'periodic')} re-planning checked every "
+             f"{run['replan_every']} steps ({run['replan_every'] * run['dt']:.1f} s), {run['tracking']} tracking, "
+             f"up to {run['n_steps']} steps.", ""]
     lines += headline_table(summary) + ["", DEFINITIONS, "## Per scenario", ""]
     lines += ["| scenario | " + " | ".join(planners) + " |", "|" + " --- |" * (len(planners) + 1)]
     by = {p: {r["scenario"]: r for r in rows[p]} for p in planners}

@@ -42,6 +42,12 @@ class SimConfig:
         lookahead_time, min_lookahead, speed_gain, substeps: the bicycle tracker (pure
             pursuit look-ahead ``max(min_lookahead, lookahead_time * v)`` m, speed feedback
             gain 1/s, Euler substeps per step).
+        replan: ``"periodic"`` (a new plan every ``replan_every`` steps) or ``"lazy"``: every
+            ``replan_every`` steps the installed plan is checked and replaced only when it is
+            abnormal (the planner's ``ok`` was False), has less than ``lazy_min_remaining``
+            seconds left, or its remaining part comes within ``lazy_margin`` m of a predicted
+            obstacle (seed 003's rule for road driving; the planner still runs every cycle
+            inside the batched scan, so this saves planning work on a car, not here).
     """
 
     n_steps: int = 150
@@ -54,10 +60,15 @@ class SimConfig:
     min_lookahead: float = 3.0
     speed_gain: float = 1.0
     substeps: int = 4
+    replan: str = "periodic"
+    lazy_min_remaining: float = 2.0
+    lazy_margin: float = 0.2
 
     def validate(self, planner: Planner | None = None) -> "SimConfig":
         if self.n_steps < 1 or self.replan_every < 1:
             raise ValueError(f"SimConfig: n_steps and replan_every must be >= 1, got {self.n_steps}, {self.replan_every}")
+        if self.replan not in ("periodic", "lazy"):
+            raise ValueError(f"SimConfig.replan must be 'periodic' or 'lazy', got {self.replan!r}")
         if self.tracking not in TRACKERS:
             raise ValueError(f"SimConfig.tracking must be one of {', '.join(TRACKERS)}, got {self.tracking!r}")
         if planner is not None:
@@ -74,7 +85,7 @@ class SimConfig:
 
 
 @_pytree(data_fields=("t", "x", "y", "heading", "v", "a", "kappa", "valid", "end_step", "plan_ok", "fallback",
-                      "info"))
+                      "replanned", "info"))
 class DriveLog:
     """A drive (add leading batch axes for batches): ``N = n_steps + 1`` states at
     ``t = k dt``, positions of the car's **box centre**.
@@ -84,7 +95,8 @@ class DriveLog:
         valid: ``(N,)`` bool, True up to the drive's end.
         end_step: ``()`` the last valid step.
         plan_ok: ``(C,)`` the planner's ``ok`` at each cycle (C = cycles); fallback: ``(C,)``
-            the plan was not finite and the car braked instead.
+            the plan was not finite and the car braked instead; replanned: ``(C,)`` a new plan was
+            installed at that cycle (always, periodic; when needed, lazy) before the drive ended.
         info: the planner's info pytree, ``(C, ...)``.
     """
 
@@ -99,6 +111,7 @@ class DriveLog:
     end_step: Any
     plan_ok: Any
     fallback: Any
+    replanned: Any
     info: Any
 
 
@@ -117,27 +130,59 @@ def _finite(tree) -> Any:
     return jnp.all(jnp.stack([jnp.all(jnp.isfinite(x)) for x in jax.tree_util.tree_leaves(tree)]))
 
 
+def _shift(traj, idx):
+    """The trajectory from index ``idx`` on (padded with its last point), times from there."""
+    H = traj.x.shape[-1]
+    k = jnp.clip(idx + jnp.arange(H), 0, H - 1)
+    out = jax.tree_util.tree_map(lambda a: a[k], traj)
+    return dataclasses.replace(out, t=out.t - traj.t[jnp.clip(idx, 0, H - 1)])
+
+
+def plan_conflicts(traj, idx, scene, step, vehicle, margin: float):
+    """Whether the installed plan, from index ``idx`` on, overlaps a predicted obstacle box
+    (grown by ``margin`` m) at the same future step (the lazy policy's collision check)."""
+    from jaxplan.geometry.boxes import box_separation, poses_to_boxes
+
+    H = traj.x.shape[-1]
+    rest = _shift(traj, idx)
+    obs = scene.obstacles.window(step, H)
+    car = poses_to_boxes(jnp.stack([rest.x, rest.y], -1), rest.theta, vehicle)  # (H, 5)
+    sep = box_separation(car[None], obs.boxes)  # (K, H)
+    inside = (jnp.arange(H) + idx) < H
+    return jnp.any(obs.valid & inside[None] & (sep < margin))
+
+
 def drive_one(planner: Planner, scene, config: SimConfig) -> DriveLog:
     """One scene's drive (unbatched; ``rollout`` batches it)."""
     veh = planner.vehicle
     K = config.replan_every
     C = config.n_cycles
+    H = planner.horizon_steps
     track = TRACKERS[config.tracking]
     ego0 = EgoState.from_box_centre(scene.start, veh)
     f = jnp.result_type(float)
     ego0 = jax.tree_util.tree_map(lambda a: jnp.asarray(a, f), ego0)
     dt = jnp.asarray(config.dt, f)
     t_end = scene.goal.time[1]
+    min_left = int(round(config.lazy_min_remaining / config.dt))
 
     def reached(ego, t):
         c = ego.box_centre(veh)
         return goal_reached(scene.goal, c, ego.heading, ego.v, t)
 
     def cycle(carry, c):
-        ego, done = carry
+        ego, done, plan, idx, plan_ok = carry
         step = c * K
         out = planner.plan(scene, ego, step)
-        traj = out.trajectory
+        if config.replan == "lazy":  # keep the installed plan unless it is short, abnormal or in conflict
+            need = (c == 0) | ~plan_ok | (H - 1 - idx < max(min_left, K)) | \
+                plan_conflicts(plan, idx, scene, step, veh, config.lazy_margin)
+        else:
+            need = jnp.asarray(True)
+        plan = jax.tree_util.tree_map(lambda a, b: jnp.where(need, a, b), out.trajectory, plan)
+        idx = jnp.where(need, 0, idx)
+        plan_ok = jnp.where(need, out.ok, plan_ok)
+        traj = _shift(plan, idx)
         head = jax.tree_util.tree_map(lambda a: a[..., :K + 1], traj)
         finite = _finite(head)
         safe = jax.tree_util.tree_map(lambda a: jnp.where(finite, a, 0.0), traj)
@@ -153,10 +198,14 @@ def drive_one(planner: Planner, scene, config: SimConfig) -> DriveLog:
             return (e, d | end_now), (e, d)
 
         (ego_n, done_n), (states, was_done) = lax.scan(step_fn, (ego, done), jnp.arange(K))
-        return (ego_n, done_n), (states, was_done, out.ok, ~finite, out.info)
+        carry = (ego_n, done_n, plan, idx + K, plan_ok)
+        return carry, (states, was_done, out.ok, ~finite, need & ~done, out.info)
 
     done0 = (config.stop_at_goal & reached(ego0, 0.0)) | (t_end <= 1e-6)
-    _, (states, was_done, ok, fallback, info) = lax.scan(cycle, (ego0, done0), jnp.arange(C))
+    plan0 = jax.eval_shape(lambda: planner.plan(scene, ego0, 0)).trajectory
+    plan0 = jax.tree_util.tree_map(lambda a: jnp.zeros(a.shape, a.dtype), plan0)
+    carry0 = (ego0, done0, plan0, jnp.asarray(0), jnp.asarray(False))
+    _, (states, was_done, ok, fallback, replanned, info) = lax.scan(cycle, carry0, jnp.arange(C))
     flat = jax.tree_util.tree_map(lambda a: a.reshape((C * K,) + a.shape[2:])[:config.n_steps], states)
     was_done = was_done.reshape(C * K)[:config.n_steps]
     seq = jax.tree_util.tree_map(lambda a0, a: jnp.concatenate([jnp.reshape(a0, (1,)), a]), ego0, flat)
@@ -166,7 +215,7 @@ def drive_one(planner: Planner, scene, config: SimConfig) -> DriveLog:
     t = jnp.arange(n, dtype=f) * dt
     end_step = jnp.max(jnp.where(valid, jnp.arange(n), 0))
     return DriveLog(t, centre[:, 0], centre[:, 1], seq.heading, seq.v, seq.a, seq.kappa, valid, end_step, ok,
-                    fallback, info)
+                    fallback, replanned, info)
 
 
 @functools.partial(jax.jit, static_argnames=("planner", "config"))

@@ -56,7 +56,7 @@ from jaxplan.geometry.frenet import ReferenceLine
 from jaxplan.speed.nonblocking import classify, keep_clear_intervals
 from jaxplan.speed.path_profile import PathProfile, path_profile, resample_obstacles
 from jaxplan.speed.st_boundary import BIG, STBoundary, car_extent, project_obstacles
-from jaxplan.types import Obstacles, VehicleParams, _pytree, is_concrete
+from jaxplan.types import Obstacles, VehicleParams, _pytree, check_weights, is_concrete
 
 
 @dataclasses.dataclass(frozen=True)
@@ -216,6 +216,11 @@ class CostWeights:
     w_limit: Any = 20.0
     w_goal: Any = 5.0
     w_goal_v: Any = 5.0
+
+    def validate(self) -> "CostWeights":
+        """Host-side: every weight finite and >= 0 (a ``ValueError`` names the field)."""
+        check_weights(self)
+        return self
 
     @classmethod
     def default(cls, dtype=jnp.float32) -> "CostWeights":
@@ -797,12 +802,15 @@ def _batched(fn, batch_ndim, args):
     return f(*args)
 
 
-def _check_inputs(path, obstacles, config, v0):
+def _check_inputs(path, obstacles, config, v0, weights):
     config.validate()
     if is_concrete(path, obstacles, v0):
+        path.validate()
         obstacles.validate()
         if np.any(np.asarray(v0) < 0):
             raise ValueError("plan_speed: v0 must be >= 0")
+    if weights is not None and is_concrete(weights):
+        weights.validate()
 
 
 def _prepare(path, obstacles, v0, a0, s0, road, weights):
@@ -842,7 +850,7 @@ def plan_speed(path: ReferenceLine, obstacles: Obstacles, config: SpeedConfig = 
     Returns:
         ``SpeedPlan`` with leading dims ``(...)``.
     """
-    _check_inputs(path, obstacles, config, v0)
+    _check_inputs(path, obstacles, config, v0, weights)
     weights = CostWeights.default(path.xy.dtype) if weights is None else weights
     vehicle = VehicleParams() if vehicle is None else vehicle
     return _plan_jit(path, obstacles, v0, a0, s0, keep_clear, road, vehicle, weights, config)
@@ -868,7 +876,7 @@ def expected_speed_profile(path: ReferenceLine, obstacles: Obstacles, config: Sp
     temperature goes to 0 it becomes the exact DP's profile. Same arguments as
     ``plan_speed``; ``cost`` holds the soft value.
     """
-    _check_inputs(path, obstacles, config, v0)
+    _check_inputs(path, obstacles, config, v0, weights)
     weights = CostWeights.default(path.xy.dtype) if weights is None else weights
     vehicle = VehicleParams() if vehicle is None else vehicle
     return _expected_jit(path, obstacles, v0, a0, s0, keep_clear, road, vehicle, weights,

@@ -62,29 +62,7 @@ def first_trajectory(profile: PathProfile, v, t) -> Trajectory:
 
 
 def resample_obstacles(obstacles: Obstacles, t) -> Obstacles:
-    """Obstacle predictions linearly interpolated at times ``t`` ``(T2,)``.
-
-    Poses and sizes interpolate between the two neighbouring stamps (heading by
-    the shortest turn); a time is valid where both neighbours are, and times
-    outside the prediction are invalid, except for static obstacles (held).
-    """
-    t = jnp.asarray(t, obstacles.boxes.dtype)
-    tt = obstacles.t
-    n = tt.shape[-1]
-    if n == 1:
-        ok = jnp.abs(t - tt[..., :1]) < 1e-6
-        b = jnp.broadcast_to(obstacles.boxes, obstacles.boxes.shape[:-2] + (t.shape[-1], 5))
-        return Obstacles(b, (obstacles.valid & ok) | obstacles.static[..., None], t, obstacles.static)
-    i = jnp.clip(jnp.searchsorted(tt, t, side="right") - 1, 0, n - 2)
-    f = jnp.clip((t - tt[i]) / (tt[i + 1] - tt[i]), 0.0, 1.0)
-    b0, b1 = obstacles.boxes[..., i, :], obstacles.boxes[..., i + 1, :]
-    dh = wrap_angle(b1[..., 4] - b0[..., 4])
-    b = b0 + f[:, None] * (b1 - b0)
-    b = b.at[..., 4].set(b0[..., 4] + f * dh)
-    inside = (t >= tt[0] - 1e-6) & (t <= tt[-1] + 1e-6)
-    v0, v1 = obstacles.valid[..., i], obstacles.valid[..., i + 1]
-    ok = jnp.where(f <= 1e-6, v0, jnp.where(f >= 1 - 1e-6, v1, v0 & v1)) & inside
-    st = obstacles.static
-    ok = ok | st[..., None]  # static obstacles are there at every time
-    b = jnp.where(st[..., None, None], obstacles.boxes[..., :1, :], b)
-    return Obstacles(b, ok, t, st)
+    """Obstacle predictions at times ``t`` ``(T2,)``: ``Obstacles.at_times`` (linear
+    interpolation between stamps, heading along the shorter turn; dynamic obstacles are
+    invalid outside their stamps, static ones held)."""
+    return obstacles.at_times(t)

@@ -57,6 +57,7 @@ class Demo:
         human_xy: ``(T, 2)`` the recorded future (index 0 = start).
         human_v: ``(T,)`` recorded speed.
         t: ``(T,)`` times from the start.
+        obstacle_static: ``(K,)`` static obstacles (held beyond ``T`` by the planners); None: none.
     """
 
     ego: jax.Array
@@ -66,6 +67,7 @@ class Demo:
     human_xy: jax.Array
     human_v: jax.Array
     t: jax.Array
+    obstacle_static: jax.Array = None
 
 
 def is_validation(scenario_id: str, share: int = 4) -> bool:
@@ -77,6 +79,7 @@ def scenario_demos(sc: Scenario, cfg: DemoConfig = DemoConfig()) -> list[Demo]:
     """Every demonstration of one scenario, as unbatched numpy-backed ``Demo``s."""
     boxes = np.asarray(sc.obstacles.boxes, np.float64)   # (K, S, 5)
     valid = np.asarray(sc.obstacles.valid)               # (K, S)
+    static = np.asarray(sc.obstacles.static)             # (K,)
     n_t = int(round(cfg.horizon / sc.dt)) + 1
     stride = max(1, int(round(cfg.stride / sc.dt)))
     S = boxes.shape[1] if boxes.ndim == 3 else 0
@@ -112,16 +115,18 @@ def scenario_demos(sc: Scenario, cfg: DemoConfig = DemoConfig()) -> list[Demo]:
             obs = np.zeros((K, n_t, 5))
             obs[..., 2:4] = 1.0  # padding: unit boxes, never valid
             ok = np.zeros((K, n_t), bool)
+            st = np.zeros(K, bool)
             if len(others):
                 dist = np.linalg.norm(boxes[others, k0, :2] - origin, axis=1)
                 near = others[np.argsort(dist)[:K]]
                 obs[:len(near)] = boxes[near, win]
                 obs[:len(near), :, :2] -= origin
                 ok[:len(near)] = valid[near, win]
+                st[:len(near)] = static[near]
                 obs[~ok] = [0.0, 0.0, 1.0, 1.0, 0.0]
             a0 = (v[1] - v[0]) / sc.dt
             demos.append(Demo(np.array([0.0, 0.0, th0, v[0], a0]), ref_xy - origin, obs, ok,
-                              traj - origin, v, np.arange(n_t) * sc.dt))
+                              traj - origin, v, np.arange(n_t) * sc.dt, st))
     return demos
 
 
@@ -159,4 +164,5 @@ def synthetic_demos(n: int, seed: int = 0, cfg: DemoConfig = DemoConfig()) -> De
     sc = road_scenes(n, seed, cfg.n_obstacles, cfg.horizon, 0.1, cfg.ref_points, cfg.ref_back, cfg.ref_ahead)
     v = np.repeat(sc.ego[:, 3:4], sc.t.shape[1], axis=1)
     return jax.tree_util.tree_map(lambda x: jnp.asarray(x, jnp.float32) if np.asarray(x).dtype.kind == "f"
-                                  else jnp.asarray(x), Demo(sc.ego, sc.ref_xy, sc.boxes, sc.valid, sc.cruise, v, sc.t))
+                                  else jnp.asarray(x), Demo(sc.ego, sc.ref_xy, sc.boxes, sc.valid, sc.cruise, v, sc.t,
+                                                       sc.static))

@@ -70,7 +70,7 @@ def _states(demos: Demo) -> PlanState:
 
 def _chunk_data(demos: Demo, config: LatticeConfig) -> LatticeData:
     refs = jax.vmap(reference_line)(demos.ref_xy)
-    obs = Obstacles(demos.obstacles, demos.obstacle_valid, demos.t)
+    obs = Obstacles(demos.obstacles, demos.obstacle_valid, demos.t, demos.obstacle_static)
     res = plan_batch(_states(demos), refs, obs, config, CostWeights())
     xy = jnp.stack([res.candidates.traj.x, res.candidates.traj.y], -1)      # (B, N, T, 2)
     T = min(xy.shape[-2], demos.human_xy.shape[-2])

@@ -38,28 +38,22 @@ class TuneResult:
     extra: dict
 
 
-def demonstrations(scenarios: str | None, n_synthetic: int = 48, max_files: int | None = None,
+def demonstrations(scenarios, n_synthetic: int = 48, max_files: int | None = None,
                    seed: int = 0) -> tuple[Demo, Demo, str]:
     """Train / validation demonstrations from a scenario folder, or synthetic ones.
 
-    Synthetic demonstrations (no folder): the human is a lattice driver with the
-    hidden weights ``SYNTHETIC_DRIVER`` (its choice by the exact rule is the recorded future).
+    Args:
+        scenarios: a folder of recorded scenarios (files that fail to load are named on
+            stderr and skipped, ``jaxplan.scenarios.loader.load_folder``), a ``Folder`` it
+            returned (so a caller can count ``skipped``), or None for synthetic
+            demonstrations: the human is a lattice driver with the hidden weights
+            ``SYNTHETIC_DRIVER`` (its choice by the exact rule is the recorded future).
     """
     if scenarios:
-        import glob
-        import os
+        from jaxplan.scenarios.loader import Folder, load_folder
 
-        from jaxplan.scenarios.loader import ScenarioError, load_scenario
-
-        files = sorted(glob.glob(os.path.join(scenarios, "*.json")))
-        if not files:
-            raise ValueError(f"{scenarios}: no scenario JSON files")
-        scs = []
-        for f in files:
-            try:
-                scs.append(load_scenario(f))
-            except ScenarioError:
-                continue
+        folder = scenarios if isinstance(scenarios, Folder) else load_folder(scenarios)
+        scs = list(folder.scenarios)
         if max_files:  # the files with the most recorded vehicles, from both sides of the split
             from jaxplan.tuning.demos import is_validation
 
@@ -69,7 +63,7 @@ def demonstrations(scenarios: str | None, n_synthetic: int = 48, max_files: int 
                    + [s for s in scs if is_validation(s.id)][:n_val])
         train, val, _ = load_demos(scs, DemoConfig())
         if train is None or val is None:
-            raise ValueError(f"{scenarios}: too few demonstrations for a train / validation split")
+            raise ValueError(f"{folder.directory}: too few demonstrations for a train / validation split")
         return train, val, "recorded"
     demos = synthetic_demos(2 * n_synthetic, seed=seed)
     data = lattice_data(demos, chunk=n_synthetic)

@@ -76,7 +76,8 @@ def speed_data(demos: Demo, config: SpeedConfig = SPEED_TUNING_CONFIG, points: i
         sb = s[b][keep]
         paths.append(resample_polyline(hxy[b][keep], sb, np.linspace(0.0, sb[-1] + extend, points)))
     pick = lambda x: jnp.asarray(np.asarray(x)[kept])
-    obs = Obstacles(pick(demos.obstacles), pick(demos.obstacle_valid), pick(demos.t))
+    static = None if demos.obstacle_static is None else pick(demos.obstacle_static)
+    obs = Obstacles(pick(demos.obstacles), pick(demos.obstacle_valid), pick(demos.t), static)
     data = SpeedData(jnp.asarray(np.array(paths), jnp.float32), obs, pick(demos.ego[:, 3]),
                      jnp.clip(pick(demos.ego[:, 4]), config.a_min, config.a_max),
                      jnp.asarray(s[kept][:, idx], jnp.float32))

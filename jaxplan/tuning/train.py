@@ -121,8 +121,20 @@ def save_weights(path: str, weights: dict, meta: dict | None = None) -> None:
     os.replace(path + ".tmp", path)
 
 
-def load_weights(path: str) -> dict:
-    """Read weights written by ``save_weights``; a clear error names a bad file."""
+def load_weights(path: str, allowed=None, planner: str | None = None) -> dict:
+    """Read weights written by ``save_weights``; a clear ``ValueError`` names a bad file.
+
+    Args:
+        path: the JSON file.
+        allowed: the weight names the caller's planner has (e.g.
+            ``jaxplan.tuning.lattice_tuning.WEIGHT_NAMES``); any other key, a misspelling
+            like ``alhpa`` included, is refused with the list of allowed names.
+        planner: the planner the weights are for; a file whose ``meta.planner`` names another
+            one is refused.
+
+    Returns:
+        ``{name: weight}``, every weight finite and positive.
+    """
     try:
         with open(path) as f:
             d = json.load(f)
@@ -130,6 +142,15 @@ def load_weights(path: str) -> dict:
         out = {str(k): float(v) for k, v in w.items()}
     except (OSError, json.JSONDecodeError, KeyError, TypeError, ValueError, AttributeError) as e:
         raise ValueError(f"{path}: not a weights file ({type(e).__name__}: {e})") from None
+    meta = d.get("meta") if isinstance(d, dict) else None
+    if planner is not None and isinstance(meta, dict) and meta.get("planner") not in (None, planner):
+        raise ValueError(f"{path}: weights for the {meta.get('planner')!r} planner, not for {planner!r}")
+    if allowed is not None:
+        unknown = sorted(set(out) - set(allowed))
+        if unknown:
+            raise ValueError(f"{path}: unknown weight {unknown[0]!r}"
+                             f"{f' (and {len(unknown) - 1} more)' if len(unknown) > 1 else ''}; "
+                             f"allowed: {', '.join(allowed)}")
     bad = [k for k, v in out.items() if not (np.isfinite(v) and v > 0)]
     if bad:
         raise ValueError(f"{path}: weights must be positive and finite, not {bad}")

@@ -1,0 +1,342 @@
+"""The path half of the path-speed planner: decide, bound, optimise, check (one scene, jittable).
+
+``plan_path(scene, ctx, config) -> PathPlan`` for one planning cycle (``ctx`` is the
+``RoadContext`` of ``jaxplan.plan_context.road_context``):
+
+1. **Stations.** ``N = config.n_points`` stations along the route from the car's ``s``,
+   spacing ``ds = clip(v * time_horizon / (N - 1), ds_min, ds_max)`` (a slow car plans a
+   short, dense path, a fast one a long one).
+2. **Blocking obstacles** (the path's business; the speed planner handles the others on
+   the ST graph): obstacles flagged ``static``, and dynamic ones present now that move
+   less than ``static_speed`` (m/s) over the horizon (a stopped car), with one footprint:
+   the box now, lengthened along its heading to cover what it moves over the horizon.
+   Moving obstacles, however slow, are *not* blocking: the speed planner follows or
+   yields to them, and a blockage (a stop) is never caused by something that drives on.
+3. **Road bounds**: the drivable corridor's edges about the route (the lanes beside the
+   route that are contiguous with the route lane, opposite-direction lanes only with
+   ``opposite_lanes``; never beyond ``road_left/right``), less the car body's reach at its
+   heading and ``edge_buffer``.
+4. **Decision and corridor** (``jaxplan.bounds.decision``): each blocking obstacle's
+   interval of offsets per station (exact overlap interval of the car's contour, the
+   obstacle lengthened by ``lon_buffer + ds / 2`` so that the car's motion between stations
+   is covered, widened by ``lat_buffer``, the buffer ramped in over ``buffer_ramp`` metres
+   from the car), a side per obstacle against the free corridor, kept along ``s``, and the
+   cut at a blockage.
+5. **Path QP** (``jaxplan.bounds.optimize``): piecewise jerk inside the corridor, the
+   curvature bound from the steering limit, a heading bound (``heading_max`` about the
+   route), a jerk bound, from the car's ``(l, l', l'')``.
+6. **Recompute at the optimised heading**: the intervals depend on the car's heading at
+   each station; they are recomputed at the optimised path's heading (decisions kept) and
+   the QP re-solved (warm started), until the path's exact footprint (the car's box at
+   each station's pose, SAT) is clear of every blocking obstacle, at most ``max_rounds``.
+
+``PathPlan`` resamples the result on a uniform arc-length grid along the path itself
+(spacing ``ds``). ``ok`` = the QP solved, and the car's box at every valid point is clear
+of every blocking obstacle. Past a blockage the points are not valid and ``blocked_s``
+says where the car's reference point must stop before (the car at ``blocked_s`` overlaps
+the blocking obstacle lengthened by ``lon_buffer``).
+"""
+from __future__ import annotations
+
+import dataclasses
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+
+from jaxplan.bounds.decision import NONE, car_reach, decide_corridor, obstacle_intervals
+from jaxplan.bounds.optimize import PathQPConfig, PathWeights, curvature_bounds, optimize_path
+from jaxplan.geometry.boxes import box_has_overlap, poses_to_boxes
+from jaxplan.geometry.frenet import frenet_to_cartesian_state, ref_state
+from jaxplan.types import VehicleParams, _pytree
+
+
+@dataclasses.dataclass(frozen=True)
+class PathConfig:
+    """Static settings of ``plan_path`` (frozen, hashable: static under ``jax.jit``).
+
+    Attributes:
+        vehicle: the car.
+        n_points: ``N`` stations (and output points).
+        time_horizon: s; the path is ``v * time_horizon`` long, within the ds limits.
+        ds_min, ds_max: station spacing limits (m).
+        lat_buffer: lateral buffer to blocking obstacles (m; Apollo's is 0.4).
+        lon_buffer: blocking obstacles lengthened by this at each end (m), plus ``ds / 2``.
+        buffer_ramp: the lateral buffer grows from 0 at the car to full over this (m), so a
+            car already closer than the buffer to an obstacle beside it is not boxed in.
+        edge_buffer: margin to the road's edges (m).
+        static_speed: dynamic obstacles slower than this (m/s) over the horizon are blocking.
+        opposite_lanes: the corridor may use opposite-direction lanes (to pass a blockage).
+        max_rounds: bounds-at-heading / QP rounds.
+        heading_max: |heading - route heading| bound (rad).
+        curvature_margin: the path's curvature stays below this share of the steering limit.
+        room_cap, min_gap: the decision's room rule (``decide_corridor``).
+        weights: ``PathWeights`` values (ref, dl, ddl, dddl) as a tuple (hashable).
+        qp: ``PathQPConfig``.
+    """
+
+    vehicle: VehicleParams = VehicleParams()
+    n_points: int = 81
+    time_horizon: float = 8.0
+    ds_min: float = 0.5
+    ds_max: float = 2.5
+    lat_buffer: float = 0.3
+    lon_buffer: float = 0.3
+    buffer_ramp: float = 6.0
+    edge_buffer: float = 0.1
+    static_speed: float = 0.5
+    opposite_lanes: bool = True
+    max_rounds: int = 3
+    heading_max: float = 0.5
+    curvature_margin: float = 0.9
+    room_cap: float = 1.0
+    min_gap: float = 0.0
+    weights: tuple = (1.0, 10.0, 100.0, 1000.0)
+    qp: PathQPConfig = PathQPConfig(jerk_max=0.2, max_iter=2000)
+
+
+@_pytree(data_fields=("s", "xy", "theta", "kappa", "l", "route_s", "lower", "upper", "valid", "blocked_s", "ok",
+                      "side", "blocking", "rounds", "qp_ok", "collision_free", "ds"))
+class PathPlan:
+    """The path of one scene on a uniform arc-length grid from the car (``N`` points, ``K`` obstacles).
+
+    Attributes:
+        s: ``(N,)`` distance along the path from the car's reference point (``i * ds``).
+        xy: ``(N, 2)``; theta: ``(N,)`` heading (unwrapped); kappa: ``(N,)`` curvature.
+        l: ``(N,)`` offset from the route; route_s: ``(N,)`` arc length on the route.
+        lower, upper: ``(N,)`` the corridor the path was optimised in (bounds on ``l``).
+        valid: ``(N,)`` False past a blockage (and past the optimised length).
+        blocked_s: ``()`` distance along the path to the blockage (``inf`` if none).
+        ok: ``()`` QP solved and the path clear of every blocking obstacle.
+        side: ``(K,)`` int ``LEFT`` (1: obstacle on the car's left, bounds ``l`` above) /
+            ``RIGHT`` (-1) / ``NONE`` (0: not blocking or never in the way).
+        blocking: ``(K,)`` bool, the obstacle is blocking for the path (see the module doc).
+        rounds: ``()`` rounds run; qp_ok, collision_free: ``()`` the two parts of ``ok``.
+        ds: ``()`` the grid spacing (m).
+    """
+
+    s: Any
+    xy: Any
+    theta: Any
+    kappa: Any
+    l: Any
+    route_s: Any
+    lower: Any
+    upper: Any
+    valid: Any
+    blocked_s: Any
+    ok: Any
+    side: Any
+    blocking: Any
+    rounds: Any
+    qp_ok: Any
+    collision_free: Any
+    ds: Any
+
+
+def _sample(scene, values, s):
+    return jnp.interp(s, scene.route.s, values)
+
+
+def corridor_edges(scene, opposite_lanes: bool):
+    """Left / right edges ``(R,)`` of the lanes contiguous with the route's own lane, per route point."""
+    c = scene.own_lane
+    off, wid = scene.lane_offset, scene.lane_width
+    ok = scene.lane_valid & (scene.lane_same_dir | opposite_lanes)
+    ok = ok.at[c].set(True)
+    left_ok = jnp.cumprod(ok[c:].astype(jnp.int32), axis=0).astype(bool)  # (L - c, R)
+    right_ok = jnp.cumprod(ok[:c + 1][::-1].astype(jnp.int32), axis=0).astype(bool)
+    left = jnp.max(jnp.where(left_ok, off[c:] + 0.5 * wid[c:], -jnp.inf), 0)
+    right = jnp.min(jnp.where(right_ok, off[:c + 1][::-1] - 0.5 * wid[:c + 1][::-1], jnp.inf), 0)
+    return jnp.minimum(left, scene.road_left), jnp.maximum(right, scene.road_right)
+
+
+def blocking_footprints(obstacles, static_speed, dt):
+    """One footprint per obstacle for the path and whether it is blocking.
+
+    Args:
+        obstacles: ``Obstacles`` ``(K, H, 5)`` from now (``RoadContext.obstacles``).
+
+    Returns:
+        (boxes ``(K, 5)``, blocking ``(K,)`` bool).
+    """
+    b, v = obstacles.boxes, obstacles.valid
+    H = b.shape[1]
+    static = jnp.asarray(obstacles.static, bool)
+    last = H - 1 - jnp.argmax(v[:, ::-1], axis=1)
+    first = jnp.argmax(v, axis=1)
+    p0 = jnp.take_along_axis(b, first[:, None, None], 1)[:, 0]
+    p1 = jnp.take_along_axis(b, last[:, None, None], 1)[:, 0]
+    span = jnp.maximum(last - first, 1).astype(b.dtype) * dt
+    disp = p1[:, :2] - p0[:, :2]
+    speed = jnp.linalg.norm(disp, axis=-1) / span
+    slow = v[:, 0] & (speed < static_speed)
+    blocking = jnp.any(v, axis=1) & (static | slow)
+    hd = jnp.stack([jnp.cos(p0[:, 4]), jnp.sin(p0[:, 4])], -1)
+    along = jnp.where(static, 0.0, jnp.abs(jnp.sum(disp * hd, -1)))
+    ctr = jnp.where(static[:, None], p0[:, :2], p0[:, :2] + 0.5 * disp)
+    box = jnp.concatenate([ctr, (p0[:, 2] + along)[:, None], p0[:, 3:5]], -1)
+    return box, blocking
+
+
+def _resample(S, values, s_out):
+    return jnp.interp(s_out, S, values)
+
+
+def plan_path(scene, ctx, config: PathConfig = PathConfig()) -> PathPlan:
+    """The path of one scene at one planning cycle (see the module docstring).
+
+    Args:
+        scene: ``Scene`` (one, unbatched).
+        ctx: its ``RoadContext`` now (``ctx.ego``: the car's heading, speed, curvature).
+        config: ``PathConfig`` (static).
+
+    Returns:
+        ``PathPlan``.
+    """
+    return _plan(scene, ctx, config, ctx.ego)
+
+
+def _ego_frenet(ref, s0, l0, heading, kappa):
+    _, th_r, k_r, _ = ref_state(ref, s0)
+    dth = jnp.arctan2(jnp.sin(heading - th_r), jnp.cos(heading - th_r))
+    one = 1.0 - k_r * l0
+    dl0 = one * jnp.tan(dth)
+    ddl0 = kappa * one / jnp.cos(dth) ** 3 - k_r  # first order in k_r' and l
+    return dth, dl0, ddl0
+
+
+def solve_path(ref, st, ds, boxes, blocking, edge_left, edge_right, l_pref, init, config: PathConfig):
+    """Decide, bound and optimise a path on route stations, recomputing at its heading.
+
+    The core of ``plan_path``, for any reference line and obstacle footprints.
+
+    Args:
+        ref: ``ReferenceLine``; st: ``(N,)`` stations on it (spacing ``ds ()``), the car at ``st[0]``.
+        boxes: ``(K, 5)`` blocking footprints, or ``(N, K, 5)`` per station.
+        blocking: ``(K,)`` or ``(N, K)`` bool, which boxes bound the path.
+        edge_left, edge_right: ``(N,)`` the corridor's edges the car body must stay inside.
+        l_pref: ``(N,)`` preferred offset (lane centre).
+        init: ``(3,)`` the car's ``(l, l', l'')`` at ``st[0]``.
+        config: ``PathConfig``.
+
+    Returns:
+        dict with ``corridor`` (``Corridor``), ``qp`` (``PathQPResult``), ``rounds``,
+        ``clear`` (the car's boxes at the path's poses, and between them, miss every blocking
+        box), ``xy (N, 2)``, ``theta (N,)``, ``kappa (N,)``, ``l, dl, ddl (N,)``
+        (the car's offset kept where the QP failed).
+    """
+    veh = config.vehicle
+    f = ref.xy.dtype
+    N = st.shape[0]
+    base, th_r, k_r, _ = ref_state(ref, st)
+    l0 = init[0]
+    k_max = jnp.tan(jnp.asarray(veh.max_steer, f)) / jnp.asarray(veh.wheelbase, f)
+    tan_h = jnp.tan(jnp.asarray(config.heading_max, f))
+    ddl_lo, ddl_hi = curvature_bounds(k_r, k_max, config.curvature_margin)
+    dth0 = jnp.arctan2(init[1], 1.0 - k_r[0] * l0)
+    dist = st - st[0]
+    lat_buf = config.lat_buffer * jnp.clip(dist / config.buffer_ramp, 0.0, 1.0)
+    lon_buf = config.lon_buffer + 0.5 * ds
+    reach = ds * tan_h * jnp.ones((N,), f)
+    w = PathWeights(*config.weights)
+    dl_b = (jnp.full((N,), -tan_h, f).at[0].min(init[1]), jnp.full((N,), tan_h, f).at[0].max(init[1]))
+    ddl_b = (ddl_lo.at[0].min(init[2]), ddl_hi.at[0].max(init[2]))
+    if boxes.ndim == 2:
+        box_n = jnp.broadcast_to(boxes, (N,) + boxes.shape)
+        blk_n = jnp.broadcast_to(blocking, (N,) + blocking.shape)
+    else:
+        box_n, blk_n = boxes, blocking
+
+    def bounds_at(car_dth, side):
+        lo, hi, hit = obstacle_intervals(base, th_r, th_r + car_dth, veh, box_n, blk_n, lat_buf, lon_buf)
+        rl, rr = car_reach(veh, car_dth)
+        road_hi = edge_left - rl - config.edge_buffer
+        road_lo = edge_right + rr + config.edge_buffer
+        return decide_corridor(lo, hi, hit, road_lo, road_hi, l0, reach, l_pref, side,
+                               room_cap=config.room_cap, min_gap=config.min_gap)
+
+    def solve(cor, warm):
+        lower = cor.lower.at[0].set(jnp.minimum(cor.lower[0], l0))
+        upper = cor.upper.at[0].set(jnp.maximum(cor.upper[0], l0))
+        return optimize_path(lower, upper, ds, l_pref, init, w, config.qp, dl_b, ddl_b, warm=warm)
+
+    def pose(l, dl, ddl):
+        xy, _, kap = frenet_to_cartesian_state(ref, st, l, dl, ddl)
+        return xy, th_r + jnp.arctan2(dl, 1.0 - k_r * l), kap
+
+    def clear(xy, th, valid):
+        car = poses_to_boxes(xy, th, veh)  # (N, 5)
+        hit = box_has_overlap(car[:, None], box_n) & blk_n & valid[:, None]
+        mid = poses_to_boxes(0.5 * (xy[1:] + xy[:-1]), 0.5 * (th[1:] + th[:-1]), veh)
+        vm = valid[1:] & valid[:-1]
+        hit_m = (box_has_overlap(mid[:, None], box_n[1:]) | box_has_overlap(mid[:, None], box_n[:-1])) \
+            & (blk_n[1:] | blk_n[:-1]) & vm[:, None]
+        return ~jnp.any(hit) & ~jnp.any(hit_m)
+
+    car_dth = jnp.zeros((N,), f).at[0].set(dth0)
+    cor = bounds_at(car_dth, None)
+    qp = solve(cor, None)
+    xy, th, _ = pose(qp.l, qp.dl, qp.ddl)
+    fine0 = qp.ok & clear(xy, th, cor.valid)
+
+    def body(state):
+        r, cor, qp, _ = state
+        _, th, _ = pose(qp.l, qp.dl, qp.ddl)
+        dth = jnp.where(qp.ok, th - th_r, car_dth)
+        cor2 = bounds_at(dth, cor.side)
+        qp2 = solve(cor2, (qp.z, qp.y))
+        xy2, th2, _ = pose(qp2.l, qp2.dl, qp2.ddl)
+        return r + 1, cor2, qp2, qp2.ok & clear(xy2, th2, cor2.valid)
+
+    rounds, cor, qp, fine = jax.lax.while_loop(lambda s: (s[0] < config.max_rounds) & ~s[3], body,
+                                               (jnp.asarray(1, jnp.int32), cor, qp, fine0))
+    l = jnp.where(qp.feasible, qp.l, l0)
+    dl = jnp.where(qp.feasible, qp.dl, 0.0)
+    ddl = jnp.where(qp.feasible, qp.ddl, 0.0)
+    xy, th, kap = pose(l, dl, ddl)
+    return dict(corridor=cor, qp=qp, rounds=rounds, clear=clear(xy, th, cor.valid), xy=xy, theta=th, kappa=kap,
+                l=l, dl=dl, ddl=ddl)
+
+
+def _plan(scene, ctx, config, ego):
+    veh = config.vehicle
+    ref = scene.route
+    f = ref.xy.dtype
+    N = config.n_points
+    dt = jnp.asarray(scene.dt, f)
+    s0, l0 = jnp.asarray(ctx.s, f), jnp.asarray(ctx.l, f)
+    v0 = jnp.maximum(jnp.asarray(ego.v, f), 0.0)
+    ds = jnp.clip(v0 * config.time_horizon / (N - 1), config.ds_min, config.ds_max)
+    st = s0 + ds * jnp.arange(N, dtype=f)
+    _, th_r, k_r, _ = ref_state(ref, st)
+    _, dl0, ddl0 = _ego_frenet(ref, s0, l0, jnp.asarray(ego.heading, f), jnp.asarray(ego.kappa, f))
+    boxes, blocking = blocking_footprints(ctx.obstacles, config.static_speed, dt)
+    left_e, right_e = corridor_edges(scene, config.opposite_lanes)
+    front = veh.length - veh.rear_overhang if veh.reference == "rear_axle" else 0.5 * veh.length
+    rear = -veh.rear_overhang if veh.reference == "rear_axle" else -0.5 * veh.length
+    edge_l = jnp.minimum(jnp.minimum(_sample(scene, left_e, st), _sample(scene, left_e, st + front)),
+                         _sample(scene, left_e, st + rear))
+    edge_r = jnp.maximum(jnp.maximum(_sample(scene, right_e, st), _sample(scene, right_e, st + front)),
+                         _sample(scene, right_e, st + rear))
+    l_pref = _sample(scene, scene.lane_offset[scene.own_lane], st)
+    res = solve_path(ref, st, ds, boxes, blocking, edge_l, edge_r, l_pref, jnp.stack([l0, dl0, ddl0]), config)
+    cor, qp = res["corridor"], res["qp"]
+    xy, th, kap, l = res["xy"], res["theta"], res["kappa"], res["l"]
+    # Outputs on the path's own arc length.
+    seg = jnp.linalg.norm(xy[1:] - xy[:-1], axis=-1)
+    S = jnp.concatenate([jnp.zeros((1,), f), jnp.cumsum(seg)])
+    s_out = ds * jnp.arange(N, dtype=f)
+    S_end = S[-1]
+    past = jnp.maximum(s_out - S_end, 0.0)
+    x_o = _resample(S, xy[:, 0], s_out) + past * jnp.cos(th[-1])
+    y_o = _resample(S, xy[:, 1], s_out) + past * jnp.sin(th[-1])
+    b = cor.blocked_index
+    blocked_s = jnp.where(b < N, S[jnp.minimum(b, N - 1)], jnp.inf)
+    valid_o = (s_out <= S_end + 1e-4) & (s_out < blocked_s)
+    side = jnp.where(blocking, cor.side, NONE)
+    ok = qp.ok & res["clear"] & (b > 0)
+    return PathPlan(s_out, jnp.stack([x_o, y_o], -1), _resample(S, th, s_out), _resample(S, kap, s_out),
+                    _resample(S, l, s_out), _resample(S, st, s_out) + past, _resample(S, cor.lower, s_out),
+                    _resample(S, cor.upper, s_out), valid_o, blocked_s, ok, side, blocking, res["rounds"], qp.ok,
+                    res["clear"], ds)

@@ -1,0 +1,273 @@
+"""The path half of the path-speed planner (issue 16): box intervals, corridor decision,
+the path QP against OSQP, and planned paths against shapely."""
+import functools
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from jaxplan.bounds.decision import LEFT, NONE, RIGHT, decide_corridor, obstacle_intervals
+from jaxplan.bounds.distance import box_overlap_interval, overlap_interval
+from jaxplan.bounds.optimize import PathQPConfig, PathWeights, curvature_bounds, optimize_path, state_problem
+from jaxplan.bounds.path_planner import PathConfig, plan_path
+from jaxplan.geometry import box_corners, has_overlap
+from jaxplan.types import VehicleParams
+
+CAR = VehicleParams()
+
+
+def _unit(h):
+    return np.stack([np.cos(h), np.sin(h)], -1)
+
+
+def test_box_interval_matches_polygon_interval():
+    rng = np.random.default_rng(0)
+    n = 1000
+    a = np.stack([rng.uniform(-1, 1, n), rng.uniform(-1, 1, n), rng.uniform(3, 5, n), rng.uniform(1.5, 2, n),
+                  rng.uniform(-0.6, 0.6, n)], -1)
+    b = np.stack([rng.uniform(-5, 5, n), rng.uniform(-4, 4, n), rng.uniform(0.5, 5, n), rng.uniform(0.4, 2.5, n),
+                  rng.uniform(-np.pi, np.pi, n)], -1)
+    ang = rng.uniform(-np.pi, np.pi, n)
+    d = _unit(ang)
+    d[:50] = [0.0, 1.0]
+    b[:50, 4] = 0.0  # axis-aligned with the direction: the flat-axis branch
+    a[:50, 4] = 0.0
+    ref = overlap_interval(box_corners(jnp.asarray(a)), box_corners(jnp.asarray(b)), jnp.asarray(d))
+    got = box_overlap_interval(a[:, :2], _unit(a[:, 4]), 0.5 * a[:, 2:4], b[:, :2], _unit(b[:, 4]), 0.5 * b[:, 2:4], d)
+    hit_r, hit_g = np.asarray(ref[2]), np.asarray(got[2])
+    assert hit_r.mean() > 0.3 and np.all(hit_r == hit_g)
+    for i in (0, 1):
+        np.testing.assert_allclose(np.asarray(got[i])[hit_r], np.asarray(ref[i])[hit_r], atol=2e-4)
+
+
+# --------------------------------------------------------------------------- corridor decision
+def _straight(N, ds):
+    s = np.arange(N) * ds
+    return np.stack([s, np.zeros(N)], -1), np.zeros(N)
+
+
+@functools.lru_cache(maxsize=None)
+def _decide_jit():
+    def f(base, th, boxes, valid, l0):
+        lo, hi, hit = obstacle_intervals(base, th, th, CAR, boxes, valid, 0.2, 0.3)
+        N = base.shape[0]
+        cor = decide_corridor(lo, hi, hit, jnp.full((N,), -5.0), jnp.full((N,), 5.0), l0, jnp.full((N,), 1.0),
+                              jnp.zeros(N))
+        return cor, lo, hi, hit
+    return jax.jit(jax.vmap(f, in_axes=(None, None, 0, 0, 0)))
+
+
+def _random_obstacles(rng, F, K):
+    s = rng.uniform(10, 45, (F, K))
+    l = rng.uniform(-4.5, 4.5, (F, K))
+    return np.stack([s, l, rng.uniform(1, 5, (F, K)), rng.uniform(0.5, 2.5, (F, K)),
+                     rng.uniform(-0.5, 0.5, (F, K))], -1).astype(np.float32)
+
+
+def test_corridor_against_brute_force():
+    """Every offset inside the corridor is clear of every (buffered) obstacle (brute force over
+    a fine grid, with the SAT overlap of the car's box), the car's offset is in it at the start,
+    sides are kept along s, and at a blockage no reachable offset is clear."""
+    rng = np.random.default_rng(3)
+    F, K, N, ds = 60, 6, 50, 1.0
+    base, th = _straight(N, ds)
+    boxes = _random_obstacles(rng, F, K)
+    l0 = rng.uniform(-0.5, 0.5, F).astype(np.float32)
+    cor, lo, hi, hit = (jax.tree_util.tree_map(np.asarray, x) for x in
+                        _decide_jit()(jnp.asarray(base, jnp.float32), jnp.asarray(th, jnp.float32), boxes,
+                                      np.ones((F, K), bool), l0))
+    grid = np.linspace(-5, 5, 401)
+    blocked = 0
+    # brute force: which offsets overlap an obstacle (boxes grown by the longitudinal buffer), SAT
+    grown = boxes.copy()
+    grown[..., 2] += 0.6
+    cars = np.stack(np.broadcast_arrays(base[:, None, 0] + CAR.center_offset, grid[None, :],
+                                        np.float32(CAR.length), np.float32(CAR.width), 0.0), -1)
+    occ_all = np.asarray(jax.jit(lambda c, o: jnp.any(has_overlap(c[None, :, :, None], o[:, None, None]), -1))(
+        box_corners(jnp.asarray(cars, jnp.float32)), box_corners(jnp.asarray(grown))))  # (F, N, G)
+    for f in range(F):
+        occ = occ_all[f]
+        # the lateral buffer: an offset within 0.2 m of an occupied one is occupied
+        pad = np.zeros((occ.shape[0], 8), bool)
+        occ = occ | np.concatenate([pad, occ[:, :-8]], 1) | np.concatenate([occ[:, 8:], pad], 1)
+        v = cor.valid[f]
+        for i in np.nonzero(v)[0]:
+            inside = (grid > cor.lower[f, i] + 0.02) & (grid < cor.upper[f, i] - 0.02)
+            assert not np.any(occ[i][inside]), (f, i)
+        assert cor.lower[f, 0] - 1e-3 <= l0[f] <= cor.upper[f, 0] + 1e-3 or not v[0]
+        # sides kept: an obstacle decided LEFT is above the corridor wherever it is present
+        for k in range(K):
+            pres = hit[f, :, k] & v & (hi[f, :, k] > -5) & (lo[f, :, k] < 5)
+            if cor.side[f, k] == LEFT:
+                assert np.all(lo[f, pres, k] >= cor.upper[f, pres] - 1e-4)
+            elif cor.side[f, k] == RIGHT:
+                assert np.all(hi[f, pres, k] <= cor.lower[f, pres] + 1e-4)
+            else:
+                assert not np.any(pres)
+        b = int(cor.blocked_index[f])
+        if b < N:
+            blocked += 1
+            # no offset reachable from the last reachable set is clear
+            if b > 0:
+                reach = (grid >= cor.reach_lo[f, b - 1] - 1.0 + 0.03) & (grid <= cor.reach_hi[f, b - 1] + 1.0 - 0.03)
+                lo_ok = np.ones_like(grid, bool)
+                for k in range(K):
+                    if cor.side[f, k] == LEFT and hit[f, b, k]:
+                        lo_ok &= grid < lo[f, b, k]
+                    if cor.side[f, k] == RIGHT and hit[f, b, k]:
+                        lo_ok &= grid > hi[f, b, k]
+                free = ~occ[b] & reach & lo_ok & (np.abs(grid) < 5 - 0.03)
+                assert not np.any(free), (f, b)
+            assert not np.any(cor.valid[f, b:])
+    assert 0 < blocked < F
+
+
+# --------------------------------------------------------------------------- QP against OSQP
+QP_T = 30
+
+
+@functools.lru_cache(maxsize=None)
+def _qp_jit():
+    cfg = PathQPConfig(jerk_max=0.3)
+    kl, kh = curvature_bounds(jnp.zeros(QP_T), 0.25)
+    dl = (jnp.full(QP_T, -1.0), jnp.full(QP_T, 1.0))
+    return cfg, dl, (kl, kh), jax.jit(lambda lo, up, r, i: optimize_path(lo, up, 0.8, r, i, None, cfg, dl, (kl, kh)))
+
+
+def test_path_qp_against_osqp_1000_frames():
+    osqp = pytest.importorskip("osqp")
+    sp = pytest.importorskip("scipy.sparse")
+    rng = np.random.default_rng(5)
+    F = 1000
+    lo = np.full((F, QP_T), -2.0)
+    up = np.full((F, QP_T), 3.0)
+    for f in range(F):
+        for _ in range(rng.integers(1, 3)):
+            a = rng.integers(3, QP_T - 3)
+            b = a + rng.integers(1, 8)
+            if rng.uniform() < 0.5:
+                lo[f, a:b] = rng.uniform(-1.5, 2.8)  # some too far to reach: infeasible
+            else:
+                up[f, a:b] = rng.uniform(-1.8, 1.0)
+    l_ref = rng.uniform(-0.5, 0.5, (F, 1)) * np.ones((1, QP_T))
+    init = np.stack([rng.uniform(-0.3, 0.3, F), rng.uniform(-0.2, 0.2, F), rng.uniform(-0.1, 0.1, F)], -1)
+    cfg, dl, ddl, fn = _qp_jit()
+    r = jax.tree_util.tree_map(np.asarray, fn(*(jnp.asarray(x, jnp.float32) for x in (lo, up, l_ref, init))))
+    solved = np.zeros(F, bool)
+    err = []
+    for f in range(F):
+        P, q, A, l_, u_ = (np.asarray(x, np.float64) for x in state_problem(
+            0.8, jnp.asarray(l_ref[f]), jnp.asarray(lo[f]), jnp.asarray(up[f]), dl[0], dl[1], ddl[0], ddl[1],
+            cfg.jerk_max, jnp.asarray(init[f]), PathWeights()))
+        m = osqp.OSQP()
+        m.setup(sp.csc_matrix(np.triu(P)), q, sp.csc_matrix(A), l_, u_, verbose=False, eps_abs=1e-8, eps_rel=1e-8,
+                max_iter=50000, polish=True)
+        res = m.solve()
+        solved[f] = res.info.status in ("solved", "solved inaccurate")
+        if solved[f] and r.ok[f]:
+            err.append(np.max(np.abs(res.x[:QP_T] - r.l[f])))
+    assert 0.2 < solved.mean() < 0.95  # both kinds of frames
+    assert np.mean(r.ok[solved]) >= 0.99  # solved where OSQP solves
+    assert not np.any(r.ok[~solved])  # never a path where OSQP finds none
+    assert np.mean(~r.feasible[~solved]) >= 0.95  # the certificate (or the input check) says so
+    assert np.max(err) <= 3e-3 and np.percentile(err, 95) <= 1e-3
+
+
+# --------------------------------------------------------------------------- the planner on scenes
+def _scene(kind, seed):
+    from jaxplan.scenarios.builtin import scene_dict
+    from jaxplan.scenarios.loader import parse_scenario
+    from jaxplan.scenarios.scene import build_scene
+
+    d = scene_dict(kind, np.random.default_rng(seed), 0)
+    return d, build_scene(parse_scenario(d, d["id"]))[0]
+
+
+def _wall_scene():
+    """A straight two-lane road with a stopped car in each lane 40 m ahead: no way past."""
+    from jaxplan.scenarios.builtin import DT, LANE, START_S, _car, _lanelets, _Road
+    from jaxplan.scenarios.loader import parse_scenario
+    from jaxplan.scenarios.scene import build_scene
+
+    road = _Road(0.0, 0.0)
+    obstacles = [_car(1 + i, road, START_S + 40.0, i * LANE, role="static") for i in range(2)]
+    start, th0 = road.pose(START_S, 0.0)
+    goal, _ = road.pose(START_S + 120.0, 0.5 * LANE)
+    d = {"id": "WALL", "source": "test", "tags": [], "dt": DT, "lanelets": _lanelets(road, 2, 20.0),
+         "obstacles": obstacles,
+         "planning_problems": [{"id": 1, "initial_state": {"t": 0.0, "position": start.tolist(),
+                                                          "orientation": float(th0), "velocity": 10.0,
+                                                          "acceleration": 0.0},
+                                "goals": [{"rectangle": {"center": goal.tolist(), "length": 30.0, "width": 2 * LANE,
+                                                         "orientation": 0.0}, "time": [0.0, 30.0]}]}]}
+    return d, build_scene(parse_scenario(d, d["id"]))[0]
+
+
+@functools.lru_cache(maxsize=None)
+def _plan_batch():
+    from jaxplan.baselines.brake import SIM_VEHICLE
+    from jaxplan.plan_context import road_context
+    from jaxplan.planner import EgoState
+    from jaxplan.scenarios.scene import stack_scenes
+
+    kinds = [("stopped_car", 1), ("parked_cars", 2), ("curve_stop", 3), ("slow_leader", 4), ("stopped_car", 6)]
+    scenes = [_scene(k, s)[1] for k, s in kinds]
+    scenes.append(_wall_scene()[1])
+    cfg = PathConfig(vehicle=SIM_VEHICLE)
+
+    def one(scene):
+        ego = EgoState.from_box_centre(scene.start, SIM_VEHICLE)
+        ctx = road_context(scene, ego, 0, 60, SIM_VEHICLE)
+        return plan_path(scene, ctx, cfg), ctx.obstacles
+
+    batch = stack_scenes(scenes)
+    plan, obs = jax.jit(jax.vmap(one))(batch)
+    return jax.tree_util.tree_map(np.asarray, plan), jax.tree_util.tree_map(np.asarray, obs), cfg
+
+
+def test_planned_paths_are_clear_by_shapely():
+    shapely = pytest.importorskip("shapely")
+    from jaxplan.geometry import vehicle_corners
+
+    plan, obs, cfg = _plan_batch()
+    n = plan.ok.shape[0]
+    assert plan.ok[:5].all()  # every built-in scene has a path
+    for i in range(n):
+        v = plan.valid[i]
+        # resample 4x along the path between the output points
+        s_f = np.linspace(0, plan.s[i][v].max(), 4 * v.sum())
+        xy = np.stack([np.interp(s_f, plan.s[i], plan.xy[i, :, 0]), np.interp(s_f, plan.s[i], plan.xy[i, :, 1])], -1)
+        th = np.interp(s_f, plan.s[i], plan.theta[i])
+        cars = np.asarray(vehicle_corners(jnp.asarray(xy, jnp.float32), cfg.vehicle, jnp.asarray(th, jnp.float32)))
+        car_polys = shapely.polygons(cars)
+        for k in np.nonzero(plan.blocking[i])[0]:
+            o = shapely.Polygon(np.asarray(box_corners(jnp.asarray(obs.boxes[i, k, 0]))))
+            assert not np.any(shapely.intersects(car_polys, o) & ~shapely.touches(car_polys, o)), (i, k)
+        # the path stays on the grid spacing, starts at the car and follows the route's arc length
+        np.testing.assert_allclose(np.diff(plan.s[i]), plan.ds[i], rtol=1e-5)
+        seg = np.linalg.norm(np.diff(plan.xy[i][v], axis=0), axis=-1)
+        assert np.all(np.abs(seg - plan.ds[i]) < 0.05 * plan.ds[i] + 1e-3)
+    # parked cars on the right edge: every one of them is passed on the left
+    assert np.all(plan.side[1][plan.blocking[1]] == RIGHT)
+    # the slow leader moves: not blocking, no decision
+    assert not plan.blocking[3].any() and np.all(plan.side[3] == NONE)
+
+
+def test_blockage_cuts_the_path():
+    from jaxplan.geometry import vehicle_corners
+
+    plan, obs, cfg = _plan_batch()
+    i = plan.ok.shape[0] - 1  # the wall
+    assert plan.blocking[i].sum() >= 2
+    assert np.isfinite(plan.blocked_s[i]) and 10.0 < plan.blocked_s[i] < 45.0
+    assert not plan.valid[i][plan.s[i] >= plan.blocked_s[i]].any()
+    # just past blocked_s along the path the car (its obstacle grown by lon_buffer) overlaps an obstacle
+    k = np.searchsorted(plan.s[i], plan.blocked_s[i])
+    xy, th = plan.xy[i, k:k + 2], plan.theta[i, k:k + 2]
+    car = vehicle_corners(jnp.asarray(xy), cfg.vehicle, jnp.asarray(th))
+    grown = obs.boxes[i, :, 0].copy()
+    grown[:, 2] += 2 * cfg.lon_buffer + 2 * plan.ds[i]
+    hit = np.asarray(has_overlap(car[:, None], box_corners(jnp.asarray(grown))[None]))
+    assert hit[:, plan.blocking[i]].any()
+    assert np.all(np.isfinite(plan.xy[i]))
