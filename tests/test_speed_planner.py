@@ -1,12 +1,16 @@
 """The ``pathspeed`` planner in closed loop on built-in scenes that in-lane braking survives:
 no collision of its own, the driven accelerations within the limits, the trajectory from the
-car's state, parity of the batched plan with the simulator's, and the path stand-in."""
+car's state, parity of the batched plan with the simulator's; the composed path (the bounds
+path, checked with shapely; the route path and the stop before a blockage when the road is
+blocked) and the route path."""
+import dataclasses
 import functools
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+import shapely.geometry as sg
 
 from jaxplan.plan_context import road_context
 from jaxplan.planner import EgoState, make_planner
@@ -49,10 +53,48 @@ def test_closed_loop_is_safe_and_within_the_limits():
     assert not np.asarray(log.fallback).any()
 
 
+def _blocked(batch, i):
+    """Scene ``i`` of ``batch`` with its nearest obstacle ahead in the lane widened to 40 m
+    (static): no way around it."""
+    sc = jax.tree_util.tree_map(lambda x: x[i], batch)
+    sl = np.asarray(sc.obstacle_sl)[:, 0]
+    ok = np.asarray(sc.obstacles.valid)[:, 0]
+    s0 = float(np.asarray(sc.route_start_s))
+    ahead = ok & (np.abs(sl[:, 1]) < 2.0) & (sl[:, 0] > s0 + 8.0)
+    k = int(np.argmin(np.where(ahead, sl[:, 0], np.inf)))
+    assert ahead[k]
+    ob = sc.obstacles
+    boxes = ob.boxes.at[k, :, 3].set(40.0).at[k, :, :2].set(ob.boxes[k, 0, :2])
+    ob = type(ob)(boxes, ob.valid.at[k].set(True), ob.t, ob.static.at[k].set(True))
+    return dataclasses.replace(sc, obstacles=ob)
+
+
+@functools.lru_cache(maxsize=None)
+def _plans():
+    """One jitted batched cycle (``speed_plan`` and the composed trajectory) at step 0 of the
+    drives' scenes and of the stopped-car scene made impassable."""
+    from jaxplan.speed.compose import compose_profile
+
+    planner, batch, _, _ = _drives()
+    scenes = jax.tree_util.tree_map(lambda *x: jnp.stack(x), *[jax.tree_util.tree_map(lambda x: x[i], batch)
+                                                                for i in range(len(KINDS))], _blocked(batch, 0))
+    ego = jax.vmap(lambda s: EgoState.from_box_centre(s.start, planner.vehicle))(scenes)
+
+    def one(s, e):
+        c = planner.speed_plan(s, e, 0)
+        out = planner.plan(s, e, 0)
+        return out, c, compose_profile(c["ref"], c["s0"], c["profile"])
+
+    out, c, tr = jax.jit(jax.vmap(one))(scenes, ego)
+    return planner, scenes, ego, out, c, tr
+
+
 def test_plan_starts_at_the_car_and_matches_the_simulator():
-    planner, batch, log, _ = _drives()
-    ego = jax.vmap(lambda s: EgoState.from_box_centre(s.start, planner.vehicle))(batch)
-    out = jax.jit(jax.vmap(lambda s, e: planner.plan(s, e, 0)))(batch, ego)
+    planner, _, log, _ = _drives()
+    _, _, ego, out, _, _ = _plans()
+    n = len(KINDS)
+    out = jax.tree_util.tree_map(lambda x: x[:n], out)
+    ego = jax.tree_util.tree_map(lambda x: x[:n], ego)
     tr = out.trajectory
     H = planner.horizon_steps
     assert tr.x.shape == (len(KINDS), H)
@@ -66,7 +108,48 @@ def test_plan_starts_at_the_car_and_matches_the_simulator():
     c = EgoState(tr.x[:, 1:4], tr.y[:, 1:4], tr.theta[:, 1:4], tr.v[:, 1:4]).box_centre(planner.vehicle)
     assert np.allclose(np.asarray(log.x[:, 1:4]), np.asarray(c[..., 0]), atol=1e-3)
     assert np.allclose(np.asarray(log.v[:, 1:4]), np.asarray(tr.v[:, 1:4]), atol=1e-4)
-    assert set(out.info) >= {"dp_feasible", "qp_ok", "no_bypass", "blocking", "behind"}
+    assert set(out.info) >= {"dp_feasible", "qp_ok", "no_bypass", "blocking", "behind", "path_bounds"}
+
+
+def test_trajectory_runs_along_the_bounds_path():
+    """Where the bounds path is used the composed trajectory's points lie on its polyline
+    (shapely distance) over its length, and it starts at the car."""
+    _, _, ego, out, c, tr = _plans()
+    use = np.asarray(c["use_bounds"])
+    assert use[:len(KINDS)].sum() >= 3  # the bounds path on the passable scenes
+    pp = jax.tree_util.tree_map(np.asarray, c["bounds"])
+    for i in np.nonzero(use)[0]:
+        line = sg.LineString(pp.xy[i][pp.valid[i]])
+        length = float(line.length)
+        pts = np.stack([np.asarray(tr.x[i]), np.asarray(tr.y[i])], -1)
+        on = np.asarray(tr.s[i]) < length - 0.5
+        d = [line.distance(sg.Point(p)) for p in pts[on]]
+        assert on.sum() >= 10 and max(d) < 0.02, (i, max(d))
+        assert np.hypot(pts[0, 0] - float(ego.x[i]), pts[0, 1] - float(ego.y[i])) < 1e-3
+
+
+def test_blocked_road_falls_back_to_the_route_path_and_stops_before_the_blockage():
+    planner, scenes, _, out, c, tr = _plans()
+    b = len(KINDS)  # the impassable scene
+    info = jax.tree_util.tree_map(lambda x: np.asarray(x[b]), out.info)
+    assert bool(info["path_blocked"]) and not bool(info["path_bounds"])
+    pp = jax.tree_util.tree_map(lambda x: np.asarray(x[b]), c["bounds"])
+    path = jax.tree_util.tree_map(lambda x: np.asarray(x[b]), c["path"])
+    # the route path (the lane's centre line joined from the car) ...
+    sc = jax.tree_util.tree_map(lambda x: x[b], scenes)
+    far = path.s > 70.0
+    assert np.all(np.abs(path.l[far]) < 1e-4)
+    # ... with the stop at the route station of the bounds path's blockage
+    stop_route = float(np.interp(pp.blocked_s, pp.s, pp.route_s))
+    ctx_s = float(np.asarray(c["ctx"].s[b]))
+    assert float(info["path_stop_s"]) == pytest.approx(stop_route - ctx_s, abs=1e-3)
+    # the ST wall for the reference point sits at that stop less the buffer, and the plan keeps before it
+    lo, _, hit, _ = (np.asarray(a[b]) for a in c["plan"].scene.blocking())
+    s0 = float(np.asarray(c["s0"][b]))
+    wall = lo[-1][hit[-1]]
+    assert wall.size and np.allclose(wall, stop_route - ctx_s - planner.speed.buffer, atol=0.05)
+    assert float(np.asarray(tr.s[b]).max()) <= stop_route - ctx_s - planner.speed.buffer + 0.05
+    assert float(s0) >= 0.0 and bool(np.asarray(out.ok[b]))
 
 
 @functools.partial(jax.jit, static_argnums=2)

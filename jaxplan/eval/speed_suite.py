@@ -200,57 +200,20 @@ def _plot(out_dir, records, mw, mo, config, planner, batch):
 
 
 def plot_st_graph(path: str, planner, scene, title: str, step: int = 0) -> str:
-    """The ST graph of one plan: blocking boundaries (red), non-blocking neighbours' ranges
-    (blue) and their blind zones (cyan), the wall before a blockage or the map's end, the
-    DP's knots and the executed (QP) profile."""
+    """The ST graph of one plan (``jaxplan.speed.plot.draw_st``) at ``step`` of ``scene``."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     from jaxplan.planner import EgoState
-    from jaxplan.speed.planner import plan_speed_for
+    from jaxplan.speed.plot import cycle, draw_st
 
     ego = EgoState.from_box_centre(scene.start, planner.vehicle)
-    plan, prof = jax.jit(plan_speed_for, static_argnums=0)(planner, scene, ego, step)
-    sc = plan.scene
-    cl = sc.classified
-    tf = planner.speed.fine_times()
-    front, rear = float(sc.front), float(sc.rear)
+    c = cycle(planner, scene, ego, step)
     fig, ax = plt.subplots(figsize=(6.5, 4.5))
-    labels = set()
-
-    def lab(name):
-        if name in labels:
-            return None
-        labels.add(name)
-        return name
-
-    lo, hi, hit, _ = (np.asarray(a) for a in sc.blocking())
-    for k in range(lo.shape[0]):
-        if hit[k].any():
-            is_wall = k == lo.shape[0] - 1
-            ax.fill_between(tf, np.where(hit[k], lo[k], np.nan), np.where(hit[k], np.minimum(hi[k], 400), np.nan),
-                            color="0.4" if is_wall else "tab:red", alpha=0.5,
-                            label=lab("stop before (blockage / map end)" if is_wall else "blocking"))
-    sl, sh = np.asarray(cl.side.lower), np.asarray(cl.side.hit)
-    su = np.asarray(cl.side.upper)
-    for k in range(sl.shape[0]):
-        if sh[k].any():
-            ax.fill_between(tf, np.where(sh[k], sl[k] - front, np.nan), np.where(sh[k], su[k] - rear, np.nan),
-                            color="tab:blue", alpha=0.25, label=lab("non-blocking (alongside)"))
-            if bool(cl.blind_zone[k]):
-                ax.fill_between(tf, np.where(sh[k], sl[k] - planner.speed.blind_back - front, np.nan),
-                                np.where(sh[k], sl[k] + planner.speed.blind_front - rear, np.nan), color="tab:cyan",
-                                alpha=0.25, hatch="//", label=lab("blind zone"))
-    ax.plot(np.asarray(plan.t), np.asarray(plan.s), "ko", ms=4, label="DP knots")
-    ax.plot(np.asarray(prof.t), np.asarray(prof.s), "k-", lw=1.5, label="executed (QP)")
-    ax.set_xlabel("t (s)")
-    ax.set_ylabel("s (m, car reference point, from now)")
-    top = max(40.0, float(np.asarray(prof.s).max()) + 15.0)
-    ax.set_ylim(min(-10.0, float(np.nanmin(np.where(sh, sl - front, 0)))), top)
+    draw_st(ax, planner, c["plan"], c["profile"])
     ax.set_title(f"{title}: ST graph at t = {step * float(scene.dt):.1f} s", fontsize=9)
-    ax.legend(fontsize=7, loc="upper left")
     fig.tight_layout()
     fig.savefig(path, dpi=90)
     plt.close(fig)
