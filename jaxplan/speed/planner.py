@@ -3,10 +3,14 @@
 Each cycle (one scene, jittable; the simulator batches it with ``jax.vmap``):
 
 1. the ``RoadContext`` (predictions from this step, the lane speed limits, the goal);
-2. the **path** (``plan_path``): a ``PathPlan`` along the route from the car; with the path
-   half of ``jaxplan.bounds`` (path decision, bounds, QP) when it is there, else the
-   route's centre line joined from the car's pose by a quintic in the lateral offset
-   (``route_path``);
+2. the **path**: ``jaxplan.bounds.plan_path`` (path decision around the blocking
+   obstacles, bounds, path QP, recomputed at the path's heading) from the car, with the
+   route path's points behind the car before it and a join back to the route's lane after
+   its end (``bounds_route_path``). When its QP fails, it is not clear of the blocking
+   obstacles or something blocks it, the speed is planned on the route's centre line joined
+   from the car's pose (``route_path``) instead, with a stop before the bounds path's
+   blockage; ``info["path_bounds"]`` says which path was used (and ``path_qp_ok``,
+   ``path_clear``, ``path_blocked`` why);
 3. the **speed**: the ST boundaries of the predictions on that path (blocking,
    non-blocking with decisions, a wall before the path's blockage and the end of the
    map), the DP over the reachable band (``dp.py``) with the lane speed limit, the
