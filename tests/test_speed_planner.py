@@ -82,8 +82,7 @@ def _plans():
 
     def one(s, e):
         c = planner.speed_plan(s, e, 0)
-        out = planner.plan(s, e, 0)
-        return out, c, compose_profile(c["ref"], c["s0"], c["profile"])
+        return planner.output(c), c, compose_profile(c["ref"], c["s0"], c["profile"])
 
     out, c, tr = jax.jit(jax.vmap(one))(scenes, ego)
     return planner, scenes, ego, out, c, tr

@@ -310,7 +310,11 @@ class PathSpeedPlanner:
         return dict(ctx=ctx, path=path, bounds=pp, use_bounds=use, ref=ref, s0=s0, plan=plan, profile=prof)
 
     def plan(self, scene, ego: EgoState, step) -> PlanOutput:
-        c = self.speed_plan(scene, ego, step)
+        return self.output(self.speed_plan(scene, ego, step))
+
+    def output(self, c: dict) -> PlanOutput:
+        """The ``PlanOutput`` of a cycle (``speed_plan``'s dict): the profile composed along
+        the path, ``ok`` and ``info``."""
         plan, prof, pp = c["plan"], c["profile"], c["bounds"]
         traj = compose_profile(c["ref"], c["s0"], prof)
         finite = jnp.all(jnp.isfinite(traj.x)) & jnp.all(jnp.isfinite(traj.y)) & jnp.all(jnp.isfinite(traj.v))
