@@ -49,11 +49,27 @@ def recorded_scenes(directories, n: int | None = None) -> tuple[list, int]:
     from jaxplan.scenarios.route import RouteError
     from jaxplan.scenarios.scene import SceneRecord, build_scene, unique_names
 
+    import glob
+    import os
+
+    from jaxplan.scenarios.loader import ScenarioError
+
     recs, skipped = [], 0
     for d in [directories] if isinstance(directories, str) else directories:
-        folder = load_folder(d)
-        skipped += len(folder.skipped)
-        for f, sc in zip(folder.files, folder.scenarios):
+        pairs = []
+        if glob.glob(os.path.join(d, "*.json")) or not glob.glob(os.path.join(d, "*.xml")):
+            folder = load_folder(d)
+            skipped += len(folder.skipped)
+            pairs += list(zip(folder.files, folder.scenarios))
+        for f in sorted(glob.glob(os.path.join(d, "*.xml"))):  # CommonRoad XML, as jaxplan drive reads it
+            from jaxplan.scenarios.commonroad import load_commonroad
+
+            try:
+                pairs.append((f, load_commonroad(f, None)))
+            except (ScenarioError, ValueError, ImportError) as e:
+                print(f"jaxplan: speed: skipping {f}: {e}", file=sys.stderr)
+                skipped += 1
+        for f, sc in pairs:
             if n is not None and len(recs) >= n:
                 break
             try:
