@@ -104,10 +104,13 @@ def plot_cycle(out: str, planner, scene, ego, step: int = 0, title: str = "") ->
     fig.colorbar(sc, ax=ax, label="planned speed (m/s)")
     _box(ax, [float(ego.x), float(ego.y), planner.vehicle.length, planner.vehicle.width, float(ego.heading)], fc="none",
          ec="k", lw=1.2, zorder=6)
-    reach = max(40.0, float(traj.s[-1]) + 10.0)
-    ax.set_xlim(float(ego.x) - 20.0, float(ego.x) + reach)
-    ax.set_ylim(float(ego.y) - 0.4 * (reach + 20.0), float(ego.y) + 0.4 * (reach + 20.0))
-    ax.set_aspect("equal", adjustable="datalim")
+    pts = np.concatenate([np.stack([traj.x, traj.y], -1), [[float(ego.x), float(ego.y)]]])
+    lo, hi = pts.min(0) - 15.0, pts.max(0) + 15.0
+    half = 0.5 * max(hi - lo)
+    mid = 0.5 * (lo + hi)
+    ax.set_xlim(mid[0] - half, mid[0] + half)
+    ax.set_ylim(mid[1] - half, mid[1] + half)
+    ax.set_aspect("equal")
     ax.set_xlabel("x (m)")
     ax.set_ylabel("y (m)")
     ax.legend(fontsize=7, loc="upper left")
