@@ -93,7 +93,7 @@ def _plans():
 
 
 @pytest.mark.xfail(strict=True, reason="known defect, cause not analysed yet: with the bounds path the car is "
-                   "hit at fault in the dense_next_lane scene of this seed (the route-path version was not)")
+                   "hit at fault in the dense_next_lane scene of this seed")
 def test_closed_loop_dense_next_lane_has_no_at_fault_collision():
     _, _, _, m = _drives()
     assert not m["overlap.at_fault"][DENSE]
