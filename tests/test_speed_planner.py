@@ -63,7 +63,9 @@ def _blocked(batch, i):
     sc = jax.tree_util.tree_map(lambda x: x[i], batch)
     sl = np.asarray(sc.obstacle_sl)[:, 0]
     ok = np.asarray(sc.obstacles.valid)[:, 0]
-    s0 = float(np.asarray(sc.route_start_s))
+    from jaxplan.geometry.frenet import to_frenet
+
+    s0 = float(np.asarray(to_frenet(sc.route, sc.start[None, :2])[0])[0])  # the car's station
     ahead = ok & (np.abs(sl[:, 1]) < 2.0) & (sl[:, 0] > s0 + 8.0)
     k = int(np.argmin(np.where(ahead, sl[:, 0], np.inf)))
     assert ahead[k]
