@@ -61,13 +61,13 @@ def _blocked(batch, i):
     """Scene ``i`` of ``batch`` with its nearest obstacle ahead in the lane widened to 40 m
     (static): no way around it."""
     sc = jax.tree_util.tree_map(lambda x: x[i], batch)
-    sl = np.asarray(sc.obstacle_sl)[:, 0]
+    b0 = np.asarray(sc.obstacles.boxes)[:, 0]
     ok = np.asarray(sc.obstacles.valid)[:, 0]
-    from jaxplan.geometry.frenet import to_frenet
-
-    s0 = float(np.asarray(to_frenet(sc.route, sc.start[None, :2])[0])[0])  # the car's station
-    ahead = ok & (np.abs(sl[:, 1]) < 2.0) & (sl[:, 0] > s0 + 8.0)
-    k = int(np.argmin(np.where(ahead, sl[:, 0], np.inf)))
+    x, y, h = (float(v) for v in np.asarray(sc.start)[:3])
+    lon = (b0[:, 0] - x) * np.cos(h) + (b0[:, 1] - y) * np.sin(h)  # in the car's frame
+    lat = -(b0[:, 0] - x) * np.sin(h) + (b0[:, 1] - y) * np.cos(h)
+    ahead = ok & (np.abs(lat) < 2.5) & (lon > 8.0)
+    k = int(np.argmin(np.where(ahead, lon, np.inf)))
     assert ahead[k]
     ob = sc.obstacles
     boxes = ob.boxes.at[k, :, 3].set(40.0).at[k, :, :2].set(ob.boxes[k, 0, :2])
