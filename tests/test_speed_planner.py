@@ -156,7 +156,7 @@ def test_blocked_road_falls_back_to_the_route_path_and_stops_before_the_blockage
     ctx_s = float(np.asarray(c["ctx"].s[b]))
     assert float(info["path_stop_s"]) == pytest.approx(stop_route - ctx_s, abs=1e-3)
     # the ST wall for the reference point sits at that stop less the buffer, and the plan keeps before it
-    lo, _, hit, _ = (np.asarray(a[b]) for a in c["plan"].scene.blocking())
+    lo, _, hit, _ = (np.asarray(a) for a in jax.tree_util.tree_map(lambda x: x[b], c["plan"].scene).blocking())
     s0 = float(np.asarray(c["s0"][b]))
     wall = lo[-1][hit[-1]]
     assert wall.size and np.allclose(wall, stop_route - ctx_s - planner.speed.buffer, atol=0.05)
