@@ -243,7 +243,7 @@ def test_item12_skipped_files_are_named_and_counted_by_one_helper(paths, monkeyp
     from jaxplan.eval.tune_suite import tune_suite
     from jaxplan.tuning.run import demonstrations
 
-    for call in (lambda: _run_recorded(paths["good"], 8, 4), lambda: recorded_scenes(paths["good"], 5.0, 7.0),
+    for call in (lambda: _run_recorded(paths["good"], 8, 4), lambda: recorded_scenes(paths["good"]),
                  lambda: tune_suite(SuiteArgs(out=paths["root"], scenarios=paths["good"])),
                  lambda: demonstrations(paths["good"])):
         with pytest.raises(Used, match="good"):
@@ -259,8 +259,8 @@ def test_item12_skipped_files_are_named_and_counted_by_one_helper(paths, monkeyp
     with open(os.path.join(folder, "b.json"), "w") as f:
         f.write("{")
     capsys.readouterr()
-    rs = recorded_scenes(folder, 5.0, 7.0)
-    assert rs.skipped_files == 1 and len(rs.kind) == 1 and "b.json" in capsys.readouterr().err
+    recs, skipped = recorded_scenes(folder)
+    assert skipped == 1 and len(recs) == 1 and "b.json" in capsys.readouterr().err
 
 
 # ---------------------------------------------------------------------------- item 13

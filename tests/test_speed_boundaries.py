@@ -1,4 +1,6 @@
-"""Speed planning: ST boundaries vs a brute-force shapely check, classification, composition."""
+"""Speed planning geometry: projected ST boundaries vs shapely, strip clipping, classification
+(blocking, behind, non-blocking with decisions beside and behind the car), resampling,
+keep-clear regions, composition."""
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -7,17 +9,22 @@ import shapely
 
 from jaxplan.geometry.frenet import ReferenceLine, ref_state
 from jaxplan.speed import (LEFT, RIGHT, blocking_boundaries, classify, compose_plan, first_trajectory,
-                           keep_clear_intervals, path_profile, resample_obstacles, side_probes)
+                           keep_clear_intervals, path_profile, project_obstacles, resample_obstacles,
+                           side_boundaries, strip_extent)
 from jaxplan.speed.dp import SpeedPlan
 from jaxplan.types import Obstacles, VehicleParams
 
 CAR = VehicleParams()
-N, DS = 40, 0.75
+FRONT = CAR.center_offset + 0.5 * CAR.length  # 3.85
+REAR = CAR.center_offset - 0.5 * CAR.length  # -0.95
 
+_project = jax.jit(project_obstacles)
 _blocking = jax.jit(blocking_boundaries)
+_side = jax.jit(side_boundaries, static_argnums=(3,))
+_strip = jax.jit(strip_extent)
 _classify = jax.jit(classify)
 _profile = jax.jit(path_profile, static_argnums=(2, 3))
-_compose = jax.jit(compose_plan, static_argnums=(4, 5))
+_compose = jax.jit(compose_plan, static_argnums=(3, 4))
 _kc = jax.jit(keep_clear_intervals)
 
 
@@ -28,61 +35,153 @@ def _np_box(b):
     return shapely.Polygon([(x + c * u - s * v, y + s * u + c * v) for u, v in pts])
 
 
-def _curved_ref(rng):
-    x = np.linspace(0, 40, 30)
-    k = rng.uniform(-0.01, 0.01)
-    return ReferenceLine.from_polyline(np.stack([x, k * x ** 2], -1))
-
-
-def _car_poly(xy, th):
+def _car_poly(xy, th, grow=0.0):
     off = CAR.center_offset
-    return _np_box([xy[0] + off * np.cos(th), xy[1] + off * np.sin(th), CAR.length, CAR.width, th])
+    return _np_box([xy[0] + off * np.cos(th), xy[1] + off * np.sin(th), CAR.length + 2 * grow, CAR.width + 2 * grow, th])
 
 
-def test_blocking_boundaries_match_brute_force(rng):
-    total = 0
-    for trial in range(4):
-        ref = _curved_ref(rng)
-        prof = _profile(ref, 0.0, N, DS)
-        K, T = 6, 5
-        start = np.column_stack([rng.uniform(0, 35, K), rng.uniform(-4, 4, K), rng.uniform(1, 6, K),
-                                 rng.uniform(0.6, 2.5, K), rng.uniform(-np.pi, np.pi, K)])
-        vel = rng.uniform(-5, 5, (K, 2))
-        t = np.arange(T) * 0.5
-        boxes = np.repeat(start[:, None], T, 1)
-        boxes[..., :2] += vel[:, None] * t[None, :, None]
-        valid = rng.uniform(size=(K, T)) > 0.15
-        obs = Obstacles(jnp.asarray(boxes, jnp.float32), jnp.asarray(valid), jnp.asarray(t, jnp.float32))
-        b = _blocking(prof, obs, CAR)
-        xy, th, s = np.asarray(prof.xy, float), np.asarray(prof.theta, float), np.asarray(prof.s, float)
-        cars = [_car_poly(xy[i], th[i]) for i in range(N)]
-        for k in range(K):
-            for j in range(T):
-                ob = _np_box(boxes[k, j])
-                inter = np.array([c.intersection(ob).area > 1e-6 for c in cars]) & valid[k, j]
-                near = np.array([abs(c.distance(ob)) < 1e-3 or 0 < c.intersection(ob).area <= 1e-6 for c in cars])
-                total += 1
-                if near.any():
-                    continue  # touching: either verdict is fine
-                assert bool(b.hit[k, j]) == inter.any()
-                if inter.any():
-                    assert float(b.lower[k, j]) == pytest.approx(s[inter].min(), abs=1e-4)
-                    assert float(b.upper[k, j]) == pytest.approx(s[inter].max(), abs=1e-4)
-    assert total == 4 * 30
+def _random_obstacles(rng, K, T, dt=0.5, x_max=35.0):
+    start = np.column_stack([rng.uniform(0, x_max, K), rng.uniform(-4, 4, K), rng.uniform(1, 6, K),
+                             rng.uniform(0.6, 2.5, K), rng.uniform(-np.pi, np.pi, K)])
+    vel = rng.uniform(-5, 5, (K, 2))
+    t = np.arange(T) * dt
+    boxes = np.repeat(start[:, None], T, 1)
+    boxes[..., :2] += vel[:, None] * t[None, :, None]
+    valid = rng.uniform(size=(K, T)) > 0.15
+    return boxes, valid, Obstacles(jnp.asarray(boxes, jnp.float32), jnp.asarray(valid), jnp.asarray(t, jnp.float32))
 
 
-def test_static_obstacle_spans_all_times():
-    ref = ReferenceLine.from_polyline(np.array([[0.0, 0.0], [100.0, 0.0]]))
-    prof = _profile(ref, 0.0, N, DS)
-    t = jnp.arange(5) * 0.5
-    obs = Obstacles.held(jnp.array([[15.0, 0.0, 4.0, 2.0, 0.3]]), t)
-    b = _blocking(prof, obs, CAR)
-    assert bool(jnp.all(b.hit))
-    # car front (3.85 m ahead of the rear axle) reaches the obstacle's rotated rear
-    assert np.allclose(b.lower, b.lower[0, 0]) and np.allclose(b.upper, b.upper[0, 0])
-    # rear-most obstacle x = 15 - 2 cos .3 - sin .3 = 12.79 -> first station with s + 3.85 > 12.79;
-    # front-most 17.21 -> last station with s - 0.95 < 17.21 (stations every 0.75 m)
-    assert float(b.lower[0, 0]) == 9.0 and float(b.upper[0, 0]) == 18.0
+def _shapely_range(cars, stations, ob):
+    inter = np.array([c.intersects(ob) and c.intersection(ob).area > 1e-9 for c in cars])
+    return (stations[inter].min(), stations[inter].max()) if inter.any() else None
+
+
+def test_straight_path_boundaries_match_shapely(rng):
+    """On a straight path the projected boundary is the range of car positions (every 5 cm)
+    whose footprint (grown by the buffer) overlaps the obstacle: within one station."""
+    ref = ReferenceLine.from_polyline(np.array([[-20.0, 0.0], [80.0, 0.0]]))
+    st = np.arange(-15.0, 45.0, 0.05)
+    buf = 0.3
+    checked = 0
+    for trial in range(3):
+        boxes, valid, obs = _random_obstacles(rng, 6, 4)
+        b = _blocking(_project(ref, obs), CAR, buf)
+        cars = [_car_poly((s, 0.0), 0.0, buf) for s in st]
+        for k in range(6):
+            for j in range(4):
+                r = _shapely_range(cars, st, _np_box(boxes[k, j])) if valid[k, j] else None
+                assert bool(b.hit[k, j]) == (r is not None)
+                if r is not None:
+                    checked += 1
+                    assert float(b.lower[k, j]) == pytest.approx(r[0] + 20.0, abs=0.06)
+                    assert float(b.upper[k, j]) == pytest.approx(r[1] + 20.0, abs=0.06)
+    assert checked > 10
+
+
+def test_curved_path_boundaries_are_conservative(rng):
+    """On a curved path (radius >= 50 m) every car position whose footprint (on the path,
+    at its heading) overlaps the obstacle lies inside the boundary, and the boundary is at
+    most a little wider than the exact range."""
+    checked = 0
+    for trial in range(3):
+        x = np.linspace(0, 60, 60)
+        k = rng.choice([-1, 1]) / rng.uniform(50, 80)
+        ref = ReferenceLine.from_polyline(np.stack([x, 0.5 * k * x ** 2], -1))
+        prof = _profile(ref, -15.0, 700, 0.1)
+        xy, th, st = (np.asarray(a, float) for a in (prof.xy, prof.theta, prof.s))
+        cars = [_car_poly(xy[i], th[i]) for i in range(len(st))]
+        boxes, valid, obs = _random_obstacles(rng, 6, 3, x_max=40.0)
+        boxes[..., 1] += 0.5 * k * boxes[..., 0] ** 2  # near the curve
+        obs = Obstacles(jnp.asarray(boxes, jnp.float32), obs.valid, obs.t)
+        b = _blocking(_project(ref, obs), CAR, 0.0)
+        for kk in range(6):
+            for j in range(3):
+                if not valid[kk, j]:
+                    continue
+                r = _shapely_range(cars, st, _np_box(boxes[kk, j]))
+                if r is None:
+                    continue
+                checked += 1
+                assert bool(b.hit[kk, j])
+                assert float(b.lower[kk, j]) <= r[0] + 0.1 and float(b.upper[kk, j]) >= r[1] - 0.1
+                if st[0] < r[0] and r[1] < st[-1]:  # the exact range is not cut by the stations checked
+                    assert float(b.lower[kk, j]) >= r[0] - 1.0 and float(b.upper[kk, j]) <= r[1] + 1.0
+    assert checked > 5
+
+
+def test_strip_extent_matches_shapely(rng):
+    for _ in range(200):
+        b = [rng.uniform(-5, 5), rng.uniform(-4, 4), rng.uniform(0.5, 6), rng.uniform(0.5, 3), rng.uniform(-4, 4)]
+        lo, hi = sorted(rng.uniform(-3, 3, 2))
+        poly = _np_box(b)
+        corners = np.asarray(poly.exterior.coords)[:4]
+        s_min, s_max, hit = (float(a) for a in _strip(jnp.asarray(corners, jnp.float32), lo, hi))
+        clip = poly.intersection(shapely.box(-100, lo, 100, hi))
+        assert bool(hit) == (not clip.is_empty)
+        if not clip.is_empty:
+            x0, _, x1, _ = clip.bounds
+            assert s_min == pytest.approx(x0, abs=1e-4) and s_max == pytest.approx(x1, abs=1e-4)
+
+
+def _scene(boxes_fn, T=36, dt=0.2):
+    t = np.arange(T) * dt
+    boxes = np.stack([boxes_fn(tt) for tt in t], 1)  # (K, T, 5)
+    return Obstacles(jnp.asarray(boxes, jnp.float32), jnp.ones(boxes.shape[:2], bool), jnp.asarray(t, jnp.float32))
+
+
+def test_classification_hand_built_scenes():
+    """The car's reference point at x = 0 going +x at 10 m/s; stations relative to it."""
+    ref = ReferenceLine.from_polyline(np.array([[-60.0, 0.0], [200.0, 0.0]]))
+
+    def boxes(t):
+        return np.array([
+            [30 + 5 * t, 0.0, 4.5, 1.8, 0.0],             # 0 lead vehicle in the lane: blocking
+            [14 + 8 * t, 3.5, 4.5, 1.8, 0.0],             # 1 slower neighbour ahead on the left: no bypass + blind zone
+            [5 + 8 * t, -3.5, 12.0, 2.5, 0.0],            # 2 truck beside on the right: blind zone only
+            [20.0, -3.2, 4.5, 1.8, 0.0],                  # 3 parked car on the right: non-blocking, no decision
+            [40.0, 12.0, 4.5, 1.8, 0.0],                  # 4 far away: neither
+            [25 + 6 * t, 3.5 - 0.7 * t, 4.5, 1.8, -0.2],  # 5 cut-in from the left ahead: blocking
+            [35.0, -6 + 1.2 * t, 0.6, 0.6, np.pi / 2],    # 6 crossing pedestrian ahead: blocking
+            [-9 + 14 * t, 0.0, 4.5, 1.8, 0.0],            # 7 faster follower in the lane: behind, ignored
+            [-2 + 9 * t, 3.5, 4.5, 1.8, 0.0],             # 8 neighbour beside-behind on the left: blind zone, no no-bypass
+            [-25 + 15 * t, -3.5, 4.5, 1.8, 0.0],          # 9 neighbour far behind on the right: side strip behind the car
+            [-12 + 9 * t, -3.5 + 1.0 * t, 4.5, 1.8, 0.1],  # 10 merges in behind the car: behind, ignored
+        ])
+
+    obs = _scene(boxes)
+    osl = _project(ref, obs)
+    osl = jax.tree_util.tree_map(lambda a: a, osl)
+    osl = type(osl)(osl.corners.at[..., 0].add(-60.0), osl.centre.at[..., 0].add(-60.0), osl.kappa, osl.valid)
+    c = _classify(osl, obs, CAR, obs.t, 10.0, -5.0, buffer=0.3)
+    assert list(np.asarray(c.is_blocking)) == [True, False, False, False, False, True, True, False, False, False, False]
+    assert list(np.asarray(c.behind)) == [False] * 7 + [True, False, False, True]
+    assert list(np.asarray(c.is_nonblocking)) == [False, True, True, True, False, False, False, False, True, True, True]
+    assert list(np.asarray(c.side_of))[:4] == [0, LEFT, RIGHT, RIGHT] and int(c.side_of[8]) == LEFT
+    assert list(np.asarray(c.no_bypass)) == [False, True] + [False] * 9
+    assert list(np.asarray(c.blind_zone)) == [False, True, True, False, False, False, False, False, True, True, True]
+    assert float(c.size[2]) == pytest.approx(30.0)
+    # the side strips reach behind the car: the far neighbour's range at t = 0 is its own extent
+    assert float(c.side.lower[9, 0]) == pytest.approx(-25 - 2.25, abs=0.01)
+    assert float(c.side.upper[9, 0]) == pytest.approx(-25 + 2.25, abs=0.01)
+    assert float(c.side.lower[1, 0]) == pytest.approx(14 - 2.25, abs=0.01)
+    # the pedestrian blocks only while it is on the car's band; the lead's boundary is its
+    # extent less the car's front / rear and the buffer
+    ped_hit = np.asarray(c.blocking.hit[6])
+    assert ped_hit.any() and not ped_hit.all()
+    assert float(c.blocking.lower[0, 0]) == pytest.approx(30 - 2.25 - FRONT - 0.3, abs=0.01)
+    assert float(c.blocking.upper[0, 0]) == pytest.approx(30 + 2.25 - REAR + 0.3, abs=0.01)
+    assert float(c.v_along[0, 3]) == pytest.approx(5.0, abs=0.01)
+    assert not np.asarray(c.blocking.hit[7]).any()  # ignored as blocking
+
+
+def test_side_boundaries_mirror():
+    ref = ReferenceLine.from_polyline(np.array([[-50.0, 0.0], [50.0, 0.0]]))
+    obs = _scene(lambda t: np.array([[10.0, 3.0, 4.0, 1.8, 0.0], [10.0, -3.0, 4.0, 1.8, 0.0]]), T=2)
+    osl = _project(ref, obs)
+    left, right = _side(osl, CAR, 3.5, LEFT, 0.0), _side(osl, CAR, 3.5, RIGHT, 0.0)
+    assert list(np.asarray(left.hit[:, 0])) == [True, False]
+    assert list(np.asarray(right.hit[:, 0])) == [False, True]
+    assert float(left.lower[0, 0]) == pytest.approx(58.0, abs=1e-4) and float(left.upper[0, 0]) == pytest.approx(62.0, abs=1e-4)
 
 
 def test_resample_obstacles_matches_numpy(rng):
@@ -102,53 +201,6 @@ def test_resample_obstacles_matches_numpy(rng):
     assert np.allclose(np.unwrap(np.asarray(r.boxes[0, :6, 4])), np.interp(tn[:6], t, boxes[0, :, 4]), atol=1e-5)
     assert not bool(r.valid[0, 6])  # beyond the prediction
     assert list(np.asarray(r.valid[1])) == [True, True, False, False, True, True, False]
-
-
-def _scene(boxes_fn, T=21, dt=0.25):
-    t = np.arange(T) * dt
-    boxes = np.stack([boxes_fn(tt) for tt in t], 1)  # (K, T, 5)
-    return Obstacles(jnp.asarray(boxes, jnp.float32), jnp.ones(boxes.shape[:2], bool), jnp.asarray(t, jnp.float32))
-
-
-def test_classification_hand_built_scenes():
-    ref = ReferenceLine.from_polyline(np.array([[-10.0, 0.0], [200.0, 0.0]]))
-    prof = _profile(ref, 10.0, 60, 1.0)  # car at x = 0
-
-    def boxes(t):
-        return np.array([
-            [30 + 5 * t, 0.0, 4.5, 1.8, 0.0],          # 0 lead vehicle in the lane: blocking
-            [10 + 8 * t, 3.5, 4.5, 1.8, 0.0],          # 1 moving neighbour on the left: no bypass + blind zone
-            [5 + 8 * t, -3.5, 12.0, 2.5, 0.0],         # 2 moving truck on the right: blind zone only
-            [20.0, -3.2, 4.5, 1.8, 0.0],               # 3 parked car on the right: non-blocking, no decision
-            [40.0, 12.0, 4.5, 1.8, 0.0],               # 4 far away: neither
-            [25 + 6 * t, 3.5 - 0.7 * t, 4.5, 1.8, -0.2],  # 5 cut-in from the left: blocking
-            [35.0, -6 + 1.2 * t, 0.6, 0.6, np.pi / 2],  # 6 crossing pedestrian: blocking
-        ])
-
-    c = _classify(prof, _scene(boxes), CAR)
-    assert list(np.asarray(c.is_blocking)) == [True, False, False, False, False, True, True]
-    assert list(np.asarray(c.is_nonblocking)) == [False, True, True, True, False, False, False]
-    assert list(np.asarray(c.side_of)) == [0, LEFT, RIGHT, RIGHT, 0, 0, 0]
-    assert list(np.asarray(c.no_bypass)) == [False, True, False, False, False, False, False]
-    assert list(np.asarray(c.blind_zone)) == [False, True, True, False, False, False, False]
-    assert float(c.size[2]) == pytest.approx(30.0)
-    # the neighbour's side range covers its own extent along the road (within a station)
-    # (stations start at x = -10; strips are one station long)
-    assert float(c.side.lower[1, 0]) == pytest.approx(10 + 7.75, abs=0.51)
-    assert float(c.side.upper[1, 0]) == pytest.approx(10 + 12.25, abs=0.51)
-    # the pedestrian blocks only while it is on the car's footprint band
-    ped_hit = np.asarray(c.blocking.hit[6])
-    assert ped_hit.any() and not ped_hit.all()
-
-
-def test_side_probes_flank_the_footprint():
-    ref = ReferenceLine.from_polyline(np.array([[0.0, 0.0], [50.0, 50.0]]))
-    prof = _profile(ref, 0.0, 10, 1.0)
-    lp, rp = side_probes(prof, CAR, 3.0, LEFT), side_probes(prof, CAR, 3.0, RIGHT)
-    n = np.array([-1.0, 1.0]) / np.sqrt(2)
-    d = np.asarray(lp[:, :2] - prof.xy) @ n
-    assert np.allclose(d, 0.5 * CAR.width + 1.5, atol=1e-5)
-    assert np.allclose(np.asarray(rp[:, :2] - prof.xy) @ n, -(0.5 * CAR.width + 1.5), atol=1e-5)
 
 
 def test_keep_clear_region_projection():
@@ -172,23 +224,22 @@ def test_first_trajectory_constant_speed():
     assert np.allclose(tr.s, 2.0 * np.arange(8), atol=1e-5)
 
 
-def test_composed_trajectory_consistent(rng):
-    ref = ReferenceLine.from_polyline(np.stack([np.linspace(0, 120, 40), 3 * np.sin(np.linspace(0, 120, 40) / 20)], -1))
+def test_composed_plan_is_the_exact_profile(rng):
+    """A DP plan's trajectory: piecewise-constant acceleration through every knot, s the
+    integral of v, v the integral of a, positions on the path."""
+    ref = ReferenceLine.from_polyline(np.stack([np.linspace(0, 160, 40), 3 * np.sin(np.linspace(0, 160, 40) / 20)], -1))
     for _ in range(5):
-        seg = rng.integers(0, 8, 7).astype(np.float32)
-        seg[rng.integers(0, 7)] = 0.0
-        s = np.concatenate([[0.0], np.cumsum(seg)]).astype(np.float32)
+        v = np.concatenate([[rng.uniform(0, 10)], np.clip(rng.uniform(0, 12, 7), 0, None)]).astype(np.float32)
         t = np.arange(8, dtype=np.float32)
-        plan = SpeedPlan(jnp.asarray(t), jnp.asarray(s), jnp.asarray(seg), jnp.zeros(7), 0.0, True)
-        v0 = float(seg[0]) + 0.3
-        tr = _compose(ref, 2.0, plan, v0, 0.01, 701)
-        ts, vs = np.asarray(tr.t, float), np.asarray(tr.v, float)
+        s = np.concatenate([[0.0], np.cumsum(0.5 * (v[1:] + v[:-1]))]).astype(np.float32)
+        plan = SpeedPlan(jnp.asarray(t), jnp.asarray(s), jnp.asarray(v), jnp.asarray(np.diff(v)), 0.0, True)
+        tr = _compose(ref, 2.0, plan, 0.01, 701)
+        ts, vs, a_ = (np.asarray(x, float) for x in (tr.t, tr.v, tr.a))
+        assert np.allclose(np.asarray(tr.s)[::100], s, atol=1e-3)  # passes every knot
+        assert np.allclose(vs[::100], v, atol=1e-4)
         integ = np.concatenate([[0.0], np.cumsum(0.5 * (vs[1:] + vs[:-1]) * np.diff(ts))])
-        assert np.allclose(integ, np.asarray(tr.s), atol=2e-3)          # s = integral of v
-        assert np.all(vs >= -1e-4) and np.all(np.diff(np.asarray(tr.s)) >= -1e-5)  # never backwards
-        assert np.allclose(np.asarray(tr.s)[::100], s, atol=1e-4)       # passes every DP knot
-        xy, th, _, _ = ref_state(ref, 2.0 + tr.s)
+        assert np.allclose(integ, np.asarray(tr.s), atol=2e-3)
+        seg = np.minimum((ts // 1).astype(int), 6)
+        assert np.allclose(a_, np.diff(v)[seg], atol=1e-5)  # constant within each segment
+        xy, _, _, _ = ref_state(ref, 2.0 + tr.s)
         assert np.allclose(tr.xy, xy, atol=1e-4)
-        dv = np.gradient(vs, ts)
-        inner = np.abs(((ts * 100).round() % 100)) > 1  # away from knots (a jumps there)
-        assert np.allclose(dv[inner], np.asarray(tr.a)[inner], atol=0.05)

@@ -1,17 +1,22 @@
-"""ST-graph speed planning: blocking and non-blocking ST boundaries, DP, composition."""
-from jaxplan.speed.compose import compose, compose_plan, speed_profile_at
+"""ST-graph speed planning: blocking and non-blocking ST boundaries, DP, smoothing QP,
+composition, and the ``pathspeed`` road planner (``jaxplan.speed.planner``)."""
+from jaxplan.speed.compose import compose, compose_plan, compose_profile
 from jaxplan.speed.dp import (
     CostWeights,
+    DPCosts,
     SpeedConfig,
     SpeedCostWeights,
     SpeedPlan,
+    SpeedRoad,
     SpeedScene,
+    band_widths,
     build_scene,
     dp_from_costs,
     expected_speed_profile,
     make_scene,
-    obstacle_cost,
     plan_speed,
+    profile_at,
+    profile_cost,
     soft_value,
     stage_costs,
 )
@@ -23,7 +28,6 @@ from jaxplan.speed.nonblocking import (
     classify,
     keep_clear_intervals,
     obstacle_speed,
-    side_probes,
 )
 from jaxplan.speed.path_profile import (
     PathProfile,
@@ -33,4 +37,14 @@ from jaxplan.speed.path_profile import (
     path_profile,
     resample_obstacles,
 )
-from jaxplan.speed.st_boundary import STBoundary, blocking_boundaries, car_probes, station_intervals
+from jaxplan.speed.smooth import SmoothWeights, SpeedProfile, smooth_plan
+from jaxplan.speed.st_boundary import (
+    ObstaclesSL,
+    STBoundary,
+    blocking_boundaries,
+    car_probes,
+    project_obstacles,
+    side_boundaries,
+    station_intervals,
+    strip_extent,
+)

@@ -1,70 +1,112 @@
-"""Dynamic programming over the ST grid: exact (min) and smooth (soft-min) forms.
+"""Dynamic programming over the ST graph: exact (min) and smooth (soft-min) forms.
 
-Grid: DP times ``t_k = k * dt`` (k <= n_t), stations ``s_i = s0 + i * ds``.
-A state at t_k is ``(i, j, m)``: station index i, speed ``v = j * dv`` of the
-segment that ended at t_k (``dv = ds / dt``, so a segment moves ``j`` stations)
-and the index m of the acceleration that produced it (``a = off[m] * da``,
-``da = dv / dt``). So a transition ``(i, j, m) -> (i + j', j', m')`` with
-``j' = j + off[m']`` has exact speed, acceleration and jerk
-``(off[m'] - off[m]) * da / dt``; the DP is exact for its cost and the hard
-limits (speed in [0, v_max], acceleration in [a_min, a_max], lateral
-acceleration on curves) are the state space itself.
+**Formulation.** Knot times ``t_k = k dt`` (k <= n_t). A state at ``t_k`` is the car's
+station and its speed *at the knot*: ``s = c0 + i ds``, ``v = j dv`` with
+``dv = 2 ds / dt`` and ``c0 = v0 dt / 2``; between knots the acceleration is constant, so
+consecutive stations fix the speed: ``s_{k+1} - s_k = (v_k + v_{k+1}) dt / 2``, i.e. a
+transition ``(i, j) -> (i + j + j', j')`` moves ``j + j'`` stations with acceleration
+``(j' - j) dv / dt``. The first segment starts exactly at the car's speed ``v0`` (the
+station offset ``c0`` makes every later station a grid point) with the exact
+acceleration ``(v_1 - v0) / dt``, and its jerk is taken from the car's acceleration ``a0``.
+So the profile the DP returns *is* a kinematically exact piecewise-constant-acceleration
+profile: its accelerations (not differences of segment averages) lie in
+``[a_min, a_max]`` and its speeds in ``[0, v_max]``. The executed trajectory is the
+smoothing QP's (``smooth.py``), which runs after the DP.
 
-Cost of a transition (all per-second terms times their duration):
-  speed ``w_speed (v' - v_cruise)^2``, accel ``w_accel a'^2``, jerk ``w_jerk j^2``;
-  obstacles on ``n_sub`` sub-steps along the segment (constant speed):
-  blocking -- ``big`` inside the boundary, ``w_block * relu(d - gap)^2`` closer
-  than the follow / overtake distance; non-blocking (times a size factor
-  ``(area / 8 m^2) ** size_exp``) -- ``no_bypass``: ``w_no_bypass * relu(front - rear_of_neighbour)^2``,
-  ``blind_zone``: ``w_blind`` while the footprint is alongside the zone
-  ``[rear - blind_back, rear + blind_front]``; keep-clear: ``w_keep_clear``
-  while inside the region slower than ``keep_clear_v``, and at the end of the horizon
-  when it is in (or would stop at ``b_comfort`` in) one it cannot leave (a blocking obstacle makes it stop before the end).
-  End of horizon: stopping at ``b_comfort`` must keep the follow distance to
-  blocking obstacles (``big`` if even ``a_min`` cannot stop in time).
+**Reachable band.** At ``t_k`` only the stations and speeds reachable from ``(0, v0)``
+with accelerations in ``[a_min, a_max]`` are states: a band of static width
+(``band_widths``, the widest over every ``v0``) at an offset that depends on ``v0``.
+
+**Costs** (per-second terms times their duration), on tables built once per plan:
+
+* per sub-step (``n_sub`` per segment, the car at its exact position, rounded to the
+  station grid), from a table over (check time, station) built once from the ST
+  boundaries (a scan over the obstacles of elementwise table updates): ``big (1 + v / 10
+  m/s)`` for every sub-step that enters a blocking boundary (``ds / 2`` margin; entering,
+  not staying inside: a collision the car cannot avoid is met at the lowest speed); ``w_block relu(d_follow - gap)^2`` behind the
+  tightest one ahead, with the time-headway follow distance
+  ``d_follow = follow_dist + follow_headway * v_obstacle``; ``w_block relu(overtake_dist
+  - lead)^2`` ahead of one passed; non-blocking (times a size factor ``(area / 8 m^2) **
+  size_exp``): ``w_no_bypass relu(front - rear_of_neighbour)^2``, ``w_blind`` while the
+  footprint is alongside the zone ``[rear - blind_back, rear + blind_front]``; keep-clear
+  ``w_keep_clear`` while inside a region slower than ``keep_clear_v``; the goal
+  ``w_goal huber(dist(centre, goal stations))`` at check times in the last ``GOAL_TAIL``
+  seconds of the goal's time window;
+* per knot: speed ``w_speed (v - v_target(s))^2`` with ``v_target = min(v_cruise,
+  v_limit(s))``, and ``w_limit relu(v - v_limit(s))^2`` above the limit (the lane's speed
+  limit and the continuous curvature limit ``sqrt(a_lat_max / |kappa(s)|)``, interpolated
+  in s); ``w_goal_v dist(v, goal speeds)^2`` at knots in that part of the window;
+* per segment: ``w_accel a^2``; the first segment also ``w_jerk ((a_1 - a0) / dt)^2``;
+* end of horizon: stopping at ``b_comfort`` (the obstacle ahead braking the same) must
+  keep ``follow_dist``; ``big`` if even ``a_min`` cannot stop in time; keep-clear: do not
+  end in a region the car cannot leave.
 """
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 from typing import Any
 
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jax import lax
 
+from jaxplan.geometry.frenet import ReferenceLine
 from jaxplan.speed.nonblocking import classify, keep_clear_intervals
 from jaxplan.speed.path_profile import PathProfile, path_profile, resample_obstacles
-from jaxplan.geometry.frenet import ReferenceLine
-from jaxplan.types import Obstacles, VehicleParams, check_weights, is_concrete
+from jaxplan.speed.st_boundary import BIG, STBoundary, car_extent, project_obstacles
+from jaxplan.types import Obstacles, VehicleParams, _pytree, check_weights, is_concrete
 
 
 @dataclasses.dataclass(frozen=True)
 class SpeedConfig:
-    """Grid sizes and hard limits (static under jit)."""
+    """Grid sizes and hard limits (static under jit).
 
-    dt: float = 1.0            # DP time step (s); Apollo uses 1 s
-    n_t: int = 7               # DP steps; horizon = n_t * dt
-    ds: float = 1.0            # station step (m); sets dv = ds/dt and da = ds/dt^2
-    v_max: float = 20.0        # hard speed limit (m/s)
-    a_min: float = -5.0        # hard acceleration limits (m/s^2)
+    Attributes:
+        dt, n_t: knot step (s) and number of segments (horizon ``n_t dt``).
+        ds: station step (m); knot speeds every ``dv = 2 ds / dt``, accelerations (after the
+            first segment) every ``da = dv / dt``.
+        v_max, a_min, a_max: hard limits of the DP (m/s, m/s^2).
+        n_sub: obstacle checks per segment (the boundaries are built at ``dt / n_sub``).
+        a_lat_max: lateral acceleration of the curvature speed limit (m/s^2).
+        buffer: clearance around blocking obstacles, lateral and longitudinal (m).
+        side_width: width of the left / right non-blocking strips (m).
+        no_overtake_side: +1: neighbours on the left must not be passed; -1 right; 0 none.
+        v_moving: slower neighbours get no decision (m/s).
+        blind_back, blind_front: a neighbour's blind zone, from its rear minus / plus (m).
+        keep_clear_v: slower than this inside a keep-clear region is stopping there (m/s).
+        b_comfort: end of horizon: must be able to stop behind blocking obstacles at this
+            deceleration (m/s^2).
+        big: cost of a collision.
+        qp_dt, a_brake, jerk_max: the smoothing QP (``smooth.py``): its step (s, must divide
+            ``dt / n_sub``), its hardest braking (m/s^2, <= a_min) and jerk bound (m/s^3).
+    """
+
+    dt: float = 1.0
+    n_t: int = 7
+    ds: float = 1.0
+    v_max: float = 30.0
+    a_min: float = -5.0
     a_max: float = 2.0
-    a_lat_max: float = 3.0     # lateral acceleration limit on curves (m/s^2)
-    n_sub: int = 5             # obstacle checks per DP step
-    buffer: float = 0.3        # clearance around blocking obstacles (m)
-    side_width: float = 3.5    # width of the left/right non-blocking regions (m)
-    no_overtake_side: int = 1  # +1: neighbours on the left must not be passed; 0: none
-    v_moving: float = 1.0      # slower neighbours get no decision (m/s)
-    blind_back: float = 4.0    # blind zone: from the neighbour's rear minus this ...
-    blind_front: float = 1.0   # ... to its rear plus this (m, along the path)
-    keep_clear_v: float = 1.0  # slower than this inside a keep-clear region is stopping there
-    b_comfort: float = 2.0     # end of horizon: must be able to stop behind blocking obstacles at this decel
-    big: float = 1e6           # cost of a collision / impossible state
+    n_sub: int = 5
+    a_lat_max: float = 3.0
+    buffer: float = 0.3
+    side_width: float = 3.5
+    no_overtake_side: int = 1
+    v_moving: float = 1.0
+    blind_back: float = 4.0
+    blind_front: float = 1.0
+    keep_clear_v: float = 1.0
+    b_comfort: float = 2.0
+    big: float = 1e6
+    qp_dt: float = 0.1
+    a_brake: float = -7.0
+    jerk_max: float = 20.0
 
     @property
     def dv(self):
-        return self.ds / self.dt
+        return 2.0 * self.ds / self.dt
 
     @property
     def da(self):
@@ -76,7 +118,8 @@ class SpeedConfig:
 
     @property
     def n_s(self):
-        return self.n_t * (self.n_v - 1) + 1
+        """Station indices ``i`` of the grid (``c0 + i ds``, i < n_s)."""
+        return int(math.floor(self.v_max * self.horizon / self.ds + 1e-9)) + 2
 
     @property
     def accel_offsets(self):
@@ -99,7 +142,58 @@ class SpeedConfig:
             raise ValueError(f"SpeedConfig: v_max {self.v_max} below one speed step {self.dv}")
         if not (self.a_min <= 0 <= self.a_max) or 0 not in self.accel_offsets:
             raise ValueError("SpeedConfig: need a_min <= 0 <= a_max")
+        if self.a_min > -self.da + 1e-9:
+            raise ValueError(f"SpeedConfig: a_min {self.a_min} allows no braking step (da = {self.da}); "
+                             "lower a_min or ds")
+        r = self.dt / self.n_sub / self.qp_dt
+        if self.qp_dt <= 0 or abs(r - round(r)) > 1e-6:
+            raise ValueError(f"SpeedConfig: qp_dt {self.qp_dt} must divide the check step dt / n_sub")
+        if self.a_brake > self.a_min or self.jerk_max <= 0:
+            raise ValueError("SpeedConfig: need a_brake <= a_min and jerk_max > 0")
         return self
+
+
+@functools.lru_cache(maxsize=None)
+def band_widths(config: SpeedConfig) -> tuple:
+    """Static band sizes ``((S_1, V_1), ..., (S_n, V_n))``: stations and speeds of the
+    reachable states at each knot, the widest over every start speed in ``[0, v_max]``."""
+    c = config
+    v0 = np.linspace(0.0, c.v_max, 1201)
+    out = []
+    for k in range(1, c.n_t + 1):
+        t = k * c.dt
+        lo, hi = _station_range(v0, t, c, np)
+        c0 = v0 * c.dt / 2
+        ilo = np.floor((lo - c0) / c.ds) - 1
+        ihi = np.ceil((hi - c0) / c.ds) + 1
+        S = int(min(c.n_s, np.max(ihi - ilo) + 1))
+        V = int(min(c.n_v, math.floor((c.a_max - c.a_min) * t / c.dv + 1e-9) + 3))
+        out.append((S, V))
+    return tuple(out)
+
+
+def _station_range(v0, t, c: SpeedConfig, xp):
+    """Least and most distance ``(...)`` reachable in ``t`` from speed ``v0``."""
+    tb = xp.minimum(t, v0 / -c.a_min)
+    lo = v0 * tb + 0.5 * c.a_min * tb * tb
+    ta = xp.clip((c.v_max - v0) / c.a_max, 0.0, t)
+    hi = v0 * ta + 0.5 * c.a_max * ta * ta + (t - ta) * xp.maximum(v0 + c.a_max * ta, 0.0)
+    return lo, hi
+
+
+def band_offsets(v0, config: SpeedConfig):
+    """Dynamic band offsets ``(ilo (n_t,), jlo (n_t,))`` int32 for start speed ``v0``."""
+    c = config
+    dtype = jnp.result_type(v0, jnp.float32)
+    v0 = jnp.asarray(v0, dtype)
+    S = np.array([b[0] for b in band_widths(c)])
+    V = np.array([b[1] for b in band_widths(c)])
+    t = jnp.arange(1, c.n_t + 1, dtype=dtype) * c.dt
+    lo, _ = _station_range(v0, t, c, jnp)
+    c0 = v0 * c.dt / 2
+    ilo = jnp.clip(jnp.floor((lo - c0) / c.ds) - 1, 0, c.n_s - S).astype(jnp.int32)
+    jlo = jnp.clip(jnp.floor((v0 + c.a_min * t) / c.dv) - 1, 0, c.n_v - V).astype(jnp.int32)
+    return ilo, jlo
 
 
 @jax.tree_util.register_dataclass
@@ -112,12 +206,16 @@ class CostWeights:
     w_accel: Any = 1.0
     w_jerk: Any = 0.5
     w_block: Any = 20.0
-    follow_dist: Any = 6.0
+    follow_dist: Any = 4.0
     overtake_dist: Any = 4.0
     w_no_bypass: Any = 10.0
     w_blind: Any = 40.0
     size_exp: Any = 0.5
     w_keep_clear: Any = 500.0
+    follow_headway: Any = 1.0
+    w_limit: Any = 20.0
+    w_goal: Any = 5.0
+    w_goal_v: Any = 5.0
 
     def validate(self) -> "CostWeights":
         """Host-side: every weight finite and >= 0 (a ``ValueError`` names the field)."""
@@ -132,33 +230,81 @@ class CostWeights:
 SpeedCostWeights = CostWeights
 
 
+@_pytree(data_fields=("limit_s", "limit_v", "stop_s", "goal_s", "goal_t", "goal_v"))
+class SpeedRoad:
+    """What the road asks of the speed (one scene; stations on the path, relative to the car).
+
+    Attributes:
+        limit_s, limit_v: ``(P,)`` the lane speed limit (m/s) sampled at increasing
+            stations (constant beyond the ends).
+        stop_s: ``()`` stop before this station (the path's blockage, the end of the map;
+            ``inf``: none).
+        goal_s: ``(2,)`` stations between which the car's box centre meets the goal;
+            goal_t: ``(2,)`` its time window from now (s); goal_v: ``(2,)`` its speed range.
+    """
+
+    limit_s: Any
+    limit_v: Any
+    stop_s: Any
+    goal_s: Any
+    goal_t: Any
+    goal_v: Any
+
+    @classmethod
+    def free(cls, dtype=jnp.float32) -> "SpeedRoad":
+        """No speed limit, nothing to stop for, no goal."""
+        inf = jnp.asarray(jnp.inf, dtype)
+        two = jnp.array([-jnp.inf, jnp.inf], dtype)
+        return cls(jnp.zeros((1,), dtype), jnp.full((1,), jnp.inf, dtype), inf, two, jnp.array([jnp.inf, jnp.inf], dtype),
+                   two)
+
+
 @jax.tree_util.register_dataclass
 @dataclasses.dataclass(frozen=True)
 class SpeedScene:
-    """Everything the DP needs about one scene, on the plan's grids (relative stations).
+    """Everything the DP needs about one scene, at the check times ``config.fine_times()``
+    (stations relative to the car's reference point now).
 
     Attributes:
-        classified: ``Classified`` with boundaries ``(K, F)`` at the fine times.
+        classified: ``Classified`` with boundaries ``(K, F)``.
+        wall: ``STBoundary`` ``(1, F)`` the stop station (``road.stop_s``) as a boundary.
         kc_lower, kc_upper, kc_hit: ``(R,)`` keep-clear ranges.
-        v_limit: ``(N,)`` speed limit per station from curvature.
+        v_limit: ``(N,)`` speed limit at stations ``i ds`` (lane limit, curvature, v_max).
+        goal_s, goal_t, goal_v: ``(2,)`` the goal (``SpeedRoad``).
         front, rear: car front / rear ahead of its reference point (m).
     """
 
     classified: Any
+    wall: Any
     kc_lower: Any
     kc_upper: Any
     kc_hit: Any
     v_limit: Any
+    goal_s: Any
+    goal_t: Any
+    goal_v: Any
     front: Any
     rear: Any
+
+    def blocking(self) -> tuple:
+        """(lower, upper, hit, v_along) ``(K + 1, F)``: the blocking obstacles and the wall."""
+        b, w = self.classified.blocking, self.wall
+        cat = lambda a, c: jnp.concatenate([a, c], 0)
+        return (cat(b.lower, w.lower), cat(b.upper, w.upper), cat(b.hit, w.hit),
+                cat(self.classified.v_along, jnp.zeros_like(w.lower)))
 
 
 @jax.tree_util.register_dataclass
 @dataclasses.dataclass(frozen=True)
 class SpeedPlan:
-    """DP result: ``t``, ``s`` (relative to s0) ``(..., n_t + 1)``; segment speed ``v``
-    and acceleration ``a`` ``(..., n_t)``; total ``cost`` and ``feasible`` ``(...)``;
-    ``scene``: the ``SpeedScene`` planned against (ST boundaries, decisions), or None."""
+    """DP result of one scene (add leading dims for batches).
+
+    Attributes:
+        t, s, v: ``(..., n_t + 1)`` knot times, stations (relative to s0) and speeds
+            (``v[0] = v0``); a: ``(..., n_t)`` the constant acceleration of each segment.
+        cost, feasible: ``(...)`` total cost, and no collision / impossible stop.
+        scene: the ``SpeedScene`` planned against (ST boundaries, decisions), or None.
+    """
 
     t: Any
     s: Any
@@ -168,233 +314,489 @@ class SpeedPlan:
     feasible: Any
     scene: Any = None
 
+    def at(self, t):
+        """Exact (s, v, a) ``(T,)`` of the piecewise-constant-acceleration profile at ``t (T,)``."""
+        return profile_at(self, t)
+
+
+def profile_at(plan: SpeedPlan, t):
+    """Station, speed and acceleration ``(T,)`` of a plan's profile at times ``t (T,)``
+    (constant acceleration within each segment; held at the last knot's speed after it)."""
+    t = jnp.asarray(t, plan.s.dtype)
+    n = plan.a.shape[-1]
+    dt = plan.t[1] - plan.t[0]
+    k = jnp.clip(jnp.floor(t / dt).astype(jnp.int32), 0, n - 1)
+    tau = jnp.clip(t - plan.t[k], 0.0, dt)
+    a = plan.a[k]
+    s = plan.s[k] + plan.v[k] * tau + 0.5 * a * tau * tau
+    v = plan.v[k] + a * tau
+    after = t > plan.t[-1]
+    s = jnp.where(after, plan.s[-1] + plan.v[-1] * (t - plan.t[-1]), s)
+    return s, jnp.where(after, plan.v[-1], v), jnp.where(after, 0.0, a)
+
+
+# ----------------------------------------------------------------------------- scene
 
 def build_scene(profile: PathProfile, obstacles: Obstacles, vehicle: VehicleParams, config: SpeedConfig,
-                keep_clear=None) -> SpeedScene:
-    """Resample obstacles to the fine times, classify them, project keep-clear regions.
+                keep_clear=None, v0=0.0, road: SpeedRoad | None = None) -> SpeedScene:
+    """Resample obstacles to the check times, project them to the path once per time,
+    classify them, project keep-clear regions, sample the speed limit.
 
     Args:
-        profile: path on ``config.n_s`` stations from s0.
+        profile: the path on ``config.n_s`` stations ``s0 + i ds`` (its ``ref`` is the path).
         obstacles: boxes ``(K, T, 5)`` with their own times (from 0 = now).
         keep_clear: optional ``(vertices (R, P, 2), valid (R, P), active (R,))``.
+        v0: the car's speed (the ``behind`` rule).
+        road: ``SpeedRoad`` or None (no limit but curvature and ``v_max``, no stop, no goal).
     """
-    obs = resample_obstacles(obstacles, jnp.asarray(config.fine_times(), obstacles.boxes.dtype))
-    c = classify(profile, obs, vehicle, side_width=config.side_width, buffer=config.buffer,
-                 no_overtake_side=config.no_overtake_side, v_moving=config.v_moving)
+    dtype = profile.s.dtype
+    road = SpeedRoad.free(dtype) if road is None else road
+    tf = jnp.asarray(config.fine_times(), dtype)
+    obs = resample_obstacles(obstacles, tf)
     s0 = profile.s[0]
-    rel = lambda b: dataclasses.replace(b, lower=b.lower - s0, upper=b.upper - s0)
-    c = dataclasses.replace(c, blocking=rel(c.blocking), side=rel(c.side))
+    osl = project_obstacles(profile.ref, obs)
+    osl = dataclasses.replace(osl, corners=osl.corners.at[..., 0].add(-s0), centre=osl.centre.at[..., 0].add(-s0))
+    c = classify(osl, obs, vehicle, tf, v0, config.a_min, side_width=config.side_width, buffer=config.buffer,
+                 no_overtake_side=config.no_overtake_side, v_moving=config.v_moving)
+    front, rear = car_extent(vehicle, dtype)
+    stop = jnp.asarray(road.stop_s, dtype)
+    has = jnp.isfinite(stop)
+    F = tf.shape[0]
+    wall = STBoundary(jnp.full((1, F), jnp.where(has, stop - front - config.buffer, BIG), dtype),
+                      jnp.full((1, F), BIG, dtype), jnp.full((1, F), has))
     if keep_clear is None:
-        lo = hi = jnp.zeros((1,), profile.s.dtype)
+        lo = hi = jnp.zeros((1,), dtype)
         hit = jnp.zeros((1,), bool)
     else:
         lo, hi, hit = keep_clear_intervals(profile, vehicle, *keep_clear)
         lo, hi = lo - s0, hi - s0
-    v_limit = jnp.sqrt(config.a_lat_max / jnp.maximum(jnp.abs(profile.kappa), 1e-6))
-    off = jnp.asarray(vehicle.center_offset, profile.s.dtype)
-    return SpeedScene(c, lo, hi, hit, v_limit, off + 0.5 * vehicle.length, off - 0.5 * vehicle.length)
+    lane = jnp.interp(profile.s - s0, jnp.asarray(road.limit_s, dtype), jnp.minimum(jnp.asarray(road.limit_v, dtype), 1e3))
+    curve = jnp.sqrt(config.a_lat_max / jnp.maximum(jnp.abs(profile.kappa), 1e-6))
+    v_limit = jnp.minimum(jnp.minimum(lane, curve), config.v_max)
+    return SpeedScene(c, wall, lo, hi, hit, v_limit, jnp.asarray(road.goal_s, dtype), jnp.asarray(road.goal_t, dtype),
+                      jnp.asarray(road.goal_v, dtype), front, rear)
 
 
-def _obstacle_terms(x, f, scene: SpeedScene, config: SpeedConfig, w: CostWeights):
-    """(rate without keep-clear ``(...)``, collision ``(...)``, inside a keep-clear region ``(...)``)."""
-    c = scene.classified
-    ds = config.ds
-    x = x[..., None]
-    b = c.blocking
-    lo, hi, hit = b.lower[:, f], b.upper[:, f], b.hit[:, f]
-    inside = hit & (x > lo - ds) & (x < hi + ds)
-    follow = jnp.where(hit & (x <= lo - ds), jnp.maximum(w.follow_dist - (lo - x), 0.0) ** 2, 0.0)
-    ahead = jnp.where(hit & (x >= hi + ds), jnp.maximum(w.overtake_dist - (x - hi), 0.0) ** 2, 0.0)
-    rate = w.w_block * jnp.sum(follow + ahead, -1)
-    collision = jnp.any(inside, -1)
-    sd = c.side
-    lo, hi, hit = sd.lower[:, f], sd.upper[:, f], sd.hit[:, f]
-    mult = (c.size / 8.0) ** w.size_exp
-    front, rear = x + scene.front, x + scene.rear
-    nb = jnp.where(hit & c.no_bypass, jnp.maximum(front - lo, 0.0) ** 2, 0.0)
-    zone = hit & c.blind_zone & (front > lo - config.blind_back) & (rear < lo + config.blind_front)
-    rate = rate + jnp.sum(mult * (w.w_no_bypass * nb + w.w_blind * zone), -1)
-    kc = jnp.any(scene.kc_hit & (x > scene.kc_lower - ds) & (x < scene.kc_upper + ds), -1)
-    return rate, collision, kc
+# ----------------------------------------------------------------------------- cost tables
 
+@jax.tree_util.register_dataclass
+@dataclasses.dataclass(frozen=True)
+class DPCosts:
+    """The DP's cost tensors of one scene (``X`` table stations ``c0 + (u - U0) ds``).
 
-def obstacle_cost(x, v, f, scene: SpeedScene, config: SpeedConfig, w: CostWeights):
-    """Per-second obstacle cost rate of the car at relative station ``x`` with speed ``v``
-    at fine time index ``f`` (``big`` for a collision, not scaled by time).
-
-    Args:
-        x, v: ``(...)`` broadcastable; f: int scalar.
-
-    Returns:
-        (rate ``(...)``, collision ``(...)`` bool).
+    Attributes:
+        table: ``(2, F, X)`` cost of one sub-step at check time f and station u, for a
+            moving car [0] and one slower than ``keep_clear_v`` [1] (``big`` in collision).
+        node: ``(X, V)`` per-knot cost of speed index j at station u (speed, limits).
+        goal_v: ``(V,)`` extra knot cost inside the goal window; goal_k: ``(n_t,)`` bool,
+            knot k+1 inside it.
+        accel: ``(M,)`` cost of each acceleration offset for one segment (segments >= 2).
+        first: ``(V,)`` cost of the first segment ending at speed j (accel, jerk from a0,
+            obstacles on its sub-steps; ``UNREACH`` where its acceleration is out of range).
+        terminal: ``(X, V)``.
+        ilo, jlo: ``(n_t,)`` int32 band offsets.
+        c0: ``()`` station of index 0.
     """
-    rate, collision, kc = _obstacle_terms(x, f, scene, config, w)
-    return rate + w.w_keep_clear * (kc & (v < config.keep_clear_v)), collision
+
+    table: Any
+    node: Any
+    goal_v: Any
+    goal_k: Any
+    accel: Any
+    first: Any
+    terminal: Any
+    ilo: Any
+    jlo: Any
+    c0: Any
 
 
-def stage_costs(scene: SpeedScene, config: SpeedConfig, w: CostWeights, v0, a0):
-    """Cost tensors of the DP.
+def _u0(config: SpeedConfig) -> int:
+    return config.n_v + 1
 
-    Returns:
-        node ``(n_t, N, V)``: cost of the segment of step k ending at station i' with
-        speed index j' (obstacles, speed, curvature limit); accel ``(M,)``: cost of
-        each acceleration level for one step; jerk ``(M, M)`` [m', m]; terminal
-        ``(N, V)`` cost of the final state; initial indices ``(j0, m0)``.
+
+def _n_table(config: SpeedConfig) -> int:
+    return config.n_s + _u0(config) + 2
+
+
+def unreach(config: SpeedConfig) -> float:
+    """Cost of an unreachable state: above any sum of collisions, so the argmin never
+    backtracks through an impossible predecessor (hopeless scenes keep a valid profile)."""
+    return 1e3 * config.big
+
+
+def _scatter(n, idx, val, init, op):
+    """``(n, ...)`` array: ``init`` with ``val (N, ...)`` combined (op: add/min/max) at
+    ``idx (N,)`` (indices ``>= n`` are dropped)."""
+    a = jnp.full((n + 1,) + val.shape[1:], init, val.dtype)
+    a = getattr(a.at[jnp.clip(idx, 0, n)], op)(val)
+    return a[:n]
+
+
+def _obstacle_tables(xs, x0, ds, scene: SpeedScene, config: SpeedConfig, w: CostWeights, mult):
+    """Per-second obstacle cost ``(F, X)`` and collision ``(F, X)`` at every check time and
+    table station: a scan over the obstacles (elementwise updates of the tables, which XLA
+    fuses; no reduction over the small obstacle axis).
+
+    Station ``u`` (index of ``xs``) collides with a blocking boundary when
+    ``lower - ds / 2 <= xs_u <= upper + ds / 2`` (sub-steps are rounded to the nearest
+    station); it is behind it below that range (follow line ``lower - d_follow``, the
+    tightest counts) and ahead of it above (lead line ``upper + overtake_dist``, the
+    farthest counts).
     """
-    dt, ns = config.dt, config.n_sub
-    N, V = config.n_s, config.n_v
+    X = xs.shape[0]
+    F = config.n_t * config.n_sub + 1
+    dtype = xs.dtype
+    big = jnp.asarray(BIG, dtype)
+    uf = jnp.arange(X, dtype=dtype)
+    lo, hi, hit, vob = scene.blocking()  # (K + 1, F)
+
+    def block(carry, k):
+        col, e, g = carry
+        lo_k, hi_k, hit_k = lo[k][:, None], hi[k][:, None], hit[k][:, None]
+        y = (lo_k - x0) / ds - 0.5
+        z = (hi_k - x0) / ds + 0.5
+        col = col | (hit_k & (uf >= y) & (uf <= z))
+        d_f = w.follow_dist + w.follow_headway * jnp.maximum(vob[k][:, None], 0.0)
+        e = jnp.minimum(e, jnp.where(hit_k & (uf < y), lo_k - d_f, big))
+        g = jnp.maximum(g, jnp.where(hit_k & (uf > z), hi_k + w.overtake_dist, -big))
+        return (col, e, g), None
+
+    init = (jnp.zeros((F, X), bool), jnp.full((F, X), big, dtype), jnp.full((F, X), -big, dtype))
+    (collide, e, g), _ = jax.lax.scan(block, init, jnp.arange(lo.shape[0]))
+    cl = scene.classified
+    slo, shit = cl.side.lower, cl.side.hit  # (K, F)
+
+    def side(carry, k):
+        zone, nbp = carry
+        s_k = slo[k][:, None]
+        on_b = shit[k][:, None] & cl.blind_zone[k]
+        yb = (s_k - config.blind_back - scene.front - x0) / ds
+        zb = (s_k + config.blind_front - scene.rear - x0) / ds
+        zone = zone + jnp.where(on_b & (uf >= yb) & (uf <= zb), mult[k], 0.0)
+        on_n = shit[k][:, None] & cl.no_bypass[k]
+        cpos = s_k - scene.front
+        nbp = nbp + jnp.where(on_n, mult[k] * jnp.maximum(xs - cpos, 0.0) ** 2, 0.0)
+        return (zone, nbp), None
+
+    (zone, nbp), _ = jax.lax.scan(side, (jnp.zeros((F, X), dtype), jnp.zeros((F, X), dtype)), jnp.arange(slo.shape[0]))
+    rate = w.w_block * (jnp.maximum(xs - e, 0.0) ** 2 + jnp.maximum(g - xs, 0.0) ** 2)
+    return rate + w.w_no_bypass * nbp + w.w_blind * zone, collide
+
+
+def _goal_table(xs, f_goal, scene: SpeedScene, w: CostWeights):
+    """``(F, X)`` goal cost rate: the box centre's distance to the goal's stations (Huber) at
+    the check times ``f_goal (F,)`` of the window's last part."""
+    cx = xs + 0.5 * (scene.front + scene.rear)
+    gd = jnp.maximum(scene.goal_s[0] - cx, 0.0) + jnp.maximum(cx - scene.goal_s[1], 0.0)
+    gd = jnp.where(jnp.isfinite(gd), gd, 0.0)
+    hub = jnp.where(gd < GOAL_HUBER, gd * gd, GOAL_HUBER * (2.0 * gd - GOAL_HUBER))
+    return jnp.where(f_goal[:, None], w.w_goal * hub[None, :], 0.0)
+
+
+COLLISION_V = 10.0  # m/s: a collision's cost grows by big per this much impact speed
+GOAL_TAIL = 1.0  # s: the goal is asked for in the last second of its time window
+GOAL_HUBER = 2.0  # m: the goal's distance cost is quadratic up to this, then linear
+
+
+def goal_times(goal_t, t):
+    """``(T,)`` bool: times ``t`` in the last ``GOAL_TAIL`` seconds of the goal's window
+    ``goal_t (2,)`` (the car must be in the goal region before the window closes)."""
+    return (t >= jnp.maximum(goal_t[0], goal_t[1] - GOAL_TAIL) - 1e-6) & (t <= goal_t[1] + 1e-6)
+
+
+def stage_costs(scene: SpeedScene, config: SpeedConfig, w: CostWeights, v0, a0) -> DPCosts:
+    """Cost tensors of the DP for one scene (``DPCosts``)."""
+    c = config
     dtype = scene.v_limit.dtype
-    offs = jnp.asarray(config.accel_offsets, dtype)
-    i = jnp.arange(N)[:, None]
-    j = jnp.arange(V)[None, :]
-    v = (j * config.dv).astype(dtype)
-    speed = w.w_speed * (v - w.v_cruise) ** 2 * dt  # (1, V)
-    curve = jnp.where(v > scene.v_limit[:, None] + 1e-6, config.big, 0.0)  # (N, V)
-
-    # Obstacle terms on a table of fine times x fine stations (step ds / n_sub): the car
-    # moves at constant speed within a step, so every sub-step lands on that grid.
-    F, X = config.n_t * ns + 1, (N - 1) * ns + 1
-    xs = jnp.arange(X, dtype=dtype) * (config.ds / ns)
-    rate, col, kc = jax.vmap(lambda f: _obstacle_terms(xs, f, scene, config, w))(jnp.arange(F))  # (F, X)
-    moving = rate * (dt / ns) + jnp.where(col, config.big, 0.0)
-    table = jnp.stack([moving, moving + w.w_keep_clear * kc * (dt / ns)])  # (2, F, X): [moving, slow]
-    slow = (v < config.keep_clear_v).astype(jnp.int32)  # (1, V)
-    u = jnp.clip((i - j) * ns, 0, X - 1)  # (N, V) fine station at the segment start
-
-    def one_step(k):
-        def sub(q):
-            return table[slow, k * ns + q, jnp.clip(u + q * j, 0, X - 1)]
-
-        return jnp.sum(jax.vmap(sub)(jnp.arange(1, ns + 1)), 0)
-
-    obst = jax.vmap(one_step)(jnp.arange(config.n_t))  # (n_t, N, V)
-    node = obst + speed + curve
-    accel = w.w_accel * (offs * config.da) ** 2 * dt
-    jerk = w.w_jerk * ((offs[:, None] - offs[None, :]) * config.da / dt) ** 2 * dt
-    # End of horizon: stopping at b_comfort must keep the follow distance to blocking
-    # obstacles present at the last time (hard if even a_min cannot stop in time).
-    b = scene.classified.blocking
-    lo = jnp.where(b.hit[:, -1], b.lower[:, -1], jnp.inf)  # (K,)
-    x = i.astype(dtype) * config.ds
-    behind = x[..., None] <= lo - config.ds
-    stop = x + v ** 2 / (2.0 * config.b_comfort)
-    hard = x + v ** 2 / (2.0 * abs(config.a_min))
-    gap = jnp.where(behind, lo - stop[..., None], jnp.inf)
-    terminal = w.w_block * jnp.sum(jnp.where(behind, jnp.maximum(w.follow_dist - gap, 0.0) ** 2, 0.0), -1)
-    terminal = terminal + jnp.where(jnp.any(behind & (hard[..., None] > lo - config.ds), -1), config.big, 0.0)
-    # Keep-clear: do not end inside a region that the car cannot leave because it must stop
-    # (follow distance) behind a blocking obstacle before the region's end.
-    stop_at = jnp.min(jnp.where(behind, lo - w.follow_dist, jnp.inf), -1)  # (N, V)
-    inside = scene.kc_hit & (stop[..., None] > scene.kc_lower - config.ds) & (x[..., None] < scene.kc_upper + config.ds)
-    trapped = inside & (stop_at[..., None] < scene.kc_upper + config.ds)
-    terminal = terminal + w.w_keep_clear * dt * jnp.sum(trapped, -1)
-    j0 = jnp.clip(jnp.round(v0 / config.dv), 0, V - 1).astype(jnp.int32)
-    m0 = jnp.argmin(jnp.abs(offs * config.da - a0)).astype(jnp.int32)
-    return node, accel, jerk, terminal, j0, m0
+    v0 = jnp.clip(jnp.asarray(v0, dtype), 0.0, c.v_max)
+    a0 = jnp.asarray(a0, dtype)
+    V, X, U0, ns = c.n_v, _n_table(c), _u0(c), c.n_sub
+    h = c.dt / ns
+    c0 = v0 * c.dt / 2
+    xs = c0 + (jnp.arange(X, dtype=dtype) - U0) * c.ds
+    x0 = xs[0]
+    tf = jnp.asarray(c.fine_times(), dtype)
+    f_goal = goal_times(scene.goal_t, tf)
+    lo, hi, hit, vob = scene.blocking()
+    cl = scene.classified
+    mult = (cl.size / 8.0) ** w.size_exp
+    rate, collide = _obstacle_tables(xs, x0, c.ds, scene, c, w, mult)
+    rate = rate + _goal_table(xs, f_goal, scene, w)
+    moving = rate * h + jnp.where(collide, c.big, 0.0)  # (F, X)
+    kc = jnp.any(scene.kc_hit & (xs[:, None] > scene.kc_lower - c.ds) & (xs[:, None] < scene.kc_upper + c.ds), -1)
+    table = jnp.stack([moving, moving + w.w_keep_clear * h * kc])
+    # per-knot speed cost against the target speed and the limit at each station
+    n_lim = scene.v_limit.shape[0]
+    q = jnp.clip(xs / c.ds, 0.0, n_lim - 1.0)
+    k = jnp.clip(jnp.floor(q).astype(jnp.int32), 0, n_lim - 2)
+    lim = scene.v_limit[k] + (q - k) * (scene.v_limit[k + 1] - scene.v_limit[k])  # (X,)
+    vj = jnp.arange(V, dtype=dtype) * c.dv
+    target = jnp.minimum(w.v_cruise, lim)
+    node = c.dt * (w.w_speed * (vj[None] - target[:, None]) ** 2 + w.w_limit * jnp.maximum(vj[None] - lim[:, None], 0.0) ** 2)
+    gv = scene.goal_v
+    gdist = jnp.maximum(gv[0] - vj, 0.0) + jnp.maximum(vj - gv[1], 0.0)
+    goal_v = c.dt * w.w_goal_v * jnp.where(jnp.isfinite(gdist), gdist, 0.0) ** 2
+    goal_k = goal_times(scene.goal_t, jnp.arange(1, c.n_t + 1, dtype=dtype) * c.dt)
+    offs = jnp.asarray(c.accel_offsets, dtype)
+    accel = w.w_accel * (offs * c.da) ** 2 * c.dt
+    # first segment: from (0, v0) to speed j with the exact acceleration (v_j - v0) / dt
+    a1 = (vj - v0) / c.dt
+    tq = jnp.arange(0, ns + 1, dtype=dtype) * h
+    xq = v0 * tq[None] + 0.5 * a1[:, None] * tq[None] ** 2  # (V, ns + 1)
+    uq = jnp.clip(jnp.round((xq - x0) / c.ds).astype(jnp.int32), 0, X - 1)
+    vq = v0 + a1[:, None] * tq[None]
+    slow = (vq < c.keep_clear_v).astype(jnp.int32)
+    obst1 = segment_cost(table[slow, jnp.arange(0, ns + 1)[None], uq], vq, c.big)
+    first = w.w_accel * a1 ** 2 * c.dt + w.w_jerk * ((a1 - a0) / c.dt) ** 2 * c.dt + obst1
+    ok1 = (a1 >= c.a_min - 1e-4) & (a1 <= c.a_max + 1e-4)
+    first = jnp.where(ok1, first, unreach(c))
+    terminal = _terminal(xs, x0, vj, lo[:, -1], hit[:, -1], vob[:, -1], kc, scene, c, w)
+    ilo, jlo = band_offsets(v0, c)
+    return DPCosts(table, node, goal_v, goal_k, accel, first, terminal, ilo, jlo, c0)
 
 
-def _predecessors(V, config: SpeedConfig):
-    """Gather indices: for target (i', j', m') the predecessor (i' - j', j' - off[m'])."""
-    N = config.n_s
-    offs = np.asarray(config.accel_offsets)
-    ip = np.arange(N)[:, None] - np.arange(V)[None, :]  # (N, V)
-    jp = np.arange(V)[:, None] - offs[None, :]  # (V, M)
-    ok = (ip[:, :, None] >= 0) & (jp[None] >= 0) & (jp[None] < V)
-    return np.clip(ip, 0, N - 1), np.clip(jp, 0, V - 1), ok
+def _terminal(xs, x0, vj, lo, hit, vob, kc, scene, c: SpeedConfig, w: CostWeights):
+    """End-of-horizon cost ``(X, V)`` (see the module docstring)."""
+    X = xs.shape[0]
+    dtype = xs.dtype
+    big = jnp.asarray(BIG, dtype)
+    i_b = jnp.minimum(jnp.ceil((lo - x0) / c.ds - 0.5).astype(jnp.int32) - 1, X - 1)
+    where = jnp.where(hit & (i_b >= 0), i_b, X)
+    v2 = jnp.maximum(vob, 0.0) ** 2
+    # min over the obstacles ahead of: their stop lines braking at b_comfort and at a_min,
+    # and their follow lines
+    lines = jnp.stack([lo + v2 / (2.0 * c.b_comfort), lo + v2 / (2.0 * abs(c.a_min)), lo - w.follow_dist], -1)
+    lines = jax.lax.cummin(_scatter(X, where, lines, big, "min"), axis=0, reverse=True)
+    l_comfort, l_hard, l_follow = lines[:, 0], lines[:, 1], lines[:, 2]
+    stop = xs[:, None] + vj[None] ** 2 / (2.0 * c.b_comfort)
+    hard = xs[:, None] + vj[None] ** 2 / (2.0 * abs(c.a_min))
+    term = w.w_block * jnp.maximum(w.follow_dist - (l_comfort[:, None] - stop), 0.0) ** 2
+    term = term + jnp.where(hard > l_hard[:, None] - c.ds, c.big, 0.0)
+    inside = scene.kc_hit & (stop[..., None] > scene.kc_lower - c.ds) & (xs[:, None, None] < scene.kc_upper + c.ds)
+    trapped = inside & (l_follow[:, None, None] < scene.kc_upper + c.ds)
+    return term + w.w_keep_clear * c.dt * jnp.sum(trapped, -1)
 
 
-def _dp(node, accel, jerk, terminal, j0, m0, config: SpeedConfig, temperature=None):
-    """Forward pass. Returns (final values ``(N, V, M)``, argmins ``(n_t, N, V, M)``)."""
-    N, V, M = config.n_s, config.n_v, len(config.accel_offsets)
-    # Unreachable states cost far more than any sum of collisions (``big`` per sub-step), so
-    # the argmin never backtracks through an impossible predecessor, even in hopeless scenes.
-    unreach = 1e3 * config.big
-    ip, jp, ok = _predecessors(V, config)
-    init = jnp.full((N, V, M), unreach, node.dtype).at[0, j0, m0].set(0.0)
+# ----------------------------------------------------------------------------- the DP
 
-    def step(val, nk):
-        pred = val[ip[:, :, None], jp[None, :, :]]  # (N, V, M', M)
-        pred = jnp.where(ok[..., None], pred, unreach) + jerk
+@functools.lru_cache(maxsize=None)
+def _substep_tables(config: SpeedConfig):
+    """Static ``(V, M, n_sub + 1)`` tables for the sub-steps ``q = 0..n_sub`` of a segment
+    starting at speed j with acceleration offset m: station offset (rounded, in ds),
+    whether it is slower than ``keep_clear_v``, and its speed (m/s)."""
+    c = config
+    offs = np.asarray(c.accel_offsets)
+    j = np.arange(c.n_v)[:, None, None]
+    m = offs[None, :, None]
+    q = np.arange(0, c.n_sub + 1)[None, None, :] / c.n_sub
+    r = np.round(2 * j * q + m * q * q).astype(np.int32)
+    v = (j + m * q) * c.dv
+    return r, (v < c.keep_clear_v).astype(np.int32), v
+
+
+def segment_cost(g, v, big):
+    """Obstacle cost of a segment from its table values at the sub-steps ``q = 0..n_sub``
+    (``g (..., n_sub + 1)``; the knot it starts from first), the speeds there ``v`` and the
+    collision cost ``big`` (``SpeedConfig.big``, added to the tables inside boundaries): the
+    per-second costs of sub-steps 1..n, and for every sub-step that *enters* a blocking
+    boundary (inside it, not inside at the sub-step before) ``big * (1 + v / COLLISION_V)``.
+    So among profiles that cannot avoid a collision the DP picks the one that hits at the
+    lowest speed (braking), not the one that spends the least time inside the boundary."""
+    inside = g >= 0.5 * big
+    rate = jnp.where(inside, g - big, g)[..., 1:]
+    enter = inside[..., 1:] & ~inside[..., :-1]
+    return jnp.sum(rate + jnp.where(enter, big * (1.0 + v[..., 1:] / COLLISION_V), 0.0), -1)
+
+
+def _forward(d: DPCosts, config: SpeedConfig, temperature=None, probes=None):
+    """Forward pass over the band. Returns (final values ``(V_n, S_n)`` incl. terminal,
+    argmins per step ``[(V_k, S_k)]`` for k >= 2).
+
+    Values are kept speed-major, ``(V, S)``: for a target speed j' and an acceleration
+    offset m, the predecessors of the band's stations are one contiguous run of stations
+    at speed ``j' - off[m]``, and each sub-step's costs one contiguous run of a table row,
+    so every read is a window (``lax.dynamic_slice``), not a scalar gather.
+    """
+    c = config
+    bw = band_widths(c)
+    offs = np.asarray(c.accel_offsets)
+    M = len(offs)
+    U0, X, F = _u0(c), d.table.shape[-1], d.table.shape[1]
+    ns = c.n_sub
+    R, SLOW, VQ = (jnp.asarray(a) for a in _substep_tables(c))
+    big_u = unreach(c)
+    dtype = d.table.dtype
+    S_max = max(b[0] for b in bw)
+    flat = jnp.concatenate([d.table.reshape(-1), jnp.zeros((S_max + 1,), dtype)])
+    node_t = d.node.T  # (V, X)
+    offs_j = jnp.asarray(offs)
+
+    def node_cost(k, ilo, jlo, S, V):  # (V, S) at knot k = 1..n_t
+        nc = jax.lax.dynamic_slice(node_t, (jlo, U0 + ilo), (V, S))
+        j = jlo + jnp.arange(V)
+        nc = nc + jnp.where(d.goal_k[k - 1], d.goal_v[j], 0.0)[:, None]
+        if probes is not None:
+            nc = nc + probes[k - 1]
+        return nc
+
+    S1, V1 = bw[0]
+    i1 = d.ilo[0] + jnp.arange(S1)
+    j1 = d.jlo[0] + jnp.arange(V1)
+    val = jnp.where(i1[None, :] == j1[:, None], d.first[j1][:, None], big_u)
+    val = jnp.minimum(val + node_cost(1, d.ilo[0], d.jlo[0], S1, V1), big_u)
+    args = []
+    q = jnp.arange(0, ns + 1)
+    for k in range(2, c.n_t + 1):  # unrolled: the band changes size every step
+        S, V = bw[k - 1]
+        Sp, Vp = bw[k - 2]
+        ilo, jlo, ilo_p, jlo_p = d.ilo[k - 1], d.jlo[k - 1], d.ilo[k - 2], d.jlo[k - 2]
+        j2 = jlo + jnp.arange(V)
+        js = j2[:, None] - offs_j[None, :]  # (V, M) speed at the segment start
+        o = ilo - 2 * j2[:, None] + offs_j[None, :]  # (V, M) station of the first target's start
+        # predecessors: value at (station o + a - ilo_p, speed js - jlo_p), a = 0..S-1
+        pr, pc = S + 2 * c.n_v + M + 2, M + 1
+        vp = jnp.pad(val, ((pc, pc), (pr, pr)), constant_values=big_u)
+        r0 = jnp.clip(o - ilo_p + pr, 0, Sp + 2 * pr - S)
+        c0 = jnp.clip(js - jlo_p + pc, 0, Vp + 2 * pc - 1)
+        win = lambda ci, ri: jax.lax.dynamic_slice(vp, (ci, ri), (1, S))[0]
+        pred = jax.vmap(jax.vmap(win))(c0, r0)  # (V, M, S)
+        # obstacle costs of the segment's sub-steps: a window of one table row each
+        jc = jnp.clip(js, 0, c.n_v - 1)
+        mm = jnp.arange(M)[None, :]
+        r = R[jc, mm]  # (V, M, ns + 1) station offsets of the sub-steps (the start knot first)
+        layer = SLOW[jc, mm]
+        start = layer * (F * X) + ((k - 1) * ns + q)[None, None, :] * X + U0 + o[..., None] + r  # (V, M, ns + 1)
+        start = jnp.clip(start, 0, flat.shape[0] - S)
+        row = lambda st: jax.lax.dynamic_slice(flat, (st,), (S,))
+        g = jax.vmap(jax.vmap(jax.vmap(row)))(start)  # (V, M, ns + 1, S)
+        obst = segment_cost(jnp.moveaxis(g, 2, -1), VQ[jc, mm][:, :, None, :], c.big)  # (V, M, S)
+        tot = pred + obst + d.accel.astype(dtype)[None, :, None]  # (V, M, S)
         if temperature is None:
-            best = jnp.min(pred, -1)
-            arg = jnp.argmin(pred, -1).astype(jnp.int8)
+            args.append(jnp.argmin(tot, 1).astype(jnp.int8))
+            best = jnp.min(tot, 1)
         else:
-            best = -temperature * jax.nn.logsumexp(-pred / temperature, -1)
-            arg = jnp.zeros(pred.shape[:-1], jnp.int8)
-        new = jnp.minimum(best + nk[:, :, None] + accel, unreach)
-        return new, arg
-
-    final, args = lax.scan(step, init, node)
-    return final + terminal[:, :, None], args
+            best = -temperature * jax.nn.logsumexp(-tot / temperature, 1)
+        val = jnp.minimum(best + node_cost(k, ilo, jlo, S, V), big_u)
+    Sn, Vn = bw[-1]
+    term = jax.lax.dynamic_slice(d.terminal.T, (d.jlo[-1], U0 + d.ilo[-1]), (Vn, Sn))
+    return val + term, args
 
 
-def _backtrack(final, args, config: SpeedConfig):
-    V, M = config.n_v, len(config.accel_offsets)
-    offs = jnp.asarray(config.accel_offsets)
+def _backtrack(final, args, d: DPCosts, config: SpeedConfig):
+    """Station and speed indices ``(n_t,)`` at t_1..t_n and the total cost."""
+    c = config
+    bw = band_widths(c)
+    offs = jnp.asarray(c.accel_offsets)
+    Sn = bw[-1][0]
     flat = jnp.argmin(final)
     cost = final.reshape(-1)[flat]
-    i, j, m = flat // (V * M), (flat // M) % V, flat % M
-
-    def back(state, arg):
-        i, j, m = state
-        mp = arg[i, j, m].astype(jnp.int32)
-        return (i - j, j - offs[m], mp), (i, j, m)
-
-    _, (ii, jj, mm) = lax.scan(back, (i, j, m), args, reverse=True)
-    return ii, jj, offs[mm], cost
-
-
-def dp_from_costs(node, accel, jerk, terminal, j0, m0, config: SpeedConfig):
-    """Exact DP on given cost tensors. Returns (station idx ``(n_t,)`` at t_1..t_n,
-    speed idx ``(n_t,)``, accel offsets ``(n_t,)``, total cost)."""
-    final, args = _dp(node, accel, jerk, terminal, j0, m0, config)
-    return _backtrack(final, args, config)
+    pj, pi = flat // Sn, flat % Sn
+    i, j = d.ilo[-1] + pi, d.jlo[-1] + pj
+    ii, jj = [i], [j]
+    for k in range(c.n_t, 1, -1):
+        m = args[k - 2][j - d.jlo[k - 1], i - d.ilo[k - 1]].astype(jnp.int32)
+        jp = j - offs[m]
+        i, j = i - j - jp, jp
+        ii.append(i)
+        jj.append(j)
+    return jnp.stack(ii[::-1]), jnp.stack(jj[::-1]), cost
 
 
-def soft_value(node, accel, jerk, terminal, j0, m0, config: SpeedConfig, temperature):
+def dp_from_costs(d: DPCosts, config: SpeedConfig):
+    """Exact DP on given cost tensors. Returns (station idx ``(n_t,)`` at t_1..t_n, speed
+    idx ``(n_t,)``, total cost)."""
+    final, args = _forward(d, config)
+    return _backtrack(final, args, d, config)
+
+
+def soft_value(d: DPCosts, config: SpeedConfig, temperature, probes=None):
     """Soft-min DP value (a smooth lower bound of the DP optimum; equal as temperature -> 0)."""
-    final, _ = _dp(node, accel, jerk, terminal, j0, m0, config, temperature)
+    final, _ = _forward(d, config, temperature, probes)
     return -temperature * jax.nn.logsumexp(-final / temperature)
 
 
+def profile_cost(d: DPCosts, config: SpeedConfig, j_seq):
+    """Cost of one knot-speed sequence ``j_seq (n_t,)`` (host numpy loops, independent of the
+    DP's band and windows: the brute-force reference). ``inf`` when not a valid profile."""
+    c = config
+    table, node, terminal = (np.asarray(a, np.float64) for a in (d.table, d.node, d.terminal))
+    first, accel, gv, gk = (np.asarray(a, np.float64) for a in (d.first, d.accel, d.goal_v, d.goal_k))
+    offs = list(c.accel_offsets)
+    U0, X, ns = _u0(c), table.shape[-1], c.n_sub
+    j_seq = [int(j) for j in j_seq]
+    if not 0 <= j_seq[0] < c.n_v or first[j_seq[0]] >= unreach(c):
+        return np.inf
+    i, cost = j_seq[0], first[j_seq[0]] + node[U0 + j_seq[0], j_seq[0]] + (gv[j_seq[0]] if gk[0] else 0.0)
+    for k in range(1, c.n_t):
+        j, j2 = j_seq[k - 1], j_seq[k]
+        if j2 - j not in offs or not 0 <= j2 < c.n_v:
+            return np.inf
+        m = j2 - j
+        inside_prev = None
+        for q in range(0, ns + 1):
+            u = min(max(U0 + i + int(np.round(2 * j * q / ns + m * (q / ns) ** 2)), 0), X - 1)
+            v = (j + m * q / ns) * c.dv
+            g = table[int(v < c.keep_clear_v), k * ns + q, u]
+            inside = g >= 0.5 * c.big
+            if q > 0:
+                cost += g - c.big if inside else g
+                if inside and not inside_prev:
+                    cost += c.big * (1.0 + v / COLLISION_V)
+            inside_prev = inside
+        cost += accel[offs.index(m)]
+        i = i + j + j2
+        cost += node[min(U0 + i, X - 1), j2] + (gv[j2] if gk[k] else 0.0)
+    return cost + terminal[min(U0 + i, X - 1), j_seq[-1]]
+
+
+# ----------------------------------------------------------------------------- plans
+
 def make_scene(path: ReferenceLine, obstacles: Obstacles, config: SpeedConfig, vehicle=None, s0=0.0,
-               keep_clear=None) -> tuple[PathProfile, SpeedScene]:
+               keep_clear=None, v0=0.0, road=None) -> tuple[PathProfile, SpeedScene]:
     """Path profile on the DP station grid and the scene boundaries."""
     vehicle = VehicleParams() if vehicle is None else vehicle
     profile = path_profile(path, s0, config.n_s, config.ds)
-    return profile, build_scene(profile, obstacles, vehicle, config, keep_clear)
+    return profile, build_scene(profile, obstacles, vehicle, config, keep_clear, v0, road)
 
 
-def _plan_one(path, obstacles, v0, a0, s0, keep_clear, vehicle, config, weights):
-    _, scene = make_scene(path, obstacles, config, vehicle, s0, keep_clear)
-    costs = stage_costs(scene, config, weights, v0, a0)
-    ii, jj, aa, cost = dp_from_costs(*costs, config)
-    node = costs[0]
-    dtype = node.dtype
-    s = jnp.concatenate([jnp.zeros((1,), dtype), ii.astype(dtype) * config.ds])
+def _plan_one(path, obstacles, v0, a0, s0, keep_clear, road, vehicle, config, weights):
+    _, scene = make_scene(path, obstacles, config, vehicle, s0, keep_clear, v0, road)
+    d = stage_costs(scene, config, weights, v0, a0)
+    ii, jj, cost = dp_from_costs(d, config)
+    return _plan_from_indices(ii, jj, cost, d, v0, config, scene)
+
+
+def _plan_from_indices(ii, jj, cost, d, v0, config, scene):
+    dtype = d.table.dtype
+    v0 = jnp.clip(jnp.asarray(v0, dtype), 0.0, config.v_max)
+    s = jnp.concatenate([jnp.zeros((1,), dtype), d.c0 + ii.astype(dtype) * config.ds])
+    v = jnp.concatenate([v0[None], jj.astype(dtype) * config.dv])
     t = jnp.arange(config.n_t + 1, dtype=dtype) * config.dt
-    return SpeedPlan(t, s, jj.astype(dtype) * config.dv, aa.astype(dtype) * config.da, cost,
-                     cost < 0.5 * config.big, scene)
+    return SpeedPlan(t, s, v, jnp.diff(v) / config.dt, cost, cost < 0.5 * config.big, scene)
 
 
-def _expected_one(path, obstacles, v0, a0, s0, keep_clear, vehicle, config, weights, temperature):
-    _, scene = make_scene(path, obstacles, config, vehicle, s0, keep_clear)
-    node, *rest = stage_costs(scene, config, weights, v0, a0)
-    probe = jnp.zeros_like(node)
-    value, p = jax.value_and_grad(lambda pr: soft_value(node + pr, *rest, config, temperature))(probe)
-    dtype = node.dtype
-    i = jnp.arange(config.n_s, dtype=dtype)[:, None] * config.ds
-    j = jnp.arange(config.n_v, dtype=dtype)[None, :] * config.dv
-    es = jnp.sum(p * i, (-2, -1))
-    ev = jnp.sum(p * j, (-2, -1))
+def _expected_one(path, obstacles, v0, a0, s0, keep_clear, road, vehicle, config, weights, temperature):
+    _, scene = make_scene(path, obstacles, config, vehicle, s0, keep_clear, v0, road)
+    d = stage_costs(scene, config, weights, v0, a0)
+    bw = band_widths(config)
+    probes = [jnp.zeros((b[1], b[0]), d.table.dtype) for b in bw]
+    value, p = jax.value_and_grad(lambda pr: soft_value(d, config, temperature, pr))(probes)
+    dtype = d.table.dtype
+    es, ev = [], []
+    for k, (pk, (S, V)) in enumerate(zip(p, bw)):
+        i = (d.ilo[k] + jnp.arange(S)).astype(dtype)[None, :]
+        j = (d.jlo[k] + jnp.arange(V)).astype(dtype)[:, None]
+        es.append(d.c0 + config.ds * jnp.sum(pk * i))
+        ev.append(config.dv * jnp.sum(pk * j))
+    v0c = jnp.clip(jnp.asarray(v0, dtype), 0.0, config.v_max)
     t = jnp.arange(config.n_t + 1, dtype=dtype) * config.dt
-    s = jnp.concatenate([jnp.zeros((1,), dtype), es])
-    a = jnp.diff(jnp.concatenate([jnp.reshape(v0, (1,)).astype(dtype), ev])) / config.dt
-    return SpeedPlan(t, s, ev, a, value, value < 0.5 * config.big, scene)
+    s = jnp.concatenate([jnp.zeros((1,), dtype), jnp.stack(es)])
+    v = jnp.concatenate([v0c[None], jnp.stack(ev)])
+    return SpeedPlan(t, s, v, jnp.diff(v) / config.dt, value, value < 0.5 * config.big, scene)
 
 
-def _batched(fn, batch_ndim, args, static):
-    f = lambda *a: fn(*a, *static)
+def _batched(fn, batch_ndim, args):
+    f = fn
     for _ in range(batch_ndim):
         f = jax.vmap(f)
     return f(*args)
@@ -411,9 +813,29 @@ def _check_inputs(path, obstacles, config, v0, weights):
         weights.validate()
 
 
+def _prepare(path, obstacles, v0, a0, s0, road, weights):
+    dtype = path.xy.dtype
+    nb = path.xy.ndim - 2
+    shape = path.xy.shape[:nb]
+    v0, a0, s0 = (jnp.broadcast_to(jnp.asarray(x, dtype), shape) for x in (v0, a0, s0))
+    weights = jax.tree_util.tree_map(lambda w: jnp.broadcast_to(jnp.asarray(w, dtype), shape), weights)
+    if road is None:
+        road = jax.tree_util.tree_map(lambda x: jnp.broadcast_to(x, shape + x.shape), SpeedRoad.free(dtype))
+    return nb, v0, a0, s0, road, weights
+
+
+def _plan_impl(path, obstacles, v0, a0, s0, keep_clear, road, vehicle, weights, config):
+    nb, v0, a0, s0, road, weights = _prepare(path, obstacles, v0, a0, s0, road, weights)
+    fn = lambda p, o, v, a, s, kc, r, w: _plan_one(p, o, v, a, s, kc, r, vehicle, config, w)
+    return _batched(fn, nb, (path, obstacles, v0, a0, s0, keep_clear, road, weights))
+
+
+_plan_jit = jax.jit(_plan_impl, static_argnames=("config",))
+
+
 def plan_speed(path: ReferenceLine, obstacles: Obstacles, config: SpeedConfig = SpeedConfig(),
                weights: CostWeights | None = None, *, v0=0.0, a0=0.0, s0=0.0, keep_clear=None,
-               vehicle: VehicleParams | None = None) -> SpeedPlan:
+               vehicle: VehicleParams | None = None, road: SpeedRoad | None = None) -> SpeedPlan:
     """Exact DP speed plan along ``path``.
 
     Args:
@@ -423,6 +845,7 @@ def plan_speed(path: ReferenceLine, obstacles: Obstacles, config: SpeedConfig = 
             (shared by the batch) or ``(...)`` (one per scene).
         v0, a0, s0: ``(...)`` current speed, acceleration and station on the path.
         keep_clear: optional ``(vertices (..., R, P, 2), valid (..., R, P), active (..., R))``.
+        road: optional ``SpeedRoad`` with leading dims ``(...)`` (speed limit, stop, goal).
 
     Returns:
         ``SpeedPlan`` with leading dims ``(...)``.
@@ -430,30 +853,13 @@ def plan_speed(path: ReferenceLine, obstacles: Obstacles, config: SpeedConfig = 
     _check_inputs(path, obstacles, config, v0, weights)
     weights = CostWeights.default(path.xy.dtype) if weights is None else weights
     vehicle = VehicleParams() if vehicle is None else vehicle
-    return _plan_jit(path, obstacles, v0, a0, s0, keep_clear, vehicle, weights, config)
+    return _plan_jit(path, obstacles, v0, a0, s0, keep_clear, road, vehicle, weights, config)
 
 
-def _plan_impl(path, obstacles, v0, a0, s0, keep_clear, vehicle, weights, config):
-    dtype = path.xy.dtype
-    nb = path.xy.ndim - 2
-    shape = path.xy.shape[:nb]
-    v0, a0, s0 = (jnp.broadcast_to(jnp.asarray(x, dtype), shape) for x in (v0, a0, s0))
-    weights = jax.tree_util.tree_map(lambda w: jnp.broadcast_to(jnp.asarray(w, dtype), shape), weights)
-    return _batched(lambda *a: _plan_one(*a[:6], vehicle, config, a[6]), nb,
-                    (path, obstacles, v0, a0, s0, keep_clear, weights), ())
-
-
-_plan_jit = jax.jit(_plan_impl, static_argnames=("config",))
-
-
-def _expected_impl(path, obstacles, v0, a0, s0, keep_clear, vehicle, weights, temperature, config):
-    dtype = path.xy.dtype
-    nb = path.xy.ndim - 2
-    shape = path.xy.shape[:nb]
-    v0, a0, s0 = (jnp.broadcast_to(jnp.asarray(x, dtype), shape) for x in (v0, a0, s0))
-    weights = jax.tree_util.tree_map(lambda w: jnp.broadcast_to(jnp.asarray(w, dtype), shape), weights)
-    return _batched(lambda *a: _expected_one(*a[:6], vehicle, config, a[6], temperature), nb,
-                    (path, obstacles, v0, a0, s0, keep_clear, weights), ())
+def _expected_impl(path, obstacles, v0, a0, s0, keep_clear, road, vehicle, weights, temperature, config):
+    nb, v0, a0, s0, road, weights = _prepare(path, obstacles, v0, a0, s0, road, weights)
+    fn = lambda p, o, v, a, s, kc, r, w: _expected_one(p, o, v, a, s, kc, r, vehicle, config, w, temperature)
+    return _batched(fn, nb, (path, obstacles, v0, a0, s0, keep_clear, road, weights))
 
 
 _expected_jit = jax.jit(_expected_impl, static_argnames=("config",))
@@ -461,8 +867,9 @@ _expected_jit = jax.jit(_expected_impl, static_argnames=("config",))
 
 def expected_speed_profile(path: ReferenceLine, obstacles: Obstacles, config: SpeedConfig = SpeedConfig(),
                            weights: CostWeights | None = None, temperature=1.0, *, v0=0.0, a0=0.0,
-                           s0=0.0, keep_clear=None, vehicle: VehicleParams | None = None) -> SpeedPlan:
-    """Smooth (soft-min) DP: the expected station and segment speed under the Gibbs
+                           s0=0.0, keep_clear=None, vehicle: VehicleParams | None = None,
+                           road: SpeedRoad | None = None) -> SpeedPlan:
+    """Smooth (soft-min) DP: the expected knot station and speed under the Gibbs
     distribution of speed profiles ``p ~ exp(-cost / temperature)``.
 
     Differentiable in ``weights`` (for tuning against recorded profiles); as the
@@ -472,5 +879,5 @@ def expected_speed_profile(path: ReferenceLine, obstacles: Obstacles, config: Sp
     _check_inputs(path, obstacles, config, v0, weights)
     weights = CostWeights.default(path.xy.dtype) if weights is None else weights
     vehicle = VehicleParams() if vehicle is None else vehicle
-    return _expected_jit(path, obstacles, v0, a0, s0, keep_clear, vehicle, weights,
+    return _expected_jit(path, obstacles, v0, a0, s0, keep_clear, road, vehicle, weights,
                          jnp.asarray(temperature, path.xy.dtype), config)

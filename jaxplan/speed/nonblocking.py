@@ -1,17 +1,25 @@
 """Blocking vs non-blocking obstacles, their decisions, and keep-clear road regions.
 
-Regions of a configurable width are projected outward from the left and right
-of the first trajectory (the car's footprint driven along the path). An obstacle
-whose prediction overlaps the footprint at some time is *blocking*; one that
-overlaps only a side region is *non-blocking*, and gets a decision:
+The car's band along the path (its width plus a buffer) and two strips of a configurable
+width left and right of it are the regions (``st_boundary``); every obstacle is projected
+to the path frame once per time, so the strips reach beside and behind the car (negative
+stations) as well as ahead. An obstacle whose prediction enters the car's band at some
+time is *blocking*, unless it is **behind**: at the first time it enters the band its
+centre lies behind the car's centre even if the car braked at ``a_min`` from now (it would
+drive into the car; recorded traffic does not react, and such a contact is the other
+road user's fault). An obstacle that is not blocking (or is behind) and enters a side
+strip is *non-blocking*, and gets decisions:
 
-* ``no_bypass``: stay behind it (do not pass it), for moving neighbours on the
-  configured no-overtake side (the left, where overtaking on the right is illegal);
-* ``blind_zone``: do not stay alongside its blind zone (beside its rear), for
-  every moving neighbour.
+* ``no_bypass``: stay behind it (do not pass it), for moving neighbours on the configured
+  no-overtake side (the left, where overtaking on the right is illegal) that are **ahead**
+  of the car when they first come beside the path (its rear ahead of the car's front at
+  the car's current speed): a neighbour the car is already beside or ahead of is no
+  reason to brake;
+* ``blind_zone``: do not stay alongside its blind zone (beside its rear), for every moving
+  neighbour.
 
-Keep-clear regions (a junction box, a crosswalk: convex polygons) project onto
-the path as a station range where the car must not stop.
+Keep-clear regions (a junction box, a crosswalk: convex polygons) project onto the path
+as a station range where the car must not stop.
 """
 from __future__ import annotations
 
@@ -24,7 +32,8 @@ import jax.numpy as jnp
 from jaxplan.geometry.boxes import box_corners
 from jaxplan.geometry.polygons import has_overlap
 from jaxplan.speed.path_profile import PathProfile
-from jaxplan.speed.st_boundary import STBoundary, blocking_boundaries, car_probes, station_intervals
+from jaxplan.speed.st_boundary import (BIG, ObstaclesSL, STBoundary, blocking_boundaries, car_extent, car_probes,
+                                       side_boundaries)
 from jaxplan.types import Obstacles, VehicleParams
 
 LEFT, RIGHT, NONE = 1, -1, 0
@@ -36,38 +45,29 @@ class Classified:
     """Obstacles sorted into blocking / non-blocking, with decisions.
 
     Attributes:
-        blocking: ``STBoundary`` ``(K, T)`` in the car's reference station.
-        side: ``STBoundary`` ``(K, T)`` road stations the obstacle covers in the
-            side region it was assigned to (union of left and right).
-        is_blocking, is_nonblocking: ``(K,)`` bool.
+        blocking: ``STBoundary`` ``(K, T)`` in the car's reference station (``hit`` False
+            for obstacles that are not blocking, e.g. behind).
+        side: ``STBoundary`` ``(K, T)`` road stations the obstacle covers in the side strip
+            it was assigned to (union of left and right), non-blocking obstacles only.
+        is_blocking, is_nonblocking, behind: ``(K,)`` bool (``behind``: it enters the car's
+            band but behind the car, so it is ignored as blocking).
         side_of: ``(K,)`` int, +1 left, -1 right, 0 neither (or blocking).
         no_bypass, blind_zone: ``(K,)`` bool decisions.
         size: ``(K,)`` footprint area (m^2) of each obstacle.
+        v_along: ``(K, T)`` speed of each obstacle along the path (m/s, from its centre's
+            station over time).
     """
 
     blocking: Any
     side: Any
     is_blocking: Any
     is_nonblocking: Any
+    behind: Any
     side_of: Any
     no_bypass: Any
     blind_zone: Any
     size: Any
-
-
-def side_probes(profile: PathProfile, vehicle: VehicleParams, width, side: int):
-    """Strips ``(N, 5)`` of ``width`` beside the car's footprint, one per station.
-
-    A strip is centred on the station (the car's reference point moved sideways),
-    one station step long and ``width`` wide; ``side`` +1 left, -1 right.
-    """
-    ds = profile.s[1] - profile.s[0]
-    off = side * (0.5 * vehicle.width + 0.5 * width)
-    nx, ny = -jnp.sin(profile.theta), jnp.cos(profile.theta)
-    cx = profile.xy[..., 0] + off * nx
-    cy = profile.xy[..., 1] + off * ny
-    one = jnp.ones_like(cx)
-    return jnp.stack([cx, cy, one * ds * 1.001, one * width, profile.theta], -1)
+    v_along: Any
 
 
 def obstacle_speed(obstacles: Obstacles):
@@ -80,27 +80,64 @@ def obstacle_speed(obstacles: Obstacles):
     return jnp.where(n > 0, jnp.sum(jnp.where(ok, d, 0.0), -1) / jnp.maximum(n, 1e-6), 0.0)
 
 
-def classify(profile: PathProfile, obstacles: Obstacles, vehicle: VehicleParams, *,
+def along_speed(osl: ObstaclesSL, t):
+    """``(K, T)`` rate of each obstacle's centre station (m/s; 0 where not known)."""
+    s = osl.centre[..., 0]
+    ok = osl.valid[..., 1:] & osl.valid[..., :-1]
+    r = jnp.where(ok, jnp.diff(s, axis=-1) / jnp.maximum(jnp.diff(t), 1e-6), 0.0)
+    return jnp.concatenate([r, r[..., -1:]], -1)
+
+
+def _first(hit):
+    """Index ``(K,)`` of the first True along the last axis (0 where none)."""
+    return jnp.argmax(hit, -1)
+
+
+def braking_station(v0, a_min, t):
+    """Stations ``(T,)`` of the car braking at ``a_min < 0`` from speed ``v0`` (then stopped)."""
+    tc = jnp.minimum(t, v0 / jnp.maximum(-a_min, 1e-6))
+    return v0 * tc + 0.5 * a_min * tc * tc
+
+
+def classify(osl: ObstaclesSL, obstacles: Obstacles, vehicle: VehicleParams, t, v0=0.0, a_min=-5.0, *,
              side_width=3.5, buffer=0.0, no_overtake_side: int = LEFT, v_moving=1.0) -> Classified:
-    """Blocking / non-blocking classification with decisions. Obstacles ``(K, T, 5)``."""
-    blk = blocking_boundaries(profile, obstacles, vehicle, buffer)
-    left = station_intervals(side_probes(profile, vehicle, side_width, LEFT), profile.s, obstacles)
-    right = station_intervals(side_probes(profile, vehicle, side_width, RIGHT), profile.s, obstacles)
-    is_blk = jnp.any(blk.hit, -1)
+    """Blocking / non-blocking classification with decisions.
+
+    Args:
+        osl: obstacles in the path frame ``(K, T)``, stations relative to the car's
+            reference point now; obstacles: the same obstacles (boxes ``(K, T, 5)``) for
+            their speed and size; t: ``(T,)`` times from now.
+        v0, a_min: the car's speed now and hardest braking (for the ``behind`` rule).
+    """
+    dtype = osl.corners.dtype
+    t = jnp.asarray(t, dtype)
+    blk = blocking_boundaries(osl, vehicle, buffer)
+    left = side_boundaries(osl, vehicle, side_width, LEFT, buffer)
+    right = side_boundaries(osl, vehicle, side_width, RIGHT, buffer)
+    enters = jnp.any(blk.hit, -1)
+    f = _first(blk.hit)
+    centre = 0.5 * (jnp.take_along_axis(blk.lower, f[:, None], -1) + jnp.take_along_axis(blk.upper, f[:, None], -1))[:, 0]
+    behind = enters & (centre < braking_station(jnp.asarray(v0, dtype), a_min, t[f]))
+    is_blk = enters & ~behind
+    blk = STBoundary(blk.lower, blk.upper, blk.hit & is_blk[:, None])
     nl, nr = jnp.sum(left.hit, -1), jnp.sum(right.hit, -1)
     is_nb = ~is_blk & ((nl + nr) > 0)
     side_of = jnp.where(is_nb, jnp.where(nl >= nr, LEFT, RIGHT), NONE)
     hit = left.hit | right.hit
-    big = jnp.asarray(1e9, profile.s.dtype)
+    big = jnp.asarray(BIG, dtype)
     lo = jnp.minimum(jnp.where(left.hit, left.lower, big), jnp.where(right.hit, right.lower, big))
     hi = jnp.maximum(jnp.where(left.hit, left.upper, -big), jnp.where(right.hit, right.upper, -big))
     side = STBoundary(lo, hi, hit & is_nb[..., None])
     moving = obstacle_speed(obstacles) > v_moving
-    no_bypass = is_nb & moving & (side_of == no_overtake_side)
+    front, _ = car_extent(vehicle, dtype)
+    fs = _first(side.hit)
+    rear_first = jnp.take_along_axis(side.lower, fs[:, None], -1)[:, 0]
+    ahead = rear_first > jnp.asarray(v0, dtype) * t[fs] + front
+    no_bypass = is_nb & moving & (side_of == no_overtake_side) & ahead
     blind = is_nb & moving
     b0 = jnp.max(jnp.where(obstacles.valid[..., None], obstacles.boxes, 0.0), axis=-2)
     size = b0[..., 2] * b0[..., 3]
-    return Classified(blk, side, is_blk, is_nb, side_of, no_bypass, blind, size)
+    return Classified(blk, side, is_blk, is_nb, behind, side_of, no_bypass, blind, size, along_speed(osl, t))
 
 
 def keep_clear_intervals(profile: PathProfile, vehicle: VehicleParams, vertices, valid=None, active=None):
@@ -119,7 +156,7 @@ def keep_clear_intervals(profile: PathProfile, vehicle: VehicleParams, vertices,
     hits = has_overlap(corners, vertices[:, None], None, valid[:, None])  # (R, N)
     if active is not None:
         hits = hits & jnp.asarray(active)[:, None]
-    big = jnp.asarray(1e9, profile.s.dtype)
+    big = jnp.asarray(BIG, profile.s.dtype)
     lower = jnp.min(jnp.where(hits, profile.s, big), -1)
     upper = jnp.max(jnp.where(hits, profile.s, -big), -1)
     return lower, upper, jnp.any(hits, -1)

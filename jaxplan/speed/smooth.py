@@ -1,105 +1,342 @@
-"""Optional smoothing QP after the DP (piecewise-jerk style, solved with qpax).
+"""The smoothing QP after the DP: the executed speed profile (piecewise-jerk, every ``qp_dt``).
 
-Variables: the stations ``s_0..s_{n-1}`` every ``h = dt / n_sub`` (the DP's
-sub-steps). Speed, acceleration and jerk are finite differences. Minimise
+Variables: the accelerations ``a_1..a_n`` at the times ``k h`` (``h = qp_dt``, ``n h`` the
+horizon); the acceleration is linear between samples (constant jerk), starting at the
+car's ``a_0``, and speed and station are its exact integrals from ``v_0``
+(``v_{k+1} = v_k + h (a_k + a_{k+1}) / 2``, ``s_{k+1} = s_k + h v_k + h^2 (a_k / 3 +
+a_{k+1} / 6)``). So the speed difference over a step is the mean of two sampled
+accelerations: bounding the samples bounds what a finite difference of the executed
+states sees. Minimise
 
-    w_ref |s - s_dp|^2 + w_vref |v - v_dp|^2 + w_acc |a|^2 + w_jerk |jerk|^2
+    sum_k  w_ref (s_k - s_ref)^2 + w_vref (v_k - v_ref)^2 + w_acc a_k^2 + w_jerk j_k^2  (times h)
 
-subject to ``s_0 = 0``, ``v_0 = v0``, ``0 <= v <= v_max``, ``a_min <= a <= a_max``
-and the station corridor the DP chose: behind every blocking boundary the DP
-stayed behind (``s <= lower - ds``) and ahead of every one it passed
-(``s >= upper + ds``). ``s_dp``, ``v_dp`` are the DP's monotone cubic.
+subject to ``a_brake <= a_k <= a_max``, ``|j_k| <= jerk_max``, ``0 <= v_k <= v_limit_k`` and
+``lower_k <= s_k <= upper_k``: the station corridor the DP chose, per obstacle and time
+(behind every blocking boundary the DP stayed behind, ahead of every one it passed).
+
+The QP is always feasible: the corridor and the speed limit are relaxed to what the
+hardest braking the limits allow reaches (``hardest_braking``: the jerk-limited stop at
+``a_brake``): ``upper_k >= s_brake_k``, ``lower_k <= s_brake_k``, and the limit to what braking
+at ``LIMIT_DECEL`` reaches. Where the DP could not avoid a boundary, only the hardest braking
+is left there, and ``slack`` (how far the corridor had to be widened) says so. The
+references are clipped into the corridor, so the QP tracks the boundary, not the DP's
+profile through an obstacle.
+
+The solver is ADMM (OSQP's iteration) on the fixed matrices of this QP: the Hessian and the
+constraint matrix depend only on the weights and the grid, so they are equilibrated
+(Ruiz) and the KKT matrix is inverted once on the host for a ladder of step sizes ``rho``;
+each iteration is a few dense matrix-vector products, and ``rho`` adapts (OSQP's rule,
+snapped to the ladder) between phases of iterations, until the primal and dual residuals
+are small (``ok``) or a phase budget is spent.
 """
 from __future__ import annotations
 
 import dataclasses
+import functools
 from typing import Any
 
 import jax
 import jax.numpy as jnp
 import numpy as np
-import qpax
 
-from jaxplan.speed.compose import speed_profile_at
-from jaxplan.speed.dp import SpeedConfig
+from jaxplan.speed.dp import SpeedConfig, SpeedPlan, profile_at
+
+INF = 1e20
+RHO_LADDER = tuple(float(r) for r in 10.0 ** np.linspace(-3, 3, 13))
+SIGMA = 1e-6  # proximal term of the x-update
+LIMIT_DECEL = 3.0  # m/s^2: the speed limit of the QP is relaxed to what braking at this meets
+V_TOL = 0.01  # m/s: speeds down to -V_TOL are feasible in the QP (the output is held at 0)
 
 
-# Half-width (m) of the trust region around the DP profile.
-TRUST = 30.0
+@dataclasses.dataclass(frozen=True)
+class SmoothWeights:
+    """Weights of the smoothing QP (static: its matrices are built from them once)."""
+
+    w_ref: float = 1.0
+    w_vref: float = 1.0
+    w_acc: float = 1.0
+    w_jerk: float = 0.3
+
+
+@dataclasses.dataclass(frozen=True)
+class SolverConfig:
+    """ADMM settings: at least ``min_phases`` and at most ``phases`` phases of ``iters``
+    iterations (it stops once the residuals are below ``eps_prim`` / ``eps_dual``; under
+    ``vmap`` when every scene is), relaxation ``alpha``, the first step size ``rho0``."""
+
+    phases: int = 16
+    min_phases: int = 4
+    iters: int = 25
+    alpha: float = 1.6
+    rho0: float = 0.1
+    eps_prim: float = 1e-2
+    eps_dual: float = 5e-3
 
 
 @jax.tree_util.register_dataclass
 @dataclasses.dataclass(frozen=True)
-class SmoothWeights:
-    w_ref: Any = 1.0
-    w_vref: Any = 0.5
-    w_acc: Any = 1.0
-    w_jerk: Any = 0.2
+class SpeedProfile:
+    """The executed speed profile of one scene (add leading dims for batches).
 
-
-def _diff_ops(n, h):
-    """Finite-difference matrices: velocity ``(n-1, n)``, acceleration ``(n-2, n)``, jerk ``(n-3, n)``."""
-    d1 = (np.eye(n, k=1) - np.eye(n))[:-1] / h
-    d2 = (np.diff(np.eye(n), 2, axis=0)) / h ** 2
-    d3 = (np.diff(np.eye(n), 3, axis=0)) / h ** 3
-    return d1, d2, d3
-
-
-def corridor(plan, config: SpeedConfig, s_ref):
-    """Station bounds ``(F,)`` from the DP's side of each blocking boundary.
-
-    Args:
-        plan: ``SpeedPlan`` of one scene (with its ``scene``); s_ref: ``(F,)`` DP stations
-            at the fine times.
+    Attributes:
+        t, s, v, a: ``(..., n + 1)`` at ``k qp_dt`` from now (``s[0] = 0``, ``v[0] = v0``).
+        jerk: ``(..., n)``.
+        ok: ``(...)`` the QP converged (else its last iterate, clipped and integrated, is
+            returned; the DP's profile only if that is not finite).
+        slack: ``(...)`` how far (m) the DP's corridor had to be widened to what the hardest
+            braking reaches: > 0 when it could not be kept within the limits.
+        r_prim, r_dual: ``(...)`` the solver's final residuals.
     """
-    b = plan.scene.classified.blocking
-    lo, hi, hit = b.lower, b.upper, b.hit  # (K, F)
-    behind = hit & (s_ref <= lo - config.ds + 1e-3)
-    ahead = hit & (s_ref >= hi + config.ds - 1e-3)
-    upper = jnp.min(jnp.where(behind, lo - config.ds, 1e4), 0)
-    lower = jnp.max(jnp.where(ahead, hi + config.ds, -1e4), 0)
-    return jnp.maximum(lower, -1e4), jnp.maximum(upper, jnp.maximum(lower, -1e4))
+
+    t: Any
+    s: Any
+    v: Any
+    a: Any
+    jerk: Any
+    ok: Any
+    slack: Any
+    r_prim: Any
+    r_dual: Any
 
 
-def smoothing_qp(s_ref, v_ref, v0, lower, upper, config: SpeedConfig, h: float, w: SmoothWeights):
-    """QP matrices ``(Q, q, A, b, G, g)`` for one scene; ``s_ref, v_ref, lower, upper`` ``(n,)``."""
+def _maps(n: int, h: float):
+    """Linear maps of the QP (float64): ``(v, s) = M_x x + M_y [a0, v0]`` for accelerations
+    ``x (n,)``: returns Va, Vy, Sa, Sy ``(n, n) / (n, 2)``."""
+    def simulate(a_full, v0):
+        v = np.zeros(n + 1)
+        s = np.zeros(n + 1)
+        v[0] = v0
+        for k in range(n):
+            v[k + 1] = v[k] + h * 0.5 * (a_full[k] + a_full[k + 1])
+            s[k + 1] = s[k] + h * v[k] + h * h * (a_full[k] / 3.0 + a_full[k + 1] / 6.0)
+        return v[1:], s[1:]
+
+    Va, Sa = np.zeros((n, n)), np.zeros((n, n))
+    for i in range(n):
+        e = np.zeros(n + 1)
+        e[i + 1] = 1.0
+        Va[:, i], Sa[:, i] = simulate(e, 0.0)
+    e = np.zeros(n + 1)
+    e[0] = 1.0
+    va0, sa0 = simulate(e, 0.0)
+    vv0, sv0 = simulate(np.zeros(n + 1), 1.0)
+    return Va, np.stack([va0, vv0], 1), Sa, np.stack([sa0, sv0], 1)
+
+
+@functools.lru_cache(maxsize=None)
+def qp_matrices(n: int, h: float, w: SmoothWeights):
+    """The constant QP data (float64 numpy): ``P (n, n)``, the constraint matrix ``A (4n, n)``
+    with its row blocks [a, jerk, v, s], the affine parts (``Va, Vy, Sa, Sy, Ja, Jy``), the
+    Ruiz scalings ``D, E, c`` and the KKT inverses for ``RHO_LADDER``."""
+    Va, Vy, Sa, Sy = _maps(n, h)
+    I = np.eye(n)
+    Ja = (I - np.eye(n, k=-1)) / h  # j_k = (a_{k+1} - a_k) / h, a_0 in Jy
+    Jy = np.zeros((n, 2))
+    Jy[0, 0] = -1.0 / h
+    A = np.concatenate([I, Ja, Va, Sa])
+    P = 2.0 * h * (w.w_ref * Sa.T @ Sa + w.w_vref * Va.T @ Va + w.w_acc * I + w.w_jerk * Ja.T @ Ja)
+    # Ruiz equilibration of the KKT matrix [[P, A^T], [A, 0]]
+    D, E = np.ones(n), np.ones(A.shape[0])
+    Ps, As = P.copy(), A.copy()
+    for _ in range(25):
+        d = 1.0 / np.sqrt(np.maximum(np.maximum(np.abs(Ps).max(0), np.abs(As).max(0)), 1e-4))
+        ee = 1.0 / np.sqrt(np.maximum(np.abs(As).max(1), 1e-4))
+        Ps = d[:, None] * Ps * d[None, :]
+        As = ee[:, None] * As * d[None, :]
+        D, E = D * d, E * ee
+    c = 1.0 / max(np.abs(Ps).max(1).mean(), 1e-4)
+    Ps = c * Ps
+    inv = np.stack([np.linalg.inv(Ps + SIGMA * np.eye(n) + r * As.T @ As) for r in RHO_LADDER])
+    return dict(Va=Va, Vy=Vy, Sa=Sa, Sy=Sy, Ja=Ja, Jy=Jy, A=A, P=P, D=D, E=E, c=c, Ps=Ps, As=As, inv=inv)
+
+
+def hardest_braking(a0, v0, n: int, h: float, config: SpeedConfig):
+    """The jerk-limited hardest braking from ``(a0, v0)`` in the QP's discretisation: the
+    acceleration falls at ``jerk_max`` to ``a_brake`` and rises again at ``jerk_max`` to 0 as
+    the car comes to a stop (early enough never to reverse, so it may end creeping at a few
+    tenths of a m/s). Returns
+    ``(s, v, a)`` each ``(n,)`` at ``k h``, k = 1..n: a profile within every limit, close
+    to the least station the limits allow."""
+    J, ab = config.jerk_max, config.a_brake
+
+    def step(c, _):
+        a, v, s = c
+        # keep braking harder unless the speed left after that step would be less than what
+        # the jerk-limited rise back to 0 still takes away: then rise
+        a_f = jnp.maximum(a - J * h, ab)
+        v_f = v + 0.5 * h * (a + a_f)
+        rising = v_f <= 0.5 * a_f * a_f / J + 0.5 * h * jnp.abs(a_f)
+        a1 = jnp.where(rising, jnp.minimum(a + J * h, 0.0), a_f)
+        v1 = v + 0.5 * h * (a + a1)
+        s1 = s + h * v + h * h * (a / 3.0 + a1 / 6.0)
+        return (a1, v1, s1), (s1, v1, a1)
+
+    f = jnp.result_type(a0, v0, jnp.float32)
+    _, out = jax.lax.scan(step, (jnp.asarray(a0, f), jnp.asarray(v0, f), jnp.zeros((), f)), None, length=n)
+    return out
+
+
+def leavable_a0(a0, v0, config: SpeedConfig):
+    """The car's acceleration as the QP starts from it: within ``[a_brake, a_max]``, and no
+    harder braking than the jerk limit can still end at rest without reversing
+    (``a0 >= -sqrt(jerk_max v0)``)."""
+    a0 = jnp.clip(a0, config.a_brake, config.a_max)
+    return jnp.maximum(a0, -jnp.sqrt(config.jerk_max * jnp.maximum(v0, 0.0)))
+
+
+def qp_problem(s_ref, v_ref, lower, upper, v_lim, a0, v0, config: SpeedConfig, w: SmoothWeights):
+    """The QP of one scene: ``(q (n,), l (4n,), u (4n,), slack ())`` for the constant ``P``,
+    ``A`` of ``qp_matrices`` (references, bounds and limits ``(n,)`` at ``k h``, k = 1..n;
+    ``a0`` one the car can leave, ``leavable_a0``)."""
     n = s_ref.shape[-1]
-    d1, d2, d3 = (jnp.asarray(m, s_ref.dtype) for m in _diff_ops(n, h))
-    eye = jnp.eye(n, dtype=s_ref.dtype)
-    Q = 2 * (w.w_ref * eye + w.w_vref * d1.T @ d1 + w.w_acc * d2.T @ d2 + w.w_jerk * d3.T @ d3)
-    q = -2 * (w.w_ref * s_ref + w.w_vref * d1.T @ v_ref[:-1])
-    A = jnp.stack([eye[0], d1[0]])
-    b = jnp.stack([jnp.zeros((), s_ref.dtype), jnp.asarray(v0, s_ref.dtype)])
-    G = jnp.concatenate([eye, -eye, d1, -d1, d2, -d2])
-    g = jnp.concatenate([upper, -lower, jnp.full((n - 1,), config.v_max), jnp.zeros((n - 1,)),
-                         jnp.full((n - 2,), config.a_max), jnp.full((n - 2,), -config.a_min)]).astype(s_ref.dtype)
-    return Q, q, A, b, G, g
+    h = config.qp_dt
+    m = qp_matrices(n, h, w)
+    f = s_ref.dtype
+    tk = h * jnp.arange(1, n + 1, dtype=f)
+    s_b, v_b, _ = hardest_braking(a0, v0, n, h, config)
+    # always feasible: the corridor widened to the hardest braking, the limit to braking at
+    # LIMIT_DECEL (and never below the hardest braking)
+    slack = jnp.max(jnp.maximum(s_b - upper, 0.0))
+    upper = jnp.maximum(upper, s_b + 0.02)
+    lower = jnp.minimum(lower, jnp.minimum(s_b, upper) - 0.02)
+    v_lim = jnp.maximum(v_lim, jnp.maximum(jnp.asarray(v0, f) - LIMIT_DECEL * tk, v_b) + 0.02)
+    # references inside the corridor: where the DP's profile leaves it, track the boundary
+    over = s_ref > upper
+    du = jnp.diff(jnp.concatenate([upper[:1], upper])) / h
+    v_ref = jnp.where(over, jnp.clip(du, 0.0, v_ref), v_ref)
+    s_ref = jnp.clip(s_ref, lower, upper)
+    y = jnp.stack([jnp.asarray(a0, f), jnp.asarray(v0, f)])
+    cv = jnp.asarray(m["Vy"], f) @ y
+    cs = jnp.asarray(m["Sy"], f) @ y
+    cj = jnp.asarray(m["Jy"], f) @ y
+    Va, Sa, Ja = (jnp.asarray(m[k], f) for k in ("Va", "Sa", "Ja"))
+    q = 2.0 * h * (w.w_ref * Sa.T @ (cs - s_ref) + w.w_vref * Va.T @ (cv - v_ref) + w.w_jerk * Ja.T @ cj)
+    full = lambda x: jnp.full((n,), x, f)
+    J = config.jerk_max
+    l = jnp.concatenate([full(config.a_brake), -J - cj, -V_TOL - cv, lower - cs])
+    u = jnp.concatenate([full(config.a_max), J - cj, v_lim - cv, upper - cs])
+    return q, l, u, slack
 
 
-def smooth_plan(plan, v0, config: SpeedConfig, w: SmoothWeights | None = None):
-    """Smoothed station profile of one scene's DP plan at the fine times.
+def admm(q, l, u, n: int, h: float, w: SmoothWeights, x0=None, solver: SolverConfig = SolverConfig()):
+    """OSQP-style ADMM for ``min 1/2 x'Px + q'x, l <= Ax <= u`` with the constant ``P, A`` of
+    ``qp_matrices(n, h, w)``. Returns (x ``(n,)``, primal residual, dual residual)."""
+    m = qp_matrices(n, h, w)
+    f = q.dtype
+    Ps, As = jnp.asarray(m["Ps"], f), jnp.asarray(m["As"], f)
+    D, E, c = jnp.asarray(m["D"], f), jnp.asarray(m["E"], f), m["c"]
+    inv = jnp.asarray(m["inv"], f)
+    ladder = jnp.asarray(RHO_LADDER, f)
+    qs = c * D * q
+    ls = jnp.where(l <= -INF / 2, -INF, E * l)
+    us = jnp.where(u >= INF / 2, INF, E * u)
+    x = jnp.zeros_like(qs) if x0 is None else x0 / D
+    z = jnp.clip(As @ x, ls, us)
+    y = jnp.zeros_like(z)
+    k0 = int(np.argmin(np.abs(np.log(np.asarray(RHO_LADDER)) - np.log(solver.rho0))))
+    sig, alpha = SIGMA, solver.alpha
 
-    Returns:
-        (t ``(F,)``, s ``(F,)``, v ``(F-1,)``, a ``(F-2,)``, feasible bool: the
-        solution meets the constraints within 1 cm / 0.05 m/s / 0.1 m/s^2).
-    """
-    w = SmoothWeights() if w is None else w
-    h = config.dt / config.n_sub
-    t = jnp.asarray(config.fine_times(), plan.s.dtype)
-    s_ref, v_ref, _ = speed_profile_at(plan.t, plan.s, v0, t)
-    lower, upper = corridor(plan, config, s_ref)
-    # a trust region around the DP profile keeps the interior point well scaled
-    lower = jnp.maximum(lower, s_ref - TRUST)
-    upper = jnp.maximum(jnp.minimum(upper, s_ref + TRUST), lower)
-    Q, q, A, b, G, g = smoothing_qp(s_ref, v_ref, v0, lower, upper, config, h, w)
-    x, _, _, _, _, _ = qpax.solve_qp(Q, q, A, b, G, g, solver_tol=1e-5, max_iter=40)
-    # qpax's own convergence flag stays False in float32 even at mm accuracy: check the
-    # constraints instead (1 cm, 0.05 m/s, 0.1 m/s^2 of slack)
-    slack = jnp.concatenate([jnp.full((2 * t.shape[0],), 1e-2), jnp.full((2 * (t.shape[0] - 1),), 5e-2),
-                             jnp.full((2 * (t.shape[0] - 2),), 1e-1)]).astype(x.dtype)
-    feasible = jnp.all(G @ x <= g + slack) & jnp.all(jnp.abs(A @ x - b) <= 5e-2) & jnp.all(jnp.isfinite(x))
-    d1, d2, _ = _diff_ops(t.shape[0], h)
-    return t, x, jnp.asarray(d1, x.dtype) @ x, jnp.asarray(d2, x.dtype) @ x, feasible
+    def phase(carry, _):
+        x, z, y, k = carry
+        K = inv[k]
+        rho = ladder[k]
+
+        def it(c2, _):
+            x, z, y = c2
+            xt = K @ (sig * x - qs + As.T @ (rho * z - y))
+            zt = As @ xt
+            x = alpha * xt + (1 - alpha) * x
+            zr = alpha * zt + (1 - alpha) * z
+            zn = jnp.clip(zr + y / rho, ls, us)
+            y = y + rho * (zr - zn)
+            return (x, zn, y), None
+
+        (x, z, y), _ = jax.lax.scan(it, (x, z, y), None, length=solver.iters)
+        ax = As @ x
+        px = Ps @ x
+        aty = As.T @ y
+        rp = jnp.max(jnp.abs(ax - z))
+        rd = jnp.max(jnp.abs(px + qs + aty))
+        np_ = rp / jnp.maximum(jnp.maximum(jnp.max(jnp.abs(ax)), jnp.max(jnp.abs(z))), 1e-8)
+        nd = rd / jnp.maximum(jnp.maximum(jnp.max(jnp.abs(px)), jnp.maximum(jnp.max(jnp.abs(aty)), jnp.max(jnp.abs(qs)))), 1e-8)
+        want = rho * jnp.sqrt(np_ / jnp.maximum(nd, 1e-12))
+        k_new = jnp.argmin(jnp.abs(jnp.log(ladder) - jnp.log(jnp.maximum(want, 1e-12)))).astype(jnp.int32)
+        return x, z, y, k_new
+
+    def residuals(x, z, y):
+        return jnp.max(jnp.abs((As @ x - z) / E)), jnp.max(jnp.abs((Ps @ x + qs + As.T @ y) / (c * D)))
+
+    def more(carry):
+        x, z, y, k, i = carry
+        rp, rd = residuals(x, z, y)
+        return (i < solver.min_phases) | ((i < solver.phases) & ((rp >= solver.eps_prim) | (rd >= solver.eps_dual)))
+
+    def body(carry):
+        x, z, y, k, i = carry
+        return (*phase((x, z, y, k), None), i + 1)
+
+    x, z, y, _, _ = jax.lax.while_loop(more, body, (x, z, y, jnp.int32(k0), jnp.int32(0)))
+    r_prim, r_dual = residuals(x, z, y)
+    return D * x, r_prim, r_dual
 
 
-smooth_plan_jit = jax.jit(smooth_plan, static_argnames=("config",))
+def corridor(plan: SpeedPlan, config: SpeedConfig, t):
+    """Station bounds ``(lower (n,), upper (n,))`` at QP times ``t (n,)`` from the DP's side
+    of each blocking boundary: the boundaries at the check times, conservatively
+    interpolated (a QP time between two checks is covered by both), and per obstacle and
+    time: ``upper <= lower_k`` where the DP stayed behind it (or could not avoid it),
+    ``lower >= upper_k`` where the DP had passed it."""
+    lo, hi, hit, _ = plan.scene.blocking()  # (K, F)
+    hc = config.dt / config.n_sub
+    F = lo.shape[-1]
+    fa = jnp.clip(jnp.floor(t / hc + 1e-6).astype(jnp.int32), 0, F - 1)
+    fb = jnp.clip(jnp.ceil(t / hc - 1e-6).astype(jnp.int32), 0, F - 1)
+    ha, hb = hit[:, fa], hit[:, fb]
+    big = 1e9
+    low = jnp.minimum(jnp.where(ha, lo[:, fa], big), jnp.where(hb, lo[:, fb], big))
+    up = jnp.maximum(jnp.where(ha, hi[:, fa], -big), jnp.where(hb, hi[:, fb], -big))
+    on = ha | hb
+    s_dp, _, _ = profile_at(plan, t)
+    passed = on & (s_dp >= 0.5 * (low + up))
+    behind = on & ~passed
+    upper = jnp.min(jnp.where(behind, low, INF), 0)
+    lower = jnp.max(jnp.where(passed, up, -INF), 0)
+    return lower, upper
+
+
+def smooth_plan(plan: SpeedPlan, v0, a0, config: SpeedConfig, w: SmoothWeights = SmoothWeights(),
+                solver: SolverConfig = SolverConfig()) -> SpeedProfile:
+    """The executed profile of one scene's DP plan (``SpeedProfile`` at ``k qp_dt``)."""
+    h = config.qp_dt
+    n = int(round(config.horizon / h))
+    f = plan.s.dtype
+    t = jnp.arange(n + 1, dtype=f) * h
+    v0 = jnp.maximum(jnp.asarray(v0, f), 0.0)
+    a0 = leavable_a0(a0, v0, config)
+    s_ref, v_ref, a_ref = profile_at(plan, t[1:])
+    lower, upper = corridor(plan, config, t[1:])
+    vl = plan.scene.v_limit
+    qi = jnp.clip(s_ref / config.ds, 0.0, vl.shape[0] - 1.0)
+    k = jnp.clip(jnp.floor(qi).astype(jnp.int32), 0, vl.shape[0] - 2)
+    v_lim = vl[k] + (qi - k) * (vl[k + 1] - vl[k])
+    q, l, u, slack = qp_problem(s_ref, v_ref, lower, upper, v_lim, a0, v0, config, w)
+    x, rp, rd = admm(q, l, u, n, h, w, a_ref, solver)
+    m = qp_matrices(n, h, w)
+    acc = jnp.clip(x, config.a_brake, config.a_max)
+    y = jnp.stack([a0, v0])
+    v = jnp.asarray(m["Va"], f) @ acc + jnp.asarray(m["Vy"], f) @ y
+    s = jnp.asarray(m["Sa"], f) @ acc + jnp.asarray(m["Sy"], f) @ y
+    finite = jnp.all(jnp.isfinite(x))
+    ok = (rp < solver.eps_prim) & (rd < solver.eps_dual) & finite
+    # the iterate, clipped to the acceleration bounds and integrated exactly, is a valid
+    # profile even where the solver stopped early (held at a stop, never backwards)
+    acc = jnp.where(v <= 0.0, jnp.maximum(acc, 0.0), acc)
+    z = jnp.zeros((1,), f)
+    qp = (jax.lax.cummax(jnp.concatenate([z, s])), jnp.concatenate([v0[None], jnp.maximum(v, 0.0)]),
+          jnp.concatenate([a0[None], acc]))
+    s_d, v_d, a_d = profile_at(plan, t)
+    s, v, a = (jnp.where(finite, p, d) for p, d in zip(qp, (s_d, v_d, a_d)))
+    return SpeedProfile(t, s, v, a, jnp.diff(a) / h, ok, slack, rp, rd)
+
+
+smooth_plan_jit = jax.jit(smooth_plan, static_argnames=("config", "w", "solver"))

@@ -1,10 +1,19 @@
 """ST boundaries: where (in station s) an obstacle occupies a band along the path, per time.
 
-A *probe* is a box per station (the car's footprint for blocking obstacles, a
-strip beside the path for non-blocking ones). An obstacle's boundary at time t
-is the range ``[lower, upper]`` of probe stations whose box overlaps the
-obstacle's box at t (geometry core, ``box_has_overlap``); ``hit`` says whether
-there is any. Static obstacles repeat their box, so they span all t.
+Every obstacle is projected to the path's Frenet frame **once per time** (its centre with
+the geometry core's ``to_frenet``, its corners rigidly about the centre at its heading
+relative to the path), not once per station. A band is a strip ``l_lo <= l <= l_hi`` of
+the path frame; the station range of the obstacle inside the band is the exact extent of
+the convex quadrilateral clipped to the strip (its corners inside the strip and its
+edges' crossings of the strip's sides), so on a straight path it equals the range of
+car positions whose footprint overlaps the obstacle (the brute-force ``station_intervals``
+with one car box per station, kept here as the reference). On a curved path the corners'
+offset from the tangent (``kappa u^2 / 2`` at ``u`` metres from the reference point)
+widens the car's band (``curvature_margin``).
+
+Conventions: a *blocking* boundary ``[lower, upper]`` is in the station of the car's
+reference point (the car at station x overlaps the obstacle iff ``lower <= x <= upper``);
+a *side* boundary is in road stations (the neighbour's rear and front inside the strip).
 """
 from __future__ import annotations
 
@@ -15,8 +24,11 @@ import jax
 import jax.numpy as jnp
 
 from jaxplan.geometry.boxes import box_has_overlap, poses_to_boxes
+from jaxplan.geometry.frenet import ReferenceLine, ref_state, to_frenet, wrap_angle
 from jaxplan.speed.path_profile import PathProfile
 from jaxplan.types import Obstacles, VehicleParams
+
+BIG = 1e9
 
 
 @jax.tree_util.register_dataclass
@@ -35,13 +47,120 @@ class STBoundary:
     hit: Any
 
 
-def inflate(boxes, buffer):
-    """Boxes ``(..., 5)`` grown by ``buffer`` metres on every side."""
-    return boxes.at[..., 2:4].add(2.0 * buffer)
+@jax.tree_util.register_dataclass
+@dataclasses.dataclass(frozen=True)
+class ObstaclesSL:
+    """Obstacles in the path's Frenet frame.
 
+    Attributes:
+        corners: ``(..., K, T, 4, 2)`` corner ``(s, l)`` (s from the path's start).
+        centre: ``(..., K, T, 2)`` centre ``(s, l)``.
+        kappa: ``(..., K, T)`` path curvature at the centre's station.
+        valid: ``(..., K, T)``.
+    """
+
+    corners: Any
+    centre: Any
+    kappa: Any
+    valid: Any
+
+
+def project_obstacles(ref: ReferenceLine, obstacles: Obstacles) -> ObstaclesSL:
+    """Project obstacle boxes ``(K, T, 5)`` to the path frame (one ``to_frenet`` per box).
+
+    Beyond the path's ends the frame continues straight (``to_frenet``), so obstacles
+    behind the car get negative stations.
+    """
+    b = obstacles.boxes
+    s, l = to_frenet(ref, b[..., :2])
+    _, th, kap, _ = ref_state(ref, s)
+    d = wrap_angle(b[..., 4] - th)
+    c, sn = jnp.cos(d), jnp.sin(d)
+    signs = jnp.asarray(((1.0, 1.0), (-1.0, 1.0), (-1.0, -1.0), (1.0, -1.0)), b.dtype)
+    du = 0.5 * b[..., 2:3] * signs[:, 0]  # (K, T, 4) along the obstacle
+    dw = 0.5 * b[..., 3:4] * signs[:, 1]
+    cs = s[..., None] + c[..., None] * du - sn[..., None] * dw
+    cl = l[..., None] + sn[..., None] * du + c[..., None] * dw
+    return ObstaclesSL(jnp.stack([cs, cl], -1), jnp.stack([s, l], -1), kap, obstacles.valid)
+
+
+def strip_extent(corners, l_lo, l_hi):
+    """Station extent of convex quadrilaterals clipped to the strip ``l_lo <= l <= l_hi``.
+
+    Args:
+        corners: ``(..., 4, 2)`` ``(s, l)`` vertices in order (either orientation).
+        l_lo, l_hi: ``(...)`` the strip (broadcast).
+
+    Returns:
+        (s_min ``(...)``, s_max ``(...)``, hit ``(...)``); s_min / s_max are
+        ``+BIG`` / ``-BIG`` without a hit.
+    """
+    s, l = corners[..., 0], corners[..., 1]
+    lo, hi = jnp.asarray(l_lo)[..., None], jnp.asarray(l_hi)[..., None]
+    inside = (l >= lo) & (l <= hi)
+    s2, l2 = jnp.roll(s, -1, -1), jnp.roll(l, -1, -1)
+
+    def cross(line):
+        den = l2 - l
+        u = (line - l) / jnp.where(jnp.abs(den) > 1e-12, den, 1.0)
+        ok = (jnp.abs(den) > 1e-12) & (u >= 0.0) & (u <= 1.0)
+        return s + u * (s2 - s), ok
+
+    c1, ok1 = cross(lo)
+    c2, ok2 = cross(hi)
+    cand = jnp.concatenate([s, c1, c2], -1)
+    ok = jnp.concatenate([inside, ok1, ok2], -1)
+    big = jnp.asarray(BIG, s.dtype)
+    return (jnp.min(jnp.where(ok, cand, big), -1), jnp.max(jnp.where(ok, cand, -big), -1), jnp.any(ok, -1))
+
+
+def car_extent(vehicle: VehicleParams, dtype=jnp.float32):
+    """(front, rear): the car's front and rear ahead of its reference point (m; rear < 0)."""
+    off = jnp.asarray(vehicle.center_offset, dtype)
+    return off + 0.5 * jnp.asarray(vehicle.length, dtype), off - 0.5 * jnp.asarray(vehicle.length, dtype)
+
+
+def curvature_margin(kappa, vehicle: VehicleParams):
+    """Lateral widening ``(...)`` of the car's band on a path of curvature ``kappa``: the
+    farthest body point from the reference point leaves the tangent by ``|kappa| u^2 / 2``."""
+    front, rear = car_extent(vehicle, kappa.dtype)
+    u = jnp.maximum(front, -rear)
+    return 0.5 * jnp.abs(kappa) * u * u
+
+
+def blocking_boundaries(osl: ObstaclesSL, vehicle: VehicleParams, buffer=0.0) -> STBoundary:
+    """ST boundaries of obstacles against the car driving the path (reference stations).
+
+    The car's band is ``|l| <= width / 2 + buffer`` (plus ``curvature_margin``); the
+    obstacle's range in it is extended by the car's front / rear and ``buffer``.
+
+    Returns:
+        ``STBoundary`` ``(K, T)``.
+    """
+    dtype = osl.corners.dtype
+    front, rear = car_extent(vehicle, dtype)
+    half = 0.5 * jnp.asarray(vehicle.width, dtype) + buffer + curvature_margin(osl.kappa, vehicle)
+    lo, hi, hit = strip_extent(osl.corners, -half, half)
+    hit = hit & osl.valid
+    return STBoundary(lo - front - buffer, hi - rear + buffer, hit)
+
+
+def side_boundaries(osl: ObstaclesSL, vehicle: VehicleParams, width, side: int, buffer=0.0) -> STBoundary:
+    """Road-station range of each obstacle inside the strip of ``width`` beside the car's
+    band (``side`` +1 left, -1 right), from ``width / 2 + buffer`` outwards."""
+    dtype = osl.corners.dtype
+    inner = 0.5 * jnp.asarray(vehicle.width, dtype) + buffer + curvature_margin(osl.kappa, vehicle)
+    outer = inner + width
+    lo_l, hi_l = (inner, outer) if side > 0 else (-outer, -inner)
+    lo, hi, hit = strip_extent(osl.corners, lo_l, hi_l)
+    return STBoundary(lo, hi, hit & osl.valid)
+
+
+# ---------------------------------------------------------------- brute-force reference
 
 def station_intervals(probes, stations, obstacles: Obstacles, buffer=0.0) -> STBoundary:
-    """Station range of the probes each obstacle overlaps, per time.
+    """Station range of the probes each obstacle overlaps, per time (one box test per
+    station and time: the brute-force reference of the projected boundaries).
 
     Args:
         probes: ``(N, 5)`` one box per station.
@@ -52,9 +171,9 @@ def station_intervals(probes, stations, obstacles: Obstacles, buffer=0.0) -> STB
     Returns:
         ``STBoundary`` with fields ``(K, T)``.
     """
-    ob = inflate(obstacles.boxes, buffer)
+    ob = obstacles.boxes.at[..., 2:4].add(2.0 * buffer)
     hits = box_has_overlap(probes, ob[..., None, :]) & obstacles.valid[..., None]  # (K, T, N)
-    big = jnp.asarray(1e9, stations.dtype)
+    big = jnp.asarray(BIG, stations.dtype)
     lower = jnp.min(jnp.where(hits, stations, big), axis=-1)
     upper = jnp.max(jnp.where(hits, stations, -big), axis=-1)
     return STBoundary(lower, upper, jnp.any(hits, axis=-1))
@@ -63,19 +182,3 @@ def station_intervals(probes, stations, obstacles: Obstacles, buffer=0.0) -> STB
 def car_probes(profile: PathProfile, vehicle: VehicleParams):
     """The car's box ``(N, 5)`` with its reference point at each station of the path."""
     return poses_to_boxes(profile.xy, profile.theta, vehicle)
-
-
-def blocking_boundaries(profile: PathProfile, obstacles: Obstacles, vehicle: VehicleParams,
-                        buffer=0.0) -> STBoundary:
-    """ST boundaries of obstacles against the car driving the path.
-
-    ``lower <= s <= upper`` (station of the car's reference point) is where the
-    car, placed on the path at station s, overlaps the obstacle at time t.
-
-    Args:
-        profile: path on N stations; obstacles: boxes ``(K, T, 5)`` at the plan's times.
-
-    Returns:
-        ``STBoundary`` ``(K, T)``.
-    """
-    return station_intervals(car_probes(profile, vehicle), profile.s, obstacles, buffer)

@@ -33,8 +33,9 @@ from jaxplan.tuning.train import fit, from_log, to_log
 from jaxplan.tuning.traffic import IDMParams, frenet_traffic, idm_rollout
 from jaxplan.types import Obstacles, VehicleParams
 
-# 5 s at 1 s steps and 2 m stations (speed steps 2 m/s), speeds up to 30 m/s (US-101 traffic).
-SPEED_TUNING_CONFIG = SpeedConfig(n_t=5, dt=1.0, ds=2.0, v_max=30.0, a_min=-4.0, no_overtake_side=0)
+# 5 s at 1 s steps and 1 m stations (knot speeds every 2 m/s, accelerations every 2 m/s^2), speeds up to
+# 30 m/s (US-101 traffic).
+SPEED_TUNING_CONFIG = SpeedConfig(n_t=5, dt=1.0, ds=1.0, v_max=30.0, a_min=-4.0, no_overtake_side=0)
 # Weights learned from the recordings (the others keep their defaults). The cruise
 # speed is learned relative to each driver's start speed: v_cruise = cruise_ratio * v0.
 SPEED_LEARNED = ("cruise_ratio", "w_speed", "w_accel", "w_jerk", "w_block", "follow_dist")

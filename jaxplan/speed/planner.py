@@ -1,0 +1,341 @@
+"""``pathspeed``: the decoupled path-speed planner as a road ``Planner`` (``jaxplan.planner``).
+
+Each cycle (one scene, jittable; the simulator batches it with ``jax.vmap``):
+
+1. the ``RoadContext`` (predictions from this step, the lane speed limits, the goal);
+2. the **path**: ``jaxplan.bounds.plan_path`` (path decision around the blocking
+   obstacles, bounds, path QP, recomputed at the path's heading) from the car, with the
+   route path's points behind the car before it and a join back to the route's lane after
+   its end (``bounds_route_path``). When its QP fails, it is not clear of the blocking
+   obstacles or something blocks it, the speed is planned on the route's centre line joined
+   from the car's pose (``route_path``) instead, with a stop before the bounds path's
+   blockage; ``info["path_bounds"]`` says which path was used (and ``path_qp_ok``,
+   ``path_clear``, ``path_blocked`` why);
+3. the **speed**: the ST boundaries of the predictions on that path (blocking,
+   non-blocking with decisions, a wall before the path's blockage and the end of the
+   map), the DP over the reachable band (``dp.py``) with the lane speed limit, the
+   curvature limit, the time-headway follow distance and the goal's window, then the
+   smoothing QP (``smooth.py``) for the executed profile;
+4. the **composed trajectory**: the profile along the path, ``horizon_steps`` points every
+   ``dt`` from the car.
+
+``ok`` is False when the DP found no collision-free profile, the QP needed slack (it could
+not keep the DP's corridor within the acceleration limits) or did not converge, or the
+plan is not finite. ``nonblocking=False`` drops the non-blocking boundaries' costs (the
+seed-001 comparison).
+"""
+from __future__ import annotations
+
+import dataclasses
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+
+from jaxplan.baselines.brake import SIM_VEHICLE
+from jaxplan.bounds.path_planner import PathConfig, PathPlan, plan_path
+from jaxplan.geometry.frenet import ReferenceLine, frenet_to_cartesian_state, ref_state, to_frenet, wrap_angle
+from jaxplan.plan_context import RoadContext, road_context, route_sample
+from jaxplan.planner import EgoState, PlanOutput
+from jaxplan.speed.compose import compose_profile
+from jaxplan.speed.dp import CostWeights, SpeedConfig, SpeedRoad, _plan_one
+from jaxplan.speed.st_boundary import car_extent
+from jaxplan.speed.smooth import SmoothWeights, smooth_plan
+from jaxplan.types import Obstacles, VehicleParams, _pytree
+
+
+@_pytree(data_fields=("s", "xy", "theta", "kappa", "l", "route_s", "valid", "blocked_s", "ok"))
+class RoutePath:
+    """The path the speed is planned on (the fields of ``jaxplan.bounds``' ``PathPlan`` that
+    the speed planner reads): ``s (N,)`` distance along the path from the car (negative behind
+    it), ``xy (N, 2)``, ``theta (N,)`` unwrapped, ``kappa (N,)``, ``l (N,)`` offset from the
+    route, ``route_s (N,)`` station on the route, ``valid (N,)``, ``blocked_s ()`` where the
+    car's reference point must stop before (inf: nothing blocks it), ``ok ()``."""
+
+    s: Any
+    xy: Any
+    theta: Any
+    kappa: Any
+    l: Any
+    route_s: Any
+    valid: Any
+    blocked_s: Any
+    ok: Any
+
+
+def _quintic(p0, p1, length, u):
+    """Quintic ``l(u)`` (and dl/du, d2l/du2) from ``p0 = (l, dl, ddl)`` at 0 to ``p1`` at
+    ``length``, held at ``p1``'s ``l`` beyond; ``u (N,)``."""
+    l0, d0, dd0 = p0
+    T = length
+    a0, a1, a2 = l0, d0, 0.5 * dd0
+    h = p1 - a0 - a1 * T - a2 * T * T
+    a3 = (10 * h + T * (-6 * d0 - 1.5 * dd0 * T)) / T ** 3
+    a4 = (-15 * h + T * (8 * d0 + 1.5 * dd0 * T)) / T ** 4
+    a5 = (6 * h + T * (-3 * d0 - 0.5 * dd0 * T)) / T ** 5
+    x = jnp.clip(u, 0.0, T)
+    l = a0 + x * (a1 + x * (a2 + x * (a3 + x * (a4 + x * a5))))
+    dl = a1 + x * (2 * a2 + x * (3 * a3 + x * (4 * a4 + x * 5 * a5)))
+    ddl = 2 * a2 + x * (6 * a3 + x * (12 * a4 + x * 20 * a5))
+    beyond = u > T
+    behind = u < 0
+    l = jnp.where(behind, l0 + d0 * u, jnp.where(beyond, p1, l))
+    dl = jnp.where(behind, d0, jnp.where(beyond, 0.0, dl))
+    ddl = jnp.where(behind | beyond, 0.0, ddl)
+    return l, dl, ddl
+
+
+def _join_route(ref, sr, start, target_l, length, u):
+    """Points on the route at stations ``sr (N,)`` whose offset is a quintic in ``u (N,)``
+    (``sr = sr_0 + u``) from ``start = (l, dl/ds, d2l/ds2)`` at ``u = 0`` to ``target_l``
+    at ``u = length``: ``(xy (N, 2), theta (N,), kappa (N,), l (N,))``."""
+    l, dl, ddl = _quintic(start, target_l, length, u)
+    xy, _, kappa = frenet_to_cartesian_state(ref, sr, l, dl, ddl)
+    _, th_r, kr, _ = ref_state(ref, sr)
+    return xy, th_r + jnp.arctan2(dl, 1.0 - kr * l), kappa, l
+
+
+def _frenet_start(ref, s, l, heading, kappa):
+    """The car's ``(l, dl/ds, d2l/ds2)`` on the route at ``(s, l)`` with ``heading``, ``kappa``."""
+    _, th0, k0, dk0 = ref_state(ref, s)
+    one = 1.0 - k0 * l
+    dth = wrap_angle(heading - th0)
+    dl0 = one * jnp.tan(jnp.clip(dth, -1.2, 1.2))
+    cos_d = jnp.cos(dth)
+    ddl0 = (kappa * one / cos_d - k0) * one / cos_d ** 2 - (dk0 * l + k0 * dl0) * jnp.tan(dth)
+    return l, dl0, jnp.clip(ddl0, -0.5, 0.5)
+
+
+def _n_behind(n: int) -> int:
+    """Points of an ``n``-point ``route_path`` behind the car (``s < 0``)."""
+    return max(2, n // 12) - 1
+
+
+def _total_points(n_path: int, n_ext: int) -> tuple[int, int]:
+    """``(total, ext)``: a route path of ``total`` points has as many points behind the car as
+    ``bounds_route_path`` puts before a bounds path of ``n_path`` points with ``ext`` (>=
+    ``n_ext``) after it, so that the two are one shape."""
+    for ext in range(n_ext, n_ext + 24):
+        for nb in range(1, 64):
+            if _n_behind(nb + n_path + ext) == nb:
+                return nb + n_path + ext, ext
+    raise ValueError(f"no route path size fits a bounds path of {n_path} points")
+
+
+def route_path(scene, ctx: RoadContext, ego: EgoState, n: int = 96, back: float = 20.0, ahead: float = 240.0,
+               target_l=0.0) -> RoutePath:
+    """The route's centre line (offset ``target_l``) joined from the car's pose: ``l(s)`` a
+    quintic in the route station from the car's offset, heading and curvature to
+    ``target_l`` over ``clip(10 + 2.5 v, 15, 60)`` m; ``n`` points from ``back`` metres behind
+    the car to ``ahead`` metres ahead of it (the path when the bounds path is off or fails)."""
+    ref = scene.route
+    f = ref.xy.dtype
+    nb = _n_behind(n) + 1
+    u = jnp.concatenate([jnp.linspace(-back, 0.0, nb, dtype=f)[:-1], jnp.linspace(0.0, ahead, n - nb + 1, dtype=f)])
+    sr = ctx.s + u
+    start = _frenet_start(ref, ctx.s, ctx.l, ego.heading, ego.kappa)
+    length = jnp.clip(10.0 + 2.5 * ego.v, 15.0, 60.0)
+    xy, theta, kappa, l = _join_route(ref, sr, start, jnp.asarray(target_l, f), length, u)
+    ones = jnp.ones_like(u, dtype=bool)
+    return RoutePath(u, xy, theta, kappa, l, sr, ones, jnp.asarray(jnp.inf, f), jnp.asarray(True))
+
+
+def bounds_route_path(scene, ctx: RoadContext, pp, back: RoutePath, n_ext: int, ahead: float) -> RoutePath:
+    """The bounds path ``pp`` (a ``jaxplan.bounds.PathPlan`` from the car) with the route
+    path's points behind the car (``back``, those with ``s < 0``) before it and, after its
+    last point, ``n_ext`` points that join the route's own lane again (a quintic from the
+    path's end offset and slope) up to ``ahead`` metres from the car. ``s`` is the chord
+    length along the points from the car; ``blocked_s`` the path's, ``ok`` the path's."""
+    ref = scene.route
+    f = ref.xy.dtype
+    nb = _n_behind(back.s.shape[0])
+    # the end of the bounds path on the route, and its slope there
+    s_end, l_end, th_end = pp.route_s[-1], pp.l[-1], pp.theta[-1]
+    _, th_r, k_r, _ = ref_state(ref, s_end)
+    dth = wrap_angle(th_end - th_r)
+    dl_end = (1.0 - k_r * l_end) * jnp.tan(jnp.clip(dth, -1.2, 1.2))
+    reach = jnp.maximum(ctx.s + ahead - s_end, 1.0)
+    u = reach * jnp.arange(1, n_ext + 1, dtype=f) / n_ext
+    l_pref = jnp.interp(s_end, ref.s, scene.lane_offset[scene.own_lane])
+    length = jnp.clip(0.5 * reach, 15.0, 60.0)
+    xy_e, th_e, k_e, l_e = _join_route(ref, s_end + u, (l_end, dl_end, jnp.zeros((), f)), l_pref, length, u)
+    xy = jnp.concatenate([back.xy[:nb], pp.xy, xy_e])
+    theta = jnp.concatenate([back.theta[:nb], pp.theta, th_e])
+    # unwrap across the joins (each part's heading is continuous)
+    theta = jnp.concatenate([theta[:1], theta[:1] + jnp.cumsum(wrap_angle(jnp.diff(theta)))])
+    kappa = jnp.concatenate([back.kappa[:nb], pp.kappa, k_e])
+    l = jnp.concatenate([back.l[:nb], pp.l, l_e])
+    route_s = jnp.concatenate([back.route_s[:nb], pp.route_s, s_end + u])
+    seg = jnp.linalg.norm(jnp.diff(xy, axis=0), axis=-1)
+    chord = jnp.concatenate([jnp.zeros((1,), f), jnp.cumsum(seg)])
+    s = chord - chord[nb]  # the bounds path's first point is the car
+    valid = jnp.concatenate([jnp.ones((nb,), bool), pp.valid, jnp.broadcast_to(~jnp.isfinite(pp.blocked_s), (n_ext,))])
+    return RoutePath(s, xy, theta, kappa, l, route_s, valid, pp.blocked_s, pp.ok)
+
+
+def path_reference(path) -> tuple[ReferenceLine, Any]:
+    """The path as a ``ReferenceLine`` (chord arc lengths, the path's own heading and
+    curvature) and the car's station on it."""
+    xy = path.xy
+    seg = jnp.linalg.norm(jnp.diff(xy, axis=0), axis=-1)
+    s = jnp.concatenate([jnp.zeros((1,), xy.dtype), jnp.cumsum(jnp.maximum(seg, 1e-6))])
+    ref = ReferenceLine(xy, s, path.theta, path.kappa)
+    return ref, jnp.interp(jnp.zeros((), xy.dtype), path.s, s)
+
+
+def speed_road(scene, ctx: RoadContext, path, v_max: float, vehicle: VehicleParams) -> SpeedRoad:
+    """What the road asks of the speed on ``path``: the lane speed limit at each path point
+    (read at its route station), a stop before the path's blockage (the car's reference point
+    before ``path.blocked_s``) and before the end of the mapped road (the car's front), the
+    goal's stations (box centre, along the route), time window and speeds."""
+    f = path.xy.dtype
+    lim = route_sample(scene, scene.speed_limit, path.route_s)
+    front, _ = car_extent(vehicle, f)
+    end = ctx.route_end_s - ctx.s
+    stop = jnp.minimum(path.blocked_s + front, jnp.where(jnp.isfinite(end), end, jnp.inf))
+    goal_s = ctx.goal_s - ctx.s
+    return SpeedRoad(path.s, jnp.minimum(lim, v_max), stop, goal_s.astype(f), ctx.goal_t.astype(f),
+                     ctx.goal_v.astype(f))
+
+
+def cruise_speed(ctx: RoadContext, vehicle: VehicleParams, horizon: float):
+    """The cruise speed: the set speed from the limits ahead, lowered so as not to pass the
+    goal region before its time window opens, raised (up to the set speed) to reach it
+    before the window closes."""
+    f = ctx.v_set.dtype
+    centre = jnp.asarray(vehicle.center_offset, f)
+    d_near = ctx.goal_s[0] - (ctx.s + centre)
+    d_far = ctx.goal_s[1] - (ctx.s + centre)
+    t0, t1 = ctx.goal_t[0], ctx.goal_t[1]
+    d_mid = 0.5 * (d_near + d_far)
+    cap = jnp.where((t0 > 0.5) & jnp.isfinite(d_mid) & (d_mid > 0), d_mid / jnp.maximum(t0, 0.5), jnp.inf)
+    floor = jnp.where(jnp.isfinite(t1) & (t1 > 0.1) & jnp.isfinite(d_near) & (d_near > 0),
+                      d_near / jnp.maximum(t1, 0.1), 0.0)
+    v = jnp.minimum(ctx.v_set, jnp.maximum(cap, floor))
+    return jnp.maximum(v, 0.0)
+
+
+@dataclasses.dataclass(frozen=True)
+class PathSpeedPlanner:
+    """The path-speed planner (static config; see the module docstring).
+
+    Attributes:
+        vehicle, dt, horizon: the car, the trajectory's step and length (s).
+        nonblocking: plan with the non-blocking boundaries (no-bypass, blind zone, keep clear).
+        speed: the DP's grid and limits (its horizon must equal ``horizon``, its ``qp_dt`` ``dt``).
+        weights: ``CostWeights`` field values as a tuple (``v_cruise`` is set each cycle), or None.
+        smooth: the smoothing QP's weights.
+        path: the bounds path's ``PathConfig`` (its ``vehicle`` is set to ``vehicle``), or None
+            to plan the speed on the route path (``route_path``) only.
+        path_points: points of the route path (the fallback, and the points behind the car).
+        ext_points: points after the bounds path's end that join the route's lane again.
+    """
+
+    vehicle: VehicleParams = SIM_VEHICLE
+    dt: float = 0.1
+    horizon: float = 7.0
+    nonblocking: bool = True
+    speed: SpeedConfig = SpeedConfig()
+    weights: tuple | None = None
+    smooth: SmoothWeights = SmoothWeights()
+    path: PathConfig | None = PathConfig()
+    path_points: int = 96
+    ext_points: int = 24
+
+    def __post_init__(self):
+        self.speed.validate()
+        if self.path is not None and self.path.vehicle != self.vehicle:
+            object.__setattr__(self, "path", dataclasses.replace(self.path, vehicle=self.vehicle))
+        if abs(self.speed.horizon - self.horizon) > 1e-9 or abs(self.speed.qp_dt - self.dt) > 1e-9:
+            raise ValueError(f"PathSpeedPlanner: speed.horizon ({self.speed.horizon}) and speed.qp_dt "
+                             f"({self.speed.qp_dt}) must equal horizon ({self.horizon}) and dt ({self.dt})")
+        if self.weights is not None and len(self.weights) != len(dataclasses.fields(CostWeights)):
+            raise ValueError(f"PathSpeedPlanner.weights: expected {len(dataclasses.fields(CostWeights))} values "
+                             f"(CostWeights fields), got {len(self.weights)}")
+
+    @property
+    def horizon_steps(self) -> int:
+        return int(round(self.horizon / self.dt)) + 1
+
+    def cost_weights(self, v_cruise) -> CostWeights:
+        f = jnp.result_type(v_cruise)
+        w = CostWeights() if self.weights is None else CostWeights(*self.weights)
+        w = jax.tree_util.tree_map(lambda x: jnp.asarray(x, f), w)
+        w = dataclasses.replace(w, v_cruise=v_cruise)
+        if not self.nonblocking:
+            z = jnp.zeros((), f)
+            w = dataclasses.replace(w, w_no_bypass=z, w_blind=z, w_keep_clear=z)
+        return w
+
+    def plan_path(self, scene, ctx: RoadContext, ego: EgoState):
+        """The path of this cycle: ``(path, pp, use)``: the ``RoutePath`` the speed is planned
+        on, the bounds ``PathPlan`` (None without ``self.path``) and whether the path is the
+        bounds path (``()`` bool). The bounds path is used when its QP solved, it is clear of
+        every blocking obstacle and nothing blocks it; else the route path, with the bounds
+        path's blockage (if any) as the stop."""
+        ahead = self.speed.v_max * self.horizon + 30.0
+        if self.path is None:
+            return route_path(scene, ctx, ego, self.path_points, 20.0, ahead), None, jnp.asarray(False)
+        total, ext = _total_points(self.path.n_points, self.ext_points)
+        rp = route_path(scene, ctx, ego, total, 20.0, ahead)
+        pp = plan_path(scene, ctx, self.path)
+        bp = bounds_route_path(scene, ctx, pp, rp, ext, ahead)
+        blocked = jnp.isfinite(pp.blocked_s)
+        use = pp.ok & ~blocked
+        # the blockage on the route path: at the route station of the bounds path's blockage
+        stop_r = jnp.interp(pp.blocked_s, pp.s, pp.route_s) - ctx.s
+        rp = dataclasses.replace(rp, blocked_s=jnp.where(blocked, stop_r, rp.blocked_s))
+        path = jax.tree_util.tree_map(lambda a, b: jnp.where(use, a, b), bp, rp)
+        return path, pp, use
+
+    def speed_plan(self, scene, ego: EgoState, step) -> dict:
+        """One cycle up to the speed profile, as a dict: ``ctx`` (the ``RoadContext``),
+        ``path`` (the ``RoutePath`` the speed is planned on), ``bounds`` (the bounds
+        ``PathPlan`` or None), ``use_bounds`` (``()`` bool, ``path`` is the bounds path),
+        ``ref``, ``s0`` (the path as a reference line, the car's station on it), ``plan`` (the
+        DP's ``SpeedPlan``) and ``profile`` (the executed ``SpeedProfile``)."""
+        H = self.horizon_steps
+        ctx = road_context(scene, ego, step, H, self.vehicle)
+        f = scene.route.xy.dtype
+        path, pp, use = self.plan_path(scene, ctx, ego)
+        ref, s0 = path_reference(path)
+        road = speed_road(scene, ctx, path, self.speed.v_max, self.vehicle)
+        v0 = jnp.maximum(jnp.asarray(ego.v, f), 0.0)
+        a0 = jnp.asarray(ego.a, f)
+        w = self.cost_weights(cruise_speed(ctx, self.vehicle, self.horizon).astype(f))
+        obs = ctx.obstacles
+        obs = Obstacles(obs.boxes, obs.valid, obs.t - obs.t[0], obs.static)
+        plan = _plan_one(ref, obs, v0, a0, s0, None, road, self.vehicle, self.speed, w)
+        prof = smooth_plan(plan, v0, a0, self.speed, self.smooth)
+        return dict(ctx=ctx, path=path, bounds=pp, use_bounds=use, ref=ref, s0=s0, plan=plan, profile=prof)
+
+    def plan(self, scene, ego: EgoState, step) -> PlanOutput:
+        return self.output(self.speed_plan(scene, ego, step))
+
+    def output(self, c: dict) -> PlanOutput:
+        """The ``PlanOutput`` of a cycle (``speed_plan``'s dict): the profile composed along
+        the path, ``ok`` and ``info``."""
+        plan, prof, pp = c["plan"], c["profile"], c["bounds"]
+        traj = compose_profile(c["ref"], c["s0"], prof)
+        finite = jnp.all(jnp.isfinite(traj.x)) & jnp.all(jnp.isfinite(traj.y)) & jnp.all(jnp.isfinite(traj.v))
+        cl = plan.scene.classified
+        ok = plan.feasible & prof.ok & (prof.slack < 0.05) & finite
+        f = traj.x.dtype
+        no = jnp.asarray(False)
+        info = {"dp_feasible": plan.feasible, "qp_ok": prof.ok, "qp_slack": prof.slack, "qp_r_prim": prof.r_prim,
+                "qp_r_dual": prof.r_dual, "blocking": cl.is_blocking, "behind": cl.behind,
+                "no_bypass": cl.no_bypass, "blind_zone": cl.blind_zone,
+                # the path: the bounds path used, or the route path as the fallback and why
+                "path_bounds": c["use_bounds"],
+                "path_qp_ok": no if pp is None else pp.qp_ok,
+                "path_clear": no if pp is None else pp.collision_free,
+                "path_blocked": no if pp is None else jnp.isfinite(pp.blocked_s),
+                "path_stop_s": c["path"].blocked_s.astype(f),
+                "path_max_abs_l": jnp.max(jnp.abs(c["path"].l)).astype(f)}
+        return PlanOutput(traj, ok, info)
+
+
+def plan_speed_for(planner: PathSpeedPlanner, scene, ego: EgoState, step):
+    """The DP plan and the executed profile of one cycle (for pictures): ``(plan, profile)``."""
+    c = planner.speed_plan(scene, ego, step)
+    return c["plan"], c["profile"]
