@@ -160,6 +160,8 @@ def test_path_qp_against_osqp_1000_frames():
         P, q, A, l_, u_ = (np.asarray(x, np.float64) for x in state_problem(
             0.8, jnp.asarray(l_ref[f]), jnp.asarray(lo[f]), jnp.asarray(up[f]), dl[0], dl[1], ddl[0], ddl[1],
             cfg.jerk_max, jnp.asarray(init[f]), PathWeights()))
+        if np.any(l_ > u_):  # crossing bounds: infeasible on their face (OSQP refuses such data)
+            continue
         m = osqp.OSQP()
         m.setup(sp.csc_matrix(np.triu(P)), q, sp.csc_matrix(A), l_, u_, verbose=False, eps_abs=1e-8, eps_rel=1e-8,
                 max_iter=50000, polish=True)
@@ -271,3 +273,16 @@ def test_blockage_cuts_the_path():
     hit = np.asarray(has_overlap(car[:, None], box_corners(jnp.asarray(grown))[None]))
     assert hit[:, plan.blocking[i]].any()
     assert np.all(np.isfinite(plan.xy[i]))
+
+
+def test_spd_inverse_against_numpy_batched():
+    """The LAPACK-free Cholesky + triangular inverse (jaxlib's batched LAPACK kernels can hang on CPU)."""
+    from jaxplan.bounds.optimize import spd_inverse
+
+    rng = np.random.default_rng(3)
+    for n in (1, 7, 32, 45):
+        A = rng.normal(size=(16, n, n))
+        K = A @ np.swapaxes(A, 1, 2) + 0.5 * n * np.eye(n)
+        got = np.asarray(jax.jit(jax.vmap(spd_inverse))(jnp.asarray(K, jnp.float32)))
+        ref = np.linalg.inv(K)
+        assert np.max(np.abs(got - ref)) <= 1e-4 * np.max(np.abs(ref)), n

@@ -200,13 +200,30 @@ def state_problem(ds, l_ref, lower, upper, dl_lo, dl_hi, ddl_lo, ddl_hi, jerk_ma
     return P, q, A, lo, hi
 
 
+# No LAPACK here: jaxlib's CPU triangular-solve and Cholesky kernels split a vmapped batch over
+# XLA's intra-op thread pool (``ParallelBatchMap``) and, with jaxlib 0.10 on a small machine, can
+# wait forever for tasks the pool never runs (seen: every worker idle, the kernel blocked in
+# ``lapack_strsm_ffi``). These loops are plain XLA ops, batch under vmap like any other.
+
+
+def _lower_inverse(L):
+    """Inverse of a lower-triangular ``(n, n)`` matrix by forward substitution, row by row."""
+    n = L.shape[-1]
+    eye = jnp.eye(n, dtype=L.dtype)
+
+    def row(i, X):
+        return X.at[i].set((eye[i] - L[i] @ X) / L[i, i])  # rows >= i of X are still zero
+
+    return jax.lax.fori_loop(0, n, row, jnp.zeros_like(L))
+
+
 def _tri_inverse(L):
     """Inverse of a lower-triangular ``(n, n)`` matrix by blocks (matrix products; blocks of
-    at most 32 rows by triangular solves): on XLA's CPU backend far faster than one
-    ``n x n`` triangular solve or ``jnp.linalg.inv``."""
+    at most 32 rows by forward substitution): on XLA's CPU backend far faster than one
+    ``n x n`` substitution."""
     n = L.shape[-1]
     if n <= 32:
-        return jax.lax.linalg.triangular_solve(L, jnp.eye(n, dtype=L.dtype), left_side=True, lower=True)
+        return _lower_inverse(L)
     k = n // 2
     Ai, Ci = _tri_inverse(L[:k, :k]), _tri_inverse(L[k:, k:])
     low = -Ci @ (L[k:, :k] @ Ai)
@@ -214,9 +231,22 @@ def _tri_inverse(L):
                             jnp.concatenate([low, Ci], 1)], 0)
 
 
+def _cholesky(K):
+    """Lower Cholesky factor of a symmetric positive definite ``(n, n)`` matrix, column by column."""
+    n = K.shape[-1]
+    idx = jnp.arange(n)
+
+    def col(j, L):
+        v = K[:, j] - L @ L[j]  # columns >= j of L are still zero
+        d = jnp.sqrt(jnp.maximum(v[j], jnp.finfo(K.dtype).tiny))
+        return L.at[:, j].set(jnp.where(idx > j, v / d, jnp.where(idx == j, d, 0.0)))
+
+    return jax.lax.fori_loop(0, n, col, jnp.zeros_like(K))
+
+
 def spd_inverse(K):
     """Inverse of a symmetric positive definite ``(n, n)`` matrix (Cholesky, then ``_tri_inverse``)."""
-    Li = _tri_inverse(jnp.linalg.cholesky(K))
+    Li = _tri_inverse(_cholesky(K))
     return Li.T @ Li
 
 
