@@ -98,7 +98,7 @@ def test_item1_suites_and_demonstrations_hold_static_obstacles(tmp_path):
     dyn = ~st & np.asarray(ob.valid).any(-1)
     assert st.sum() == 1 and dyn.sum() == 1 and wv[st].all() and not wv[dyn].any()
     # demonstrations carry the flag to the lattice used for tuning
-    demos = scenario_demos(sc)
+    demos, _ = scenario_demos(sc)
     assert demos and all(bool(np.any(dm.obstacle_static)) for dm in demos)
 
 
@@ -243,7 +243,8 @@ def test_item6_gradients_wrt_state_and_obstacles_are_finite_and_match_finite_dif
     cfg = LatticeConfig()  # the default config: jerk profile, escalation, broad-phase collision check
     # one weighted sum of every feature of every candidate, and of where the candidates end (x, y, s,
     # v): a NaN / inf in the gradient of any of them shows in its gradient (NaN and inf never cancel)
-    mix = np.array([1.0, 30.0, 0.7, 0.5, 3.0, 0.2, 0.01, 0.02, 0.01, 0.1])
+    feat = dict(zip(("d_lrp", "rho_max", "risk", "speed", "collision", "level_free"), (1.0, 30.0, 0.7, 0.5, 3.0, 0.2)))
+    mix = np.array([feat.get(f, 0.1) for f in FEATURES] + [0.01, 0.02, 0.01, 0.1])  # every feature, then the ends
     with jax.enable_x64(True):
         t = jnp.arange(cfg.n_steps) * cfg.dt
         xs = np.linspace(-10, 200, 60)

@@ -153,13 +153,12 @@ def plot_lattice_demos(run, path: str | None, n: int = 4):
 
 def plot_speed_demos(run, path: str | None, n: int = 4):
     """Station over time of a few held-out examples: human, the exact DP with default and tuned
-    weights, constant velocity, the IDM and the DP grid's best profile."""
-    from jaxplan.tuning.speed_tuning import default_speed_weights, oracle_stations, station_profiles
+    weights, constant velocity and the IDM."""
+    from jaxplan.tuning.speed_tuning import default_speed_weights, station_profiles
 
     plt = _plt()
     data = run.val_data
     s0, s1 = station_profiles(default_speed_weights(), data), station_profiles(run.weights, data)
-    so = oracle_stations(data)
     t = np.arange(s0.shape[1]) * 1.0
     v0 = np.asarray(data.v0)
     fig, axes = plt.subplots(1, n, figsize=(3.6 * n, 3.4), squeeze=False)
@@ -169,7 +168,6 @@ def plot_speed_demos(run, path: str | None, n: int = 4):
         ax.plot(t, v0[b] * t, "C1:", label="constant velocity")
         ax.plot(t, s0[b], "C0--o", ms=3, label="DP, default weights")
         ax.plot(t, s1[b], "C2-o", ms=3, label="DP, tuned weights")
-        ax.plot(t, so[b], "C7-", lw=0.8, label="DP grid's best")
         ax.set(xlabel="t (s)", ylabel="station along the human path (m)", title=f"held-out example {b}")
     axes[0, 0].legend(fontsize=7)
     fig.tight_layout()
