@@ -110,13 +110,14 @@ def braking_survives(state, ref, obs, cfg) -> bool:
     """In-lane braking at ``SURVIVAL_DECEL`` from ``t = 0`` (the ``brake`` planner's path: along the
     line at the car's offset) touches no obstacle over the horizon (geometry core's SAT)."""
     from jaxplan.baselines.route_follow import braking_profile, follow_route
-    from jaxplan.geometry.frenet import to_frenet
     from jaxplan.lattice.risk import min_separation, trajectory_boxes
+    from jaxplan.planner import EgoState
 
     t = jnp.arange(cfg.n_steps, dtype=jnp.float32) * cfg.dt
-    s0, l0 = to_frenet(ref, jnp.stack([state.x, state.y]).astype(jnp.float32))
-    ds, v, a = braking_profile(jnp.asarray(state.v, jnp.float32), -SURVIVAL_DECEL, t)
-    tr = follow_route(ref, s0 + ds, l0, v, a, t)
+    f = lambda x: jnp.asarray(x, jnp.float32)  # noqa: E731
+    ego = EgoState(f(state.x), f(state.y), f(state.heading), f(state.v), f(state.a), f(state.kappa))
+    ds, v, a = braking_profile(ego.v, -SURVIVAL_DECEL, t)
+    tr = follow_route(ref, ego, ds, v, a, t)
     sep = min_separation(trajectory_boxes(tr, cfg.vehicle)[None], obs)
     return bool(np.asarray(sep).min() >= 0)
 
