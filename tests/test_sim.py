@@ -62,6 +62,46 @@ def test_scene_lanes_route_and_goal():
     sc.validate()
 
 
+def test_route_smoothing_keeps_lines_and_arcs_and_removes_kinks():
+    """``smooth_polyline``: a straight line and a circular arc keep their shape (curvature of
+    the arc within 1 % away from the ends); a kinked polyline (what lanelet centre lines are)
+    gets a continuous curvature: its spike spread out, no point moved more than ``max_dev``."""
+    from jaxplan.geometry.frenet import reference_line
+    from jaxplan.scenarios.polylines import smooth_polyline
+
+    def kappa(xy):
+        ref = reference_line(jnp.asarray(xy))
+        return np.asarray(ref.kappa), np.asarray(ref.s)
+
+    u = np.arange(0.0, 200.0, 0.6)
+    line = np.stack([u, 0.5 * u], -1) / np.sqrt(1.25)
+    np.testing.assert_allclose(smooth_polyline(line, 15.0, 0.1), line, atol=1e-6)
+    R = 40.0
+    arc = R * np.stack([np.sin(u / R), 1 - np.cos(u / R)], -1)[: int(0.9 * np.pi * R / 0.6)]
+    k, _ = kappa(smooth_polyline(arc, 15.0, 0.1))
+    np.testing.assert_allclose(k[30:-30], 1.0 / R, rtol=0.01)
+    # straights meeting at 3 degrees every 25 m (lanelet centre lines kink by a few degrees)
+    pts = [np.zeros(2)]
+    for i in range(8):
+        a = np.radians(3.0) * (i % 2)
+        pts.append(pts[-1] + 25.0 * np.array([np.cos(a), np.sin(a)]))
+    from jaxplan.scenarios.polylines import arc_length, resample_polyline
+
+    poly = np.asarray(pts)
+    ds = arc_length(poly)
+    kinked = resample_polyline(poly, ds, np.arange(0.0, ds[-1], 0.6))
+    sm = smooth_polyline(kinked, 15.0, 0.1)
+    assert np.linalg.norm(sm - kinked, axis=1).max() <= 0.1 + 1e-9
+    (k0, s0), (k1, s1) = kappa(kinked), kappa(sm)
+    dk0 = np.abs(np.diff(k0) / np.diff(s0)).max()
+    dk1 = np.abs(np.diff(k1) / np.diff(s1)).max()
+    assert np.abs(k1).max() < 0.25 * np.abs(k0).max() and dk1 < 0.05 * dk0
+    # the heading change over the whole line is kept (within a degree)
+    th = lambda xy: np.arctan2(*(xy[-1] - xy[-40])[::-1])  # noqa: E731
+    assert abs(th(sm) - th(kinked)) < np.radians(1.0)
+    assert np.array_equal(smooth_polyline(kinked, 0.0, 0.1), kinked)
+
+
 def test_static_obstacle_held_past_the_recording():
     rec = _record(_road_dict(obstacles=[(80.0, 0.0, "static")]))
     obs = rec.scene.obstacles

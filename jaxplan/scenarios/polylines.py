@@ -45,3 +45,30 @@ def nearest_on_polyline(poly: np.ndarray, p: np.ndarray) -> tuple[int, float, fl
     d = np.linalg.norm(poly[:-1] + u[:, None] * seg - p, axis=1)
     j = int(np.argmin(d))
     return j, float(u[j] * np.sqrt(L2[j])), float(d[j])
+
+
+def smooth_polyline(xy: np.ndarray, wavelength: float, max_dev: float, order: int = 3) -> np.ndarray:
+    """A smoothed copy of a uniformly sampled polyline ``xy (N, 2)`` (host side).
+
+    Lanelet centre lines are polylines: their vertices are kinks, so the curvature of a line
+    resampled from them is a train of spikes and its derivative (which the lattice's
+    Cartesian acceleration and curvature use) is noise. As production stacks smooth the
+    reference line before planning, this is a Whittaker smoother: it minimises
+    ``|p - xy|^2 + lam |D^order p|^2`` per coordinate, ``lam`` set so that wiggles shorter than
+    ``wavelength`` metres are damped, then divided by 4 until no point moves more than
+    ``max_dev`` metres (tight turns keep their shape). ``wavelength <= 0``: unchanged.
+    """
+    xy = np.asarray(xy, float)
+    n = len(xy)
+    if wavelength <= 0 or n <= order + 1:
+        return xy.copy()
+    ds = float(np.mean(np.linalg.norm(np.diff(xy, axis=0), axis=1)))
+    lam = (wavelength / (2.0 * np.pi * max(ds, 1e-6))) ** (2 * order)
+    D = np.diff(np.eye(n), order, axis=0)
+    P = D.T @ D
+    for _ in range(12):
+        out = np.linalg.solve(np.eye(n) + lam * P, xy)
+        if np.max(np.linalg.norm(out - xy, axis=1)) <= max_dev:
+            return out
+        lam /= 4.0
+    return xy.copy()

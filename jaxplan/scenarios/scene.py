@@ -10,7 +10,8 @@ vertices, ``K`` obstacles over ``T`` steps, ``G`` goal polygons of ``W`` vertice
 
 - ``start (5,)``: the ego's box centre ``[x, y, heading, v, a]`` at ``t = 0``.
 - ``route``: the ``ReferenceLine`` of the route (``R`` points, uniform spacing), from
-  ``jaxplan.scenarios.route.plan_route``; ``route_start_s``: the start's arc length on it;
+  ``jaxplan.scenarios.route.plan_route``, smoothed within ``SceneConfig.route_max_dev`` so that
+  its curvature is continuous (lanelet centre lines are kinked polylines); ``route_start_s``: the start's arc length on it;
   ``route_end_s``: where the mapped lanelets end (the line continues straight after).
 - lanes beside the route, per route point: ``lane_offset (L, R)`` Frenet ``l`` of each lane's
   centre, ``lane_width (L, R)``, ``lane_valid (L, R)``, ``lane_same_dir (L, R)``; lane ``n`` is
@@ -40,7 +41,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxplan.geometry.frenet import ReferenceLine, to_frenet
-from jaxplan.scenarios.polylines import arc_length, nearest_on_polyline, resample_polyline
+from jaxplan.scenarios.polylines import arc_length, nearest_on_polyline, resample_polyline, smooth_polyline
 from jaxplan.scenarios.route import Route, RouteError, neighbour_map, plan_route
 from jaxplan.types import Obstacles, _pytree, check_coordinates, check_finite
 
@@ -60,6 +61,9 @@ class SceneConfig:
         simplify_tol: metres; lanelet outlines are simplified (Douglas-Peucker) within this.
         back, ahead_min, ahead_past_goal, ahead_max: metres of route kept behind the start and
             ahead of it (``trim_route``).
+        route_smoothing, route_max_dev: metres; the resampled route is smoothed
+            (``polylines.smooth_polyline``: wiggles shorter than ``route_smoothing`` damped, no point
+            moved more than ``route_max_dev``), so that its curvature is continuous; 0 = raw.
     """
 
     route_points: int = 384
@@ -70,6 +74,8 @@ class SceneConfig:
     ahead_min: float = 250.0
     ahead_past_goal: float = 100.0
     ahead_max: float = 800.0
+    route_smoothing: float = 15.0
+    route_max_dev: float = 0.1
 
 
 @_pytree(data_fields=("region", "region_valid", "has_region", "time", "speed", "heading", "has_heading",
@@ -326,7 +332,7 @@ def build_scene(scenario, config: SceneConfig = SceneConfig(), route: Route | No
     dense_s = arc_length(route.xy)
     R = config.route_points
     s = np.linspace(0.0, dense_s[-1], R)
-    xy = resample_polyline(route.xy, dense_s, s)
+    xy = smooth_polyline(resample_polyline(route.xy, dense_s, s), config.route_smoothing, config.route_max_dev)
     # owner lanelet of each resampled point: that of the dense vertex at or before it
     idx = np.clip(np.searchsorted(dense_s, s, side="right") - 1, 0, len(dense_s) - 1)
     owner = route.owner[idx]
