@@ -12,6 +12,7 @@ from jaxplan.tuning.baselines import CHUNK, chunks, collides, constant_accelerat
 from jaxplan.tuning.demos import Demo
 from jaxplan.tuning.traffic import IDMParams, frenet_traffic, leader
 from jaxplan.types import Obstacles
+from idm_oracle import idm_step
 
 T, K = 51, 4
 t = np.arange(T) * 0.1
@@ -53,14 +54,8 @@ def _idm_loop(v0, s_lead0, v_lead, p: IDMParams, dt=0.1, length=4.8, lead_len=4.
     s, v, out = 0.0, v0, [0.0]
     v_des = p.v_ratio * v0 + p.v_extra
     for k in range(T - 1):
-        gap = s_lead0 + v_lead * k * dt - s - 0.5 * (length + lead_len)
-        s_star = p.s_jam + max(0.0, v * p.headway + v * (v - v_lead) / (2 * np.sqrt(p.a_max * p.b_comf)))
-        a = p.a_max * (1 - (v / v_des) ** p.delta - (s_star / gap) ** 2) if s_lead0 < 1e5 else \
-            p.a_max * (1 - (v / v_des) ** p.delta)
-        a = max(a, -8.0)
-        v_new = max(v + a * dt, 0.0)
-        s += 0.5 * (v + v_new) * dt
-        v = v_new
+        gap = s_lead0 + v_lead * k * dt - s - 0.5 * (length + lead_len) if s_lead0 < 1e5 else None
+        s, v = idm_step(s, v, v_des, p, dt, gap, v_lead)
         out.append(s)
     return np.array(out)
 

@@ -19,6 +19,7 @@ from jaxplan.tuning.lattice_tuning import (LEARNED, LatticeData, choice_errors, 
 from jaxplan.tuning.run import CANDIDATE_SETS
 from jaxplan.tuning.traffic import IDMParams
 from jaxplan.tuning.train import fit, from_log, load_weights, random_search, save_weights, to_log
+from idm_oracle import idm_step
 
 SMALL = CANDIDATE_SETS["small"]
 SIGNED_MASK = jnp.asarray([n in SIGNED for n in FEATURES])
@@ -40,18 +41,11 @@ def _numpy_idm(ts, tl, tv, tlen, tvalid, s0, l_lane, v0, p, dt, length=4.8, band
     v_des = p.v_ratio * v0 + p.v_extra
     for k in range(ts.shape[1] - 1):
         ahead = [j for j in range(ts.shape[0]) if tvalid[j, k] and ts[j, k] > s and abs(tl[j, k] - l_lane) < band]
-        a_free = 1 - (v / v_des) ** p.delta
         if ahead:
             j = min(ahead, key=lambda j: ts[j, k] - 0.5 * tlen[j, k])
-            gap = ts[j, k] - s - 0.5 * (tlen[j, k] + length)
-            s_star = p.s_jam + max(0.0, v * p.headway + v * (v - tv[j, k]) / (2 * np.sqrt(p.a_max * p.b_comf)))
-            a = p.a_max * (a_free - (s_star / max(gap, 0.1)) ** 2)
+            s, v = idm_step(s, v, v_des, p, dt, ts[j, k] - s - 0.5 * (tlen[j, k] + length), tv[j, k], min_gap=0.1)
         else:
-            a = p.a_max * a_free
-        a = max(a, -8.0)
-        v_new = max(v + a * dt, 0.0)
-        s += 0.5 * (v + v_new) * dt
-        v = v_new
+            s, v = idm_step(s, v, v_des, p, dt)
         out.append(s)
     return np.array(out)
 
