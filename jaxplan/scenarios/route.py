@@ -11,8 +11,10 @@ where a lanelet forks.
 
 Reference line: the centre lines of the sequence. Where the route changes lane, the
 line blends from one centre line to the other with a smooth step over
-``LANE_CHANGE_LENGTH`` metres (``blend_centres``), from the start of the lanelet (or from
-the car's position on its first lanelet). Behind the start and past the last lanelet the line is
+``LANE_CHANGE_TIME`` seconds at the start speed, at least ``LANE_CHANGE_LENGTH`` metres
+(``blend_centres``; a line that changes lane in 30 m at 33 m/s asks for 25 m/s^2 of lateral
+acceleration from whoever follows it), from the start of the lanelet (or from the car's
+position on its first lanelet). Behind the start and past the last lanelet the line is
 extended (``BACK`` metres behind along predecessors or straight; ``AHEAD_MIN`` metres past
 the goal lanelet along successors, straight where the map ends), so that a planner's
 horizon never runs off it; ``Route.end_s`` says where the mapped lanelets end.
@@ -28,7 +30,8 @@ import numpy as np
 from jaxplan.scenarios.polylines import arc_length, nearest_on_polyline, resample_polyline
 
 LANE_CHANGE_COST = 15.0  # metres a lane change costs in the search (fewer changes for equal length)
-LANE_CHANGE_LENGTH = 30.0  # metres over which the reference line moves to the next lane
+LANE_CHANGE_LENGTH = 30.0  # metres over which the reference line moves to the next lane, at least
+LANE_CHANGE_TIME = 4.0  # seconds at the start speed over which it moves
 BACK = 30.0  # metres of reference line behind the start
 AHEAD_MIN = 80.0  # metres of reference line past the route's last lanelet (successors first)
 HEADING_OK = math.cos(math.radians(60.0))  # a lanelet fits a heading within 60 degrees
@@ -316,7 +319,7 @@ def _build(scenario, by_id, path, start, reaches) -> Route:
                 jj, along, _ = nearest_on_polyline(a, start)
                 s = arc_length(a)
                 u0 = min(0.9, (s[jj] + along) / s[-1])
-            pts = blend_centres(a, b, u0)
+            pts = blend_centres(a, b, u0, max(LANE_CHANGE_LENGTH, LANE_CHANGE_TIME * abs(float(scenario.ego.v))))
             if i == 0 and u0 > 0:
                 pts = np.concatenate([resample_polyline(a, arc_length(a), np.linspace(0, u0 * _length(a), 6))[:-1], pts])
         else:
