@@ -25,6 +25,17 @@ SPEED_LOOKAHEAD = 3.0  # s
 NO_LEADER = 1e4  # gap (m) reported when nothing is ahead
 
 
+def curve_speed(scene, s, reach, a_lat, decel, n: int = 32):
+    """``()`` the highest speed at ``s`` from which the car can slow, at ``decel`` (m/s^2), to
+    the curvature limit ``sqrt(a_lat / |kappa|)`` of the route at every point of the
+    ``reach`` metres ahead (``n`` samples): ``min_i sqrt(v_curve(s_i)^2 + 2 decel (s_i - s))``."""
+    f = scene.route.xy.dtype
+    d = jnp.linspace(0.0, 1.0, n, dtype=f) * reach
+    kap = jnp.abs(route_sample(scene, scene.route.kappa, s + d))
+    v_curve = jnp.sqrt(a_lat / jnp.maximum(kap, 1e-6))
+    return jnp.min(jnp.sqrt(v_curve ** 2 + 2.0 * decel * d))
+
+
 def route_sample(scene, values, s):
     """Linear interpolation of per-route-point ``values (..., R)`` at arc lengths ``s (...)``
     (clamped to the route's ends)."""

@@ -281,6 +281,43 @@ def test_margins_ignore_behind_and_terminal_condition():
         assert 150 - 2.25 - CFG.buffer_lon - end >= v_end ** 2 / (2 * CFG.terminal_decel) + CFG.terminal_gap - 1e-3
 
 
+def test_road_edge_check_matches_shapely(rng):
+    """``leaves_road`` against shapely on a straight line (where its lateral reach is exact):
+    the car's box at random offsets and headings, the corridor's edges random per point."""
+    from shapely.geometry import Polygon, box as sbox
+
+    from jaxplan.lattice.plan import ROAD_TOL, leaves_road
+
+    ref = straight_ref()
+    veh = CFG.vehicle
+    R = ref.s.shape[0]
+    n, T_ = 3000, 4
+    left = rng.uniform(2.0, 5.0)
+    right = -rng.uniform(2.0, 5.0)
+    edges = jnp.asarray(np.stack([np.full(R, left), np.full(R, right)], -1), jnp.float32)
+    s = rng.uniform(10.0, 300.0, (n, T_)).astype(np.float32)
+    l = (rng.uniform(right, left, (n, 1)) + rng.uniform(-0.3, 0.3, (n, T_))).astype(np.float32)
+    dl = np.tan(rng.uniform(-0.3, 0.3, (n, T_))).astype(np.float32)
+
+    class Cand:  # the fields leaves_road reads
+        pass
+
+    c = Cand()
+    c.s, c.l, c.dl = jnp.asarray(s), jnp.asarray(l), jnp.asarray(dl)
+    got = np.asarray(leaves_road(ref, c, edges, veh))
+    strip = sbox(-1e4, right - ROAD_TOL, 1e4, left + ROAD_TOL).buffer(1e-4)
+    d = np.arctan(dl)
+    cy = l + veh.center_offset * np.sin(d)
+    boxes = np.stack([s + veh.center_offset * np.cos(d), cy, np.full_like(s, veh.length), np.full_like(s, veh.width), d], -1)
+    corners = np.asarray(box_corners(jnp.asarray(boxes)))  # (n, T, 4, 2)
+    want = np.array([any(not strip.contains(Polygon(corners[i, k])) for k in range(T_)) for i in range(n)])
+    # poses within 1 mm of an edge: float32 may go either way
+    reach = 0.5 * veh.width * np.abs(np.cos(d)) + 0.5 * veh.length * np.abs(np.sin(d))
+    near = (np.minimum(np.abs(cy + reach - left - ROAD_TOL), np.abs(cy - reach - right + ROAD_TOL)) < 1e-3).any(-1)
+    assert 0.2 < want.mean() < 0.9  # both outcomes are well represented
+    assert np.all(got[~near] == want[~near])
+
+
 # ---------------------------------------------------------------- closed loop
 
 
@@ -295,13 +332,25 @@ def _scene(kind):
         n_lanes, obs = 1, [b._car(1, road, b.START_S + 45.0, 0.0, role="static")]
     elif kind == "pass":  # two lanes, a stopped car ahead in the ego lane, the left lane free
         n_lanes, obs = 2, [b._car(1, road, b.START_S + 40.0, 0.0, role="static")]
+    elif kind == "borrow":  # one lane each way, a stopped car ahead, an oncoming car that has passed by t = 3 s
+        n_lanes = 1
+        obs = [b._car(1, road, b.START_S + 45.0, 0.0, role="static"),
+               b._car(2, road, b.START_S + 80.0 - 15.0 * t, np.full_like(t, b.LANE), length=4.5)]
     else:  # cut-in from the left, 3 m/s slower, 14 m ahead
         n_lanes = 2
         u = np.clip((t - 0.8) / 2.0, 0.0, 1.0)
         obs = [b._car(1, road, b.START_S + 14.0 + (v0 - 3.0) * t, b.LANE * (1.0 - (3 * u ** 2 - 2 * u ** 3)))]
     start, th0 = road.pose(b.START_S, 0.0)
     gc, gth = road.pose(b.START_S + 110.0, 0.5 * (n_lanes - 1) * b.LANE)
-    return {"id": f"TEST_{kind}", "dt": b.DT, "lanelets": b._lanelets(road, n_lanes, 15.0), "obstacles": obs,
+    lanelets = b._lanelets(road, n_lanes, 15.0)
+    if kind == "borrow":  # the lane on the left runs the other way (its points in its own direction)
+        ss = np.arange(0.0, b.ROAD_LENGTH + 1e-6, 2.0)[::-1]
+        lanelets[0]["adjacentLeft"] = {"ref": 200, "drivingDir": "opposite"}
+        lanelets.append({"id": 200, "left": road.pose(ss, 0.5 * b.LANE)[0].round(4).tolist(),
+                         "right": road.pose(ss, 1.5 * b.LANE)[0].round(4).tolist(), "predecessors": [],
+                         "successors": [], "speed_limit": 15.0,
+                         "adjacentLeft": {"ref": lanelets[0]["id"], "drivingDir": "opposite"}})
+    return {"id": f"TEST_{kind}", "dt": b.DT, "lanelets": lanelets, "obstacles": obs,
             "planning_problems": [{"id": 1, "initial_state": {"t": 0.0, "position": start.tolist(),
                                                              "orientation": float(th0), "velocity": v0,
                                                              "acceleration": 0.0},
@@ -320,7 +369,7 @@ def _drives():
     from jaxplan.sim.rollout import SimConfig, rollout
 
     recs = []
-    for kind in ("stop", "pass", "cut_in"):
+    for kind in ("stop", "pass", "cut_in", "borrow"):
         d = _scene(kind)
         sc = parse_scenario(d, d["id"])
         scene, route = build_scene(sc)
@@ -334,7 +383,7 @@ def _drives():
     return recs, surv, jax.tree_util.tree_map(np.asarray, log), m, planner
 
 
-def test_closed_loop_stops_passes_and_survives_the_cut_in():
+def test_closed_loop_stops_passes_borrows_and_survives_the_cut_in():
     recs, surv, log, m, planner = _drives()
     assert surv.all()  # in-lane braking survives all three: a collision would be the planner's fault
     assert not m["overlap.collided"].any()
@@ -353,4 +402,7 @@ def test_closed_loop_stops_passes_and_survives_the_cut_in():
             assert s[-1] > s_obs + 10 and np.abs(l).max() > 1.75  # its centre crossed into the left lane
         if r.name == "TEST_cut_in":
             assert log.v[i].min() > 0.5  # it did not need to stop
+        if r.name == "TEST_borrow":  # borrowed the oncoming lane once it was free, passed, came back
+            assert not np.asarray(r.scene.lane_same_dir)[r.scene.lane_offset.shape[0] // 2 + 1].any()
+            assert s[-1] > s_obs + 10 and np.abs(l).max() > 1.75 and abs(l[-1]) < 0.5
     assert (log.plan_ok.all(axis=-1)).all()

@@ -100,6 +100,9 @@ class LatticeConfig:
             contact) or ``"seed"`` (the seed's ``lambda + gamma / TTC``).
         lane_change_gain: metres of progress over the horizon by which another lane must beat
             the current and the route lane before the lattice takes it as its target lane.
+        borrow_gain: metres more by which a lane running the other way must beat them
+            (``RoadTargets.lane_borrow``: borrowed to pass what blocks the car's lane, as
+            Apollo's lane borrow; oncoming traffic is checked like any obstacle).
         max_lanes: the road planner plans over at most this many lanes about the car's.
         near_k: collision broad phase keeping the ``near_k`` nearest obstacles per lateral group
             and step for the exact test (0: ``near_budget``'s exact broad phase); conservative:
@@ -162,6 +165,7 @@ class LatticeConfig:
     terminal_gap: float = 1.0
     all_collide: str = "harm"
     lane_change_gain: float = 8.0
+    borrow_gain: float = 30.0
     near_k: int = 0
     max_lanes: int = 5
     goal_weight_time: float = 1.0

@@ -23,7 +23,7 @@ from jaxplan.types import Obstacles, _pytree, is_concrete
 
 @_pytree(data_fields=("candidates", "features", "cost", "selection_cost", "collided", "first_t", "ttc",
                       "min_sep", "chosen", "mode", "obstacles", "finite", "ok", "feasible", "reasons",
-                      "collided_margin", "terminal_ok", "impact", "l_target", "ignored"))
+                      "collided_margin", "terminal_ok", "impact", "l_target", "ignored", "off_road"))
 class LatticeResult:
     """Everything one plan computed (``N`` candidates, ``T`` steps, any leading batch dims).
 
@@ -48,6 +48,8 @@ class LatticeResult:
         impact: ``(..., N)`` relative speed at first contact (m/s; 0 without contact).
         l_target: ``(...)`` the target lane's centre the lane decision took (m).
         ignored: ``(..., K, T)`` obstacle steps left out (same-lane obstacles behind the car).
+        off_road: ``(..., N)`` the candidate's box leaves the road (``RoadTargets.road_edges``;
+            counted in ``collided_margin``: taken only when nothing on the road is free).
     """
 
     candidates: Any
@@ -70,6 +72,7 @@ class LatticeResult:
     impact: Any = None
     l_target: Any = None
     ignored: Any = None
+    off_road: Any = None
 
     def chosen_trajectory(self):
         """The chosen ``Trajectory`` ``(..., T)``."""
@@ -162,6 +165,11 @@ def _plan(state: PlanState, ref: ReferenceLine, obstacles: Obstacles, config: La
             sep = sep_m = min_separation_axes(center, cand.axis, half, obs)
     risk = risk_from_separation(sep, t)
     collided_m = jnp.any(sep_m < 0, axis=-1)
+    if targets.road_edges is not None:  # leaving the road counts as touching an obstacle's buffer
+        off_road = leaves_road(ref, cand, targets.road_edges, veh)
+        collided_m = collided_m | off_road
+    else:
+        off_road = jnp.zeros(collided_m.shape, bool)
     feasible, reasons = feasibility(cand.traj, cand.level, config)
     first_t, impact = first_contact(sep, t, center, cand.axis, cand.traj.v, obs, half, config.dt)
     if config.terminal and K:
@@ -190,7 +198,26 @@ def _plan(state: PlanState, ref: ReferenceLine, obstacles: Obstacles, config: La
     ok_plan = jnp.take(finite, idx)
     return LatticeResult(cand, feats, costs(weights, feats), sel, risk.collided | ~finite, risk.first_t, risk.ttc,
                          sep, idx, mode, obs, finite, ok_plan, feasible, reasons, collided_m, terminal_ok, impact,
-                         l_target, ignored)
+                         l_target, ignored, off_road)
+
+
+ROAD_TOL = 0.1  # m: a candidate's box may reach this far past a road edge (map seams, edge sampling)
+
+
+def leaves_road(ref, cand, road_edges, vehicle):
+    """``(N,)``: some sample of the candidate's box reaches more than ``ROAD_TOL`` past the
+    road's left or right edge (``road_edges (R, 2)`` at ``ref``'s points, interpolated in s).
+
+    The box's lateral reach about its centre is ``w/2 |cos d| + L/2 |sin d|`` with ``d`` its
+    heading relative to the line (``atan(dl/ds)``, curvature of the line neglected)."""
+    f = cand.l.dtype
+    left = jnp.interp(cand.s, ref.s, road_edges[:, 0].astype(f))
+    right = jnp.interp(cand.s, ref.s, road_edges[:, 1].astype(f))
+    d = jnp.arctan(cand.dl)
+    lc = cand.l + jnp.asarray(vehicle.center_offset, f) * jnp.sin(d)
+    reach = 0.5 * vehicle.width * jnp.abs(jnp.cos(d)) + 0.5 * vehicle.length * jnp.abs(jnp.sin(d))
+    out = (lc + reach > left + ROAD_TOL) | (lc - reach < right - ROAD_TOL)
+    return jnp.any(out, axis=-1)
 
 
 def _terminal(ref, cand, obs, sl, ext, v_along, front, half_w, config):
@@ -219,7 +246,8 @@ def _terminal(ref, cand, obs, sl, ext, v_along, front, half_w, config):
 def _lane_decision(cand, targets, ok, l_car, config):
     """The target lane's centre ``()``: the route lane unless another lane lets the car get
     further over the horizon (level-0 candidates that pass every check) by more than
-    ``lane_change_gain`` than the route lane and the car's current lane (each keeps that bonus)."""
+    ``lane_change_gain`` than the route lane and the car's current lane (each keeps that bonus);
+    a lane running the other way (``RoadTargets.lane_borrow``) needs ``borrow_gain`` more."""
     Ln = targets.lane_centres.shape[0]
     prog = cand.s_rel[:, -1]
     slot = cand.lane_slot
@@ -230,6 +258,8 @@ def _lane_decision(cand, targets, ok, l_car, config):
     route = targets.route_lane
     lanes = jnp.arange(Ln)
     score = best + config.lane_change_gain * ((lanes == route).astype(prog.dtype) + (lanes == current))
+    if targets.lane_borrow is not None:
+        score = score - config.borrow_gain * jnp.asarray(targets.lane_borrow, prog.dtype)
     score = jnp.where(targets.lane_ok, score, -jnp.inf)
     # ties go to the route lane
     score = score + 1e-3 * (lanes == route)

@@ -5,12 +5,16 @@ the speed limits ahead, the lanes beside the route, the goal) and plans on the r
 reference line with ``LatticeConfig.road()``: cruising, following, stopping (before a
 stopped obstacle or the end of the mapped route) and goal-reaching profiles over several
 end times, an emergency and a fallback level, every lane the scene has on either side at
-three lateral times, the feasibility filter, safety buffers and the terminal condition
-(``jaxplan.lattice.plan``).
+three lateral times (lanes running the other way only borrowed to pass a blockage),
+the feasibility filter, safety buffers, the road edges (``Scene.road_left / road_right``)
+and the terminal condition (``jaxplan.lattice.plan``).
 
 The set speed is the speed limit, bent towards the goal's timing: no faster than reaching
 the far end of the goal region when its time window opens, no slower than reaching its
-near end when the window closes (at most ``GOAL_SPEEDUP`` times the limit).
+near end when the window closes (at most ``GOAL_SPEEDUP`` times the limit); and, once the
+goal region is within the plan's reach, inside the goal's speed range; never above the speed
+from which the car slows gently (``CURVE_DECEL``) to the route's curvature limit
+(``CURVE_LAT_ACC`` of the comfortable lateral acceleration) on the reach ahead.
 
 ``ok`` is False when every candidate collides (mode RISK) or the plan is not finite (INVALID);
 ``info`` has the mode, the candidates the feasibility filter rejected and the target lane.
@@ -26,19 +30,21 @@ from jaxplan.lattice.candidates import LatticeConfig, PlanState
 from jaxplan.lattice.cost import INVALID, RISK, CostWeights
 from jaxplan.lattice.plan import LatticeResult, _plan
 from jaxplan.lattice.targets import RoadTargets
-from jaxplan.plan_context import road_context, route_sample
+from jaxplan.plan_context import curve_speed, road_context, route_sample
 from jaxplan.planner import EgoState, PlanOutput
 from jaxplan.types import VehicleParams
 
 GOAL_SPEEDUP = 1.2
 
 
-def goal_speed(v_set, s_centre, goal_s, goal_t):
-    """The set speed ``()`` bent towards the goal's timing (see the module docstring).
+def goal_speed(v_set, s_centre, goal_s, goal_t, goal_v=None, reach=None):
+    """The set speed ``()`` bent towards the goal's timing and speed (see the module docstring).
 
     Args:
         v_set: ``()`` the speed limit ahead; s_centre: ``()`` the car's box centre on the route.
         goal_s: ``(2,)`` the goal region on the route; goal_t: ``(2,)`` its time window from now.
+        goal_v: ``(2,)`` the goal's speed range (None or infinite: none); reach: ``()`` metres
+            ahead within which the goal's speed range holds (the plan's reach).
     """
     has = jnp.all(jnp.isfinite(goal_s))
     d_far = jnp.where(has, goal_s[1] - s_centre, jnp.inf)
@@ -47,9 +53,20 @@ def goal_speed(v_set, s_centre, goal_s, goal_t):
     v_lo = jnp.where(jnp.isfinite(goal_t[1]) & (goal_t[1] > 0.1), jnp.maximum(d_near, 0.0) / jnp.maximum(goal_t[1], 0.1),
                      0.0)
     v = jnp.maximum(jnp.minimum(v_set, v_hi), jnp.minimum(v_lo, GOAL_SPEEDUP * v_set))
+    if goal_v is not None:
+        # near the goal (its region within reach, not yet passed) aim inside its speed range, a
+        # tenth of the range in from either end
+        lo, hi = goal_v[0], goal_v[1]
+        span = jnp.where(jnp.isfinite(hi - lo), hi - lo, 0.0)
+        near = has & (d_near < reach) & (d_far > 0.0)
+        v_in = jnp.clip(v, jnp.where(jnp.isfinite(lo), lo + 0.1 * span, -jnp.inf),
+                        jnp.where(jnp.isfinite(hi), hi - 0.1 * span, jnp.inf))
+        v = jnp.where(near, jnp.maximum(v_in, 0.0), v)
     return jnp.where(has, v, v_set)
 
 
+CURVE_LAT_ACC = 0.8  # share of the comfortable lateral acceleration the set speed leaves for curves
+CURVE_DECEL = 2.0  # m/s^2: the set speed slows this gently before a curve
 LANE_LOOKAHEAD = 2.5  # s: the lanes are read this far ahead (15-60 m)
 
 
@@ -86,22 +103,28 @@ class LatticePlanner:
         ctx = road_context(scene, ego, step, cfg.n_steps, self.vehicle)
         f = scene.route.xy.dtype
         s_centre = ctx.s + jnp.asarray(self.vehicle.center_offset, f)
-        v_set = goal_speed(ctx.v_set, s_centre, ctx.goal_s, ctx.goal_t)
+        reach = jnp.maximum(ego.v, 5.0) * self.horizon
+        v_set = goal_speed(ctx.v_set, s_centre, ctx.goal_s, ctx.goal_t, ctx.goal_v, reach)
+        # no faster than the route's curves allow (slowing gently before them)
+        v_set = jnp.minimum(v_set, curve_speed(scene, ctx.s, reach, CURVE_LAT_ACC * cfg.lat_acc_max, CURVE_DECEL))
         state = PlanState(ego.x, ego.y, ego.heading, ego.kappa, ego.v, ego.a, v_set, jnp.inf)
         # the max_lanes lanes about the car's current one (every lane on a road up to that wide), read
         # LANE_LOOKAHEAD s ahead, where the lateral manoeuvres end: where the route blends into another
         # lane, the lane the car is in is then still a target (the offsets at the car would not offer it)
         s_ahead = ctx.s + jnp.clip(ego.v * LANE_LOOKAHEAD, 15.0, 60.0)
         lane_offset = route_sample(scene, scene.lane_offset, s_ahead)
-        lane_ok = (route_sample(scene, scene.lane_valid.astype(f), s_ahead) > 0.5) \
-            & (route_sample(scene, scene.lane_same_dir.astype(f), s_ahead) > 0.5)
+        lane_valid = route_sample(scene, scene.lane_valid.astype(f), s_ahead) > 0.5
+        lane_ok = lane_valid & (route_sample(scene, scene.lane_same_dir.astype(f), s_ahead) > 0.5)
         L, M = lane_offset.shape[-1], len(cfg.lanes)
         cur = jnp.argmin(jnp.where(lane_ok, jnp.abs(lane_offset - ctx.l), jnp.inf))
         start = jnp.clip(cur - M // 2, 0, L - M)
         idx = start + jnp.arange(M)
-        targets = RoadTargets(lane_offset[idx], lane_ok[idx], jnp.clip(scene.own_lane - start, 0, M - 1),
+        # lanes running the other way are offered for borrowing (LatticeConfig.borrow_gain; inf: never)
+        borrow = jnp.isfinite(cfg.borrow_gain) & lane_valid & ~lane_ok
+        targets = RoadTargets(lane_offset[idx], (lane_ok | borrow)[idx], jnp.clip(scene.own_lane - start, 0, M - 1),
                               ctx.route_end_s, ctx.goal_s, ctx.goal_l, ctx.goal_t, ctx.goal_v,
-                              jnp.stack([ctx.obstacle_s, ctx.obstacle_l], -1))
+                              jnp.stack([ctx.obstacle_s, ctx.obstacle_l], -1), borrow[idx],
+                              jnp.stack([scene.road_left, scene.road_right], -1))
         w = CostWeights() if self.weights is None else CostWeights(**dict(self.weights))
         return _plan(state, scene.route, ctx.obstacles, cfg, w, targets)
 

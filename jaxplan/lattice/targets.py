@@ -26,7 +26,7 @@ HOLD_LANE, GOAL_LANE = 100, 101  # lane ids of the "hold the current offset" and
 
 
 @_pytree(data_fields=("lane_centres", "lane_ok", "route_lane", "stop_s", "goal_s", "goal_l", "goal_t", "goal_v",
-                      "obstacle_sl"))
+                      "obstacle_sl", "lane_borrow", "road_edges"))
 class RoadTargets:
     """Per-plan targets (each field unbatched; add leading axes for ``plan_batch``).
 
@@ -40,6 +40,10 @@ class RoadTargets:
         goal_t: ``(2,)`` the goal's time window from now (s); goal_v: ``(2,)`` its speeds.
         obstacle_sl: ``(K, T, 2)`` the obstacles' centres in Frenet coordinates on the line
             (aligned with the obstacles), or None: then ``plan`` projects them.
+        lane_borrow: ``(Ln,)`` bool, the lane (``lane_ok`` too) runs the other way: a target only
+            by ``LatticeConfig.borrow_gain`` more progress (None: no such lane).
+        road_edges: ``(R, 2)`` the drivable corridor's left and right edges (Frenet ``l``, m) at
+            the reference line's points, or None: no road-edge check.
     """
 
     lane_centres: Any
@@ -51,6 +55,8 @@ class RoadTargets:
     goal_t: Any = (0.0, float("inf"))
     goal_v: Any = (-float("inf"), float("inf"))
     obstacle_sl: Any = None
+    lane_borrow: Any = None
+    road_edges: Any = None
 
     @classmethod
     def from_config(cls, config, dtype=None) -> "RoadTargets":
