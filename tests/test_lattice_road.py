@@ -318,6 +318,35 @@ def test_road_edge_check_matches_shapely(rng):
     assert np.all(got[~near] == want[~near])
 
 
+def test_set_speed_follows_the_goal_range_and_the_curves():
+    """``goal_speed`` aims inside the goal's speed range only once the goal is within reach;
+    ``curve_speed`` is ``min sqrt(a_lat / kappa + 2 b d)`` (a straight, then an arc of radius 50 m)."""
+    from types import SimpleNamespace
+
+    from jaxplan.geometry.frenet import reference_line
+    from jaxplan.lattice.planner import goal_speed
+    from jaxplan.plan_context import curve_speed
+
+    inf = jnp.inf
+    gv = jnp.asarray([12.3, 18.3])
+    near = goal_speed(25.0, 100.0, jnp.asarray([150.0, 160.0]), jnp.asarray([0.0, inf]), gv, 100.0)
+    far = goal_speed(25.0, 100.0, jnp.asarray([250.0, 260.0]), jnp.asarray([0.0, inf]), gv, 100.0)
+    passed = goal_speed(25.0, 300.0, jnp.asarray([250.0, 260.0]), jnp.asarray([0.0, inf]), gv, 100.0)
+    assert float(near) == pytest.approx(18.3 - 0.6) and float(far) == 25.0 and float(passed) == 25.0
+    slow = goal_speed(5.0, 100.0, jnp.asarray([150.0, 160.0]), jnp.asarray([0.0, inf]), gv, 100.0)
+    assert float(slow) == pytest.approx(12.3 + 0.6)
+    R, d0 = 50.0, 40.0
+    u = np.arange(0.0, 150.0, 0.5)
+    straight = np.stack([u - d0, np.zeros_like(u)], -1)[u < d0]
+    arc = R * np.stack([np.sin(u / R), 1 - np.cos(u / R)], -1)
+    scene = SimpleNamespace(route=reference_line(jnp.asarray(np.concatenate([straight, arc]))))
+    a_lat, b = 3.2, 2.0
+    got = float(curve_speed(scene, 0.0, 120.0, a_lat, b, n=241))
+    want = np.sqrt(a_lat * R + 2 * b * d0)  # the arc's curvature settles within a point or two
+    assert got == pytest.approx(want, rel=0.03)
+    assert float(curve_speed(scene, 0.0, 30.0, a_lat, b, n=61)) > 1e2  # the arc is beyond the reach
+
+
 # ---------------------------------------------------------------- closed loop
 
 
