@@ -9,8 +9,10 @@ Each cycle (one scene, jittable; the simulator batches it with ``jax.vmap``):
    its end (``bounds_route_path``). When its QP fails, it is not clear of the blocking
    obstacles or something blocks it, the speed is planned on the route's centre line joined
    from the car's pose (``route_path``) instead, with a stop before the bounds path's
-   blockage; ``info["path_bounds"]`` says which path was used (and ``path_qp_ok``,
-   ``path_clear``, ``path_blocked`` why);
+   blockage. The speed is planned on both paths, and the route path is also taken when the
+   bounds path's speed plan cannot avoid the moving obstacles while the route path's can
+   (a bypass into a lane with traffic beside the car); ``info["path_bounds"]`` says which
+   path was used (and ``path_qp_ok``, ``path_clear``, ``path_blocked`` why);
 3. the **speed**: the ST boundaries of the predictions on that path (blocking,
    non-blocking with decisions, a wall before the path's blockage and the end of the
    map), the DP over the reachable band (``dp.py``) with the lane speed limit, the
@@ -268,25 +270,23 @@ class PathSpeedPlanner:
         return w
 
     def plan_path(self, scene, ctx: RoadContext, ego: EgoState):
-        """The path of this cycle: ``(path, pp, use)``: the ``RoutePath`` the speed is planned
-        on, the bounds ``PathPlan`` (None without ``self.path``) and whether the path is the
-        bounds path (``()`` bool). The bounds path is used when its QP solved, it is clear of
-        every blocking obstacle and nothing blocks it; else the route path, with the bounds
-        path's blockage (if any) as the stop."""
+        """The paths of this cycle: ``(bp, rp, pp, use)``: the bounds path as a ``RoutePath``
+        (None without ``self.path``), the route path (``route_path``, with the bounds path's
+        blockage, if any, as its stop), the bounds ``PathPlan`` (or None) and whether the bounds
+        path may be used (``()`` bool: its QP solved, it is clear of every blocking obstacle
+        and nothing blocks it)."""
         ahead = self.speed.v_max * self.horizon + 30.0
         if self.path is None:
-            return route_path(scene, ctx, ego, self.path_points, 20.0, ahead), None, jnp.asarray(False)
+            return None, route_path(scene, ctx, ego, self.path_points, 20.0, ahead), None, jnp.asarray(False)
         total, ext = _total_points(self.path.n_points, self.ext_points)
         rp = route_path(scene, ctx, ego, total, 20.0, ahead)
         pp = plan_path(scene, ctx, self.path)
         bp = bounds_route_path(scene, ctx, pp, rp, ext, ahead)
         blocked = jnp.isfinite(pp.blocked_s)
-        use = pp.ok & ~blocked
         # the blockage on the route path: at the route station of the bounds path's blockage
         stop_r = jnp.interp(pp.blocked_s, pp.s, pp.route_s) - ctx.s
         rp = dataclasses.replace(rp, blocked_s=jnp.where(blocked, stop_r, rp.blocked_s))
-        path = jax.tree_util.tree_map(lambda a, b: jnp.where(use, a, b), bp, rp)
-        return path, pp, use
+        return bp, rp, pp, pp.ok & ~blocked
 
     def speed_plan(self, scene, ego: EgoState, step) -> dict:
         """One cycle up to the speed profile, as a dict: ``ctx`` (the ``RoadContext``),
@@ -297,15 +297,29 @@ class PathSpeedPlanner:
         H = self.horizon_steps
         ctx = road_context(scene, ego, step, H, self.vehicle)
         f = scene.route.xy.dtype
-        path, pp, use = self.plan_path(scene, ctx, ego)
-        ref, s0 = path_reference(path)
-        road = speed_road(scene, ctx, path, self.speed.v_max, self.vehicle)
+        bp, rp, pp, use = self.plan_path(scene, ctx, ego)
         v0 = jnp.maximum(jnp.asarray(ego.v, f), 0.0)
         a0 = jnp.asarray(ego.a, f)
         w = self.cost_weights(cruise_speed(ctx, self.vehicle, self.horizon).astype(f))
         obs = ctx.obstacles
         obs = Obstacles(obs.boxes, obs.valid, obs.t - obs.t[0], obs.static)
-        plan = _plan_one(ref, obs, v0, a0, s0, None, road, self.vehicle, self.speed, w)
+
+        def on(path):
+            ref, s0 = path_reference(path)
+            road = speed_road(scene, ctx, path, self.speed.v_max, self.vehicle)
+            return path, ref, s0, _plan_one(ref, obs, v0, a0, s0, None, road, self.vehicle, self.speed, w)
+
+        route = on(rp)
+        if bp is not None:
+            # the path decision sees blocking obstacles only; the speed plan on each path sees
+            # the moving ones too: the bounds path is taken when its speed plan is collision-free,
+            # or when neither is and it costs less (a bypass into a lane where traffic already
+            # is would be hit whatever the speed; then the car stays in its lane and stops)
+            bypass = on(bp)
+            pb, pr = bypass[3], route[3]
+            use = use & (pb.feasible | (~pr.feasible & (pb.cost <= pr.cost)))
+            route = jax.tree_util.tree_map(lambda a, b: jnp.where(use, a, b), bypass, route)
+        path, ref, s0, plan = route
         prof = smooth_plan(plan, v0, a0, self.speed, self.smooth)
         return dict(ctx=ctx, path=path, bounds=pp, use_bounds=use, ref=ref, s0=s0, plan=plan, profile=prof)
 
