@@ -137,14 +137,17 @@ def test_stop_follow_goal_modes_reach_their_targets():
 
 
 def _oracle_infeasible(tr, level, cfg):
-    """Numpy, from the trajectory samples: curvature, lateral and longitudinal acceleration, jerk."""
+    """Numpy, from the trajectory samples: curvature, lateral and longitudinal acceleration (and
+    speed change per step), jerk."""
     v, a = np.asarray(tr.v, np.float64), np.asarray(tr.a, np.float64)
     kap = np.abs(np.asarray(tr.kappa, np.float64)).max(-1)
     em = level >= len(cfg.escalation)
     lat = np.abs(v ** 2 * np.asarray(tr.kappa)).max(-1)
     jerk = np.abs(np.diff(a) / cfg.dt).max(-1)
     lo = np.where(em, cfg.emergency_a_min, cfg.lon_acc_limits[0])
-    return kap, lat, (a.min(-1) < lo) | (a.max(-1) > cfg.lon_acc_limits[1]), jerk, v.min(-1) < 0
+    fd = np.diff(v) / cfg.dt  # the speed change over each step, as a drive's metric measures it
+    lon = (np.minimum(a.min(-1), fd.min(-1)) < lo) | (np.maximum(a.max(-1), fd.max(-1)) > cfg.lon_acc_limits[1])
+    return kap, lat, lon, jerk, v.min(-1) < 0
 
 
 def test_feasibility_flags_match_an_oracle_and_nothing_infeasible_is_chosen(rng):

@@ -6,8 +6,8 @@ infeasible when, at some sample,
 - ``curvature``: ``|kappa| > config.curvature_limit`` (the steering limit
   ``tan(max_steer) / wheelbase`` unless ``kappa_max`` is given);
 - ``lat_acc``: ``|v^2 kappa|`` exceeds the lateral acceleration limit;
-- ``lon_acc``: the acceleration leaves ``lon_acc_limits`` (emergency levels: down to
-  ``emergency_a_min``);
+- ``lon_acc``: the acceleration, or the speed change over a step, leaves
+  ``lon_acc_limits`` (emergency levels: down to ``emergency_a_min``);
 - ``jerk``: ``|da/dt|`` (finite differences of the samples) exceeds the jerk limit;
 - ``reverse``: the speed drops below zero (a quintic profile that would reverse).
 
@@ -44,6 +44,9 @@ def feasibility(traj, level, config):
     kap = jnp.max(jnp.abs(traj.kappa), axis=-1)
     lat = jnp.max(jnp.abs(traj.v ** 2 * traj.kappa), axis=-1)
     a_min, a_max = jnp.min(traj.a, axis=-1), jnp.max(traj.a, axis=-1)
+    if traj.v.shape[-1] > 1:  # and the speed change over each step (what a drive's metric measures)
+        fd = jnp.diff(traj.v, axis=-1) / jnp.asarray(config.dt, f)
+        a_min, a_max = jnp.minimum(a_min, jnp.min(fd, axis=-1)), jnp.maximum(a_max, jnp.max(fd, axis=-1))
     jerk = jnp.max(jnp.abs(jnp.diff(traj.a, axis=-1)), axis=-1) / jnp.asarray(config.dt, f) \
         if traj.a.shape[-1] > 1 else jnp.zeros_like(a_min)
     reasons = jnp.stack([kap > config.curvature_limit * (1 + TOL) + 1e-4, lat > lat_max,

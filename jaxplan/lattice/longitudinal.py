@@ -39,6 +39,10 @@ from jaxplan.types import _pytree
 KMH = 1.0 / 3.6
 # Mode ids of the longitudinal profiles.
 CRUISE, FOLLOW, STOP, GOAL, EMERGENCY, FALLBACK = 0, 1, 2, 3, 4, 5
+# the profiles run along the reference line; the car's own acceleration adds the line's
+# geometry (an offset on a curve, a heading change): the emergency profiles brake at this
+# share of ``emergency_a_min`` so that the car's stays within it (the feasibility filter checks)
+EMERGENCY_SHARE = 0.96
 MODE_NAMES = ("cruise", "follow", "stop", "goal", "emergency", "fallback")
 MIN_END_TIME = 1.0  # s: the earliest end time of a quintic profile
 
@@ -175,7 +179,8 @@ def longitudinal_set(sdot0, a0, t, config, leader_s=None, leader_v=None, leader_
         parts.append(quintic_part(jnp.broadcast_to(gs, T.shape), v_fin, T, GOAL, jnp.broadcast_to(ok, T.shape)))
     if config.emergency:
         ve = jnp.stack([jnp.zeros_like(v0), 0.5 * v0])
-        s, v, a = jerk_profile(v0, a0, ve, t, config.emergency_jerk, config.emergency_a_min, config.a_max)
+        s, v, a = jerk_profile(v0, a0, ve, t, config.emergency_jerk, EMERGENCY_SHARE * config.emergency_a_min,
+                               config.a_max)
         parts.append((s, v, a, ve, jnp.full((2,), E), jnp.full((2,), EMERGENCY), jnp.ones((2,), bool),
                       jnp.full((2,), jnp.inf, f)))
     if config.fallback:
