@@ -41,7 +41,9 @@ def parser() -> argparse.ArgumentParser:
     e = sub.add_parser("eval", help="run an evaluation suite and write OUT/metrics.json and plots",
                        epilog=_suites_epilog(), formatter_class=argparse.RawDescriptionHelpFormatter)
     e.add_argument("suite", type=_suite_spec, help="suite name (below), several joined by commas, or 'all'")
-    e.add_argument("--scenarios", type=ca.scenario_dir, help="directory of scenario JSON files (shared format)")
+    e.add_argument("--scenarios", type=ca.scenario_dirs,
+                   help="folder of scenario JSON files (shared format); the speed suite takes several, "
+                        "comma-separated, and CommonRoad XML folders")
     e.add_argument("--out", type=ca.output_dir, default="results",
                    help="output directory (default: results); a run replaces the metrics of an earlier run there")
     e.add_argument("--n", type=ca.positive_int, help="number of scenes / cases")

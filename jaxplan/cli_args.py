@@ -107,6 +107,21 @@ def scenario_dir(text) -> str:
 SCENARIO_SUFFIXES = (".json", ".xml")
 
 
+def scenario_dirs(text) -> str:
+    """Comma-separated folders of scenario files, each checked as ``scenario_dir`` (a folder of
+    CommonRoad XML only: that it has a ``.xml`` file; the suites that read XML load it)."""
+    parts = [p for p in str(text).split(",") if p]
+    if not parts:
+        raise BadArgument(f"{text!r}: no folder named")
+    import glob
+
+    for p in parts:
+        existing_dir(p)
+        if glob.glob(os.path.join(p, "*.json")) or not glob.glob(os.path.join(p, "*.xml")):
+            scenario_dir(p)
+    return str(text)
+
+
 def scenario_file(text) -> str:
     """A scenario file: shared JSON (``.json``) or CommonRoad XML (``.xml``) that exists."""
     path = existing_file(text)

@@ -55,6 +55,9 @@ def paths(tmp_path_factory):
     nojson = root / "nojson"
     nojson.mkdir()
     (nojson / "notes.txt").write_text("hello")
+    xml = root / "xmlonly"
+    xml.mkdir()
+    (xml / "s.xml").write_text("<commonRoad/>")  # the CLI only checks an XML folder has a file
     afile = root / "afile.txt"
     afile.write_text("x")
     weights = root / "w.json"
@@ -63,7 +66,7 @@ def paths(tmp_path_factory):
     typo.write_text(json.dumps({"weights": {"alhpa": 1.0}}))
     return {"good": str(good), "junk": str(junk), "empty": str(empty), "nojson": str(nojson), "file": str(afile),
             "missing": str(root / "missing"), "weights": str(weights), "typo": str(typo), "root": str(root),
-            "under_file": str(afile / "sub")}
+            "under_file": str(afile / "sub"), "xml": str(xml)}
 
 
 BAD = [  # (argv, words the one error line must contain)
@@ -72,6 +75,8 @@ BAD = [  # (argv, words the one error line must contain)
     (["eval", "lattice", "--scenarios", "{nojson}"], ["--scenarios", "no scenario files"]),
     (["eval", "lattice", "--scenarios", "{junk}"], ["--scenarios", "{junk}", "none of its 2 scenario files"]),
     (["eval", "lattice", "--scenarios", "{file}"], ["--scenarios", "{file}", "is a file"]),
+    (["eval", "speed", "--scenarios", "{good},{missing}"], ["--scenarios", "{missing}", "no such folder"]),
+    (["eval", "speed", "--scenarios", "{xml},{junk}"], ["--scenarios", "{junk}", "none of its 2 scenario files"]),
     (["eval", "lattice", "--n", "-1"], ["--n", "positive integer", "-1"]),
     (["eval", "lattice", "--n", "0"], ["--n", "positive integer", "0"]),
     (["eval", "lattice", "--n", "three"], ["--n", "three"]),
@@ -117,6 +122,10 @@ def test_item11_good_arguments_reach_the_work(paths, monkeypatch):
               "--out", os.path.join(paths["root"], "new", "out")])
     name, (suite, args), _ = calls[-1]
     assert (name, suite, args.n, args.scenarios) == ("eval", "lattice", 3, paths["good"])
+    both = f"{paths['good']},{paths['xml']}"  # several folders, one of CommonRoad XML
+    with pytest.raises(Reached):
+        main(["eval", "speed", "--scenarios", both, "--out", os.path.join(paths["root"], "new", "out2")])
+    assert calls[-1][1][1].scenarios == both
     with pytest.raises(Reached):
         main(["tune", "speed", "--steps", "2", "--scenarios", paths["good"], "--out", paths["root"] + "/w2.json"])
     assert calls[-1][0] == "tune"

@@ -46,7 +46,8 @@ class SuiteArgs:
             checks.append(("n", ca.positive_int, self.n))
         checks.append(("seed", ca.nonnegative_int, self.seed))
         if self.scenarios is not None:
-            checks.append(("scenarios", ca.existing_dir, self.scenarios))
+            checks.append(("scenarios", lambda v: [ca.existing_dir(p) for p in str(v).split(",") if p],
+                           self.scenarios))
         if self.weights is not None:
             checks.append(("weights", ca.existing_file, self.weights))
         for name, check, value in checks:
