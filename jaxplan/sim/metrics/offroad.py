@@ -5,14 +5,14 @@ The box is on the road when
 * points along its outline (its corners and at most every ``SPACING`` metres of its sides) each
   lie inside some lanelet outline, or within ``TOL`` of one (seams between lanelets whose shared
   bound is not vertex-identical), and
-* no vertex of the road's outer edge lies inside the box (deeper than ``PROBE``). A road edge
+* no vertex of the road's outer edge lies inside the box (deeper than ``TOL``). A road edge
   vertex is a lanelet vertex with a point ``PROBE`` away from it (along either adjacent edge's
   normal or the corner's bisector) that lies in no lanelet: the edge between two outline samples
   can only dip into the box through such a vertex (a straight edge crossing the box cuts off a
   corner or two, which the first rule sees).
 
-Together these decide enclosure in the union exactly up to ``PROBE`` (holes inside the union
-smaller than a car are not looked for), as the drivability checker's
+Together these decide enclosure in the union buffered by ``TOL`` (a road edge is found by
+its vertices' outside ``PROBE`` away; holes inside the union smaller than a car are not looked for), as the drivability checker's
 ``obb_enclosure_polygons_static`` does (the referee, ``jaxplan.eval.referee``).
 """
 from __future__ import annotations
@@ -98,7 +98,8 @@ def offroad_steps(log, scene, vehicle):
     d = scene.drivable.reshape(-1, 2)[None] - boxes[:, None, :2]  # (N, M V, 2)
     along = d[..., 0] * c[:, None] + d[..., 1] * s[:, None]
     across = -d[..., 0] * s[:, None] + d[..., 1] * c[:, None]
-    dips = edge & (jnp.abs(along) < vehicle.length / 2 - PROBE) & (jnp.abs(across) < vehicle.width / 2 - PROBE)
+    # deeper than TOL: the referee's lanelets are buffered by that much
+    dips = edge & (jnp.abs(along) < vehicle.length / 2 - TOL) & (jnp.abs(across) < vehicle.width / 2 - TOL)
     return (out_pts | jnp.any(dips, axis=-1)) & log.valid
 
 
