@@ -33,6 +33,7 @@ import jax
 import jax.numpy as jnp
 
 from jaxplan.bounds.distance import box_overlap_interval
+from jaxplan.geometry.boxes import car_reach  # noqa: F401 (the path planner's import)
 
 LEFT, RIGHT, NONE = 1, -1, 0  # side of an obstacle seen from the car (as jaxplan.speed.nonblocking)
 _INF = jnp.inf
@@ -57,17 +58,6 @@ class Corridor(NamedTuple):
     side: jnp.ndarray
     valid: jnp.ndarray
     blocked_index: jnp.ndarray
-
-
-def car_reach(vehicle, dtheta):
-    """Lateral reach of the car's body left / right of its reference point at relative
-    heading ``dtheta (...)``: ``(left, right)`` both ``>= 0``-ish, ``(...)`` each."""
-    front = vehicle.length - vehicle.rear_overhang if vehicle.reference == "rear_axle" else 0.5 * vehicle.length
-    rear = -vehicle.rear_overhang if vehicle.reference == "rear_axle" else -0.5 * vehicle.length
-    hw = 0.5 * vehicle.width
-    sn, cs = jnp.sin(dtheta), jnp.cos(dtheta)
-    offs = jnp.stack([x * sn + y * cs for x in (front, rear) for y in (hw, -hw)], -1)
-    return jnp.max(offs, -1), -jnp.min(offs, -1)
 
 
 def obstacle_intervals(base_xy, ref_theta, car_theta, vehicle, boxes, valid, lat_buffer=0.0, lon_buffer=0.0):

@@ -147,3 +147,14 @@ def box_separation_axes(center_a, axis_a, half_a, center_b, axis_b, half_b):
     g2 = jnp.abs(dx * cb + dy * sb) - (lb + la * c + wa * s)
     g3 = jnp.abs(dy * cb - dx * sb) - (wb + la * s + wa * c)
     return jnp.maximum(jnp.maximum(g0, g1), jnp.maximum(g2, g3))
+
+
+def car_reach(vehicle, dtheta):
+    """Lateral reach of the car's body left / right of its reference point at relative
+    heading ``dtheta (...)``: ``(left, right)`` both ``>= 0``-ish, ``(...)`` each."""
+    front = vehicle.length - vehicle.rear_overhang if vehicle.reference == "rear_axle" else 0.5 * vehicle.length
+    rear = -vehicle.rear_overhang if vehicle.reference == "rear_axle" else -0.5 * vehicle.length
+    hw = 0.5 * vehicle.width
+    sn, cs = jnp.sin(dtheta), jnp.cos(dtheta)
+    offs = jnp.stack([x * sn + y * cs for x in (front, rear) for y in (hw, -hw)], -1)
+    return jnp.max(offs, -1), -jnp.min(offs, -1)

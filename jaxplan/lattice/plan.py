@@ -18,6 +18,7 @@ from jaxplan.lattice.risk import (align_obstacles, car_parts, first_contact, inf
                                   min_separation_broad, min_separation_pair, min_separation_topk,
                                   risk_from_separation)
 from jaxplan.lattice.targets import RoadTargets, extents, lane_leader, obstacle_frenet, speed_along
+from jaxplan.geometry.boxes import car_reach
 from jaxplan.types import Obstacles, _pytree, is_concrete
 
 
@@ -208,15 +209,17 @@ def leaves_road(ref, cand, road_edges, vehicle):
     """``(N,)``: some sample of the candidate's box reaches more than ``ROAD_TOL`` past the
     road's left or right edge (``road_edges (R, 2)`` at ``ref``'s points, interpolated in s).
 
-    The box's lateral reach about its centre is ``w/2 |cos d| + L/2 |sin d|`` with ``d`` its
-    heading relative to the line (``atan(dl/ds)``, curvature of the line neglected)."""
+    The body's lateral reach is ``geometry.car_reach`` at the heading relative to the line
+    (``atan(dl/ds)``, the line's curvature neglected).
+
+    Args:
+        cand: ``s, l, dl`` ``(N, T)`` (``Candidates``); road_edges: ``(R, 2)``; vehicle: ``VehicleParams``.
+    """
     f = cand.l.dtype
     left = jnp.interp(cand.s, ref.s, road_edges[:, 0].astype(f))
     right = jnp.interp(cand.s, ref.s, road_edges[:, 1].astype(f))
-    d = jnp.arctan(cand.dl)
-    lc = cand.l + jnp.asarray(vehicle.center_offset, f) * jnp.sin(d)
-    reach = 0.5 * vehicle.width * jnp.abs(jnp.cos(d)) + 0.5 * vehicle.length * jnp.abs(jnp.sin(d))
-    out = (lc + reach > left + ROAD_TOL) | (lc - reach < right - ROAD_TOL)
+    reach_l, reach_r = car_reach(vehicle, jnp.arctan(cand.dl))
+    out = (cand.l + reach_l > left + ROAD_TOL) | (cand.l - reach_r < right - ROAD_TOL)
     return jnp.any(out, axis=-1)
 
 
