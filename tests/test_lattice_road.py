@@ -321,6 +321,12 @@ def test_road_edge_check_matches_shapely(rng):
     assert np.all(got[~near] == want[~near])
 
 
+def test_borrow_gain_is_validated():
+    with pytest.raises(ValueError, match="borrow_gain"):
+        LatticeConfig.road(borrow_gain=-1.0).validate()
+    assert LatticeConfig.road(borrow_gain=float("inf")).validate().borrow_gain == float("inf")
+
+
 def test_set_speed_follows_the_goal_range_and_the_curves():
     """``goal_speed`` aims inside the goal's speed range only once the goal is within reach;
     ``curve_speed`` is ``min sqrt(a_lat / kappa + 2 b d)`` (a straight, then an arc of radius 50 m)."""

@@ -100,6 +100,8 @@ def test_route_smoothing_keeps_lines_and_arcs_and_removes_kinks():
     th = lambda xy: np.arctan2(*(xy[-1] - xy[-40])[::-1])  # noqa: E731
     assert abs(th(sm) - th(kinked)) < np.radians(1.0)
     assert np.array_equal(smooth_polyline(kinked, 0.0, 0.1), kinked)
+    with pytest.raises(ValueError, match="max_dev"):
+        smooth_polyline(kinked, 15.0, 0.0)
 
 
 def test_static_obstacle_held_past_the_recording():

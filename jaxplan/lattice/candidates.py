@@ -246,6 +246,8 @@ class LatticeConfig:
             raise ValueError(f"LatticeConfig.modes: unknown {sorted(bad)}; known: follow, stop, goal")
         if any(x <= 0 for x in self.end_times) or (set(self.modes) & {"follow"} and not self.end_times):
             raise ValueError(f"LatticeConfig.end_times must be positive (and given for follow), got {self.end_times}")
+        if not self.borrow_gain >= 0:
+            raise ValueError(f"LatticeConfig.borrow_gain must be >= 0 m (inf: never borrow), got {self.borrow_gain}")
         if self.all_collide not in ("harm", "seed"):
             raise ValueError(f"LatticeConfig.all_collide must be 'harm' or 'seed', got {self.all_collide!r}")
         if not (self.emergency_a_min < 0 and self.fallback_decel > 0 and self.emergency_jerk > 0):
