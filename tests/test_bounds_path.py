@@ -289,3 +289,27 @@ def test_spd_inverse_against_numpy_batched():
         got = np.asarray(jax.jit(jax.vmap(spd_inverse))(jnp.asarray(K, jnp.float32)))
         ref = np.linalg.inv(K)
         assert np.max(np.abs(got - ref)) <= 1e-4 * np.max(np.abs(ref)), n
+
+
+def test_fast_car_changes_lane_within_the_lateral_acceleration():
+    """A lane change asked of a car at 30 m/s: the path's curvature stays under a_lat_max /
+    v(s)^2 (the speed falling at lat_decel), and without the speed it would not (steering
+    limit only)."""
+    from jaxplan.bounds.path_planner import solve_path, speed_curvature_cap
+    from jaxplan.geometry.frenet import ReferenceLine
+
+    N, ds, v0 = 81, 2.5, 30.0
+    xy = np.stack([np.arange(200) * 2.0 - 20.0, np.zeros(200)], -1)
+    ref = ReferenceLine.from_polyline(xy.astype(np.float32))
+    st = jnp.asarray(20.0 + ds * np.arange(N), jnp.float32)
+    edge = jnp.full((N,), 5.5, jnp.float32)
+    args = (ref, st, jnp.float32(ds), jnp.zeros((1, 5), jnp.float32) + jnp.asarray([-500.0, 0, 1, 1, 0]),
+            jnp.zeros((1,), bool), edge, -edge, jnp.full((N,), -3.5, jnp.float32), jnp.zeros(3, jnp.float32), PathConfig(vehicle=CAR))
+    fast = solve_path(*args, v0=jnp.float32(v0))
+    slow = solve_path(*args)
+    assert bool(fast["qp"].ok) and bool(slow["qp"].ok)
+    cap = np.asarray(speed_curvature_cap(v0, np.asarray(st) - 20.0, PathConfig.a_lat_max, PathConfig.lat_decel))
+    k_fast, k_slow = np.abs(np.asarray(fast["kappa"])), np.abs(np.asarray(slow["kappa"]))
+    assert np.all(k_fast <= cap * 1.1 + 5e-4)  # the QP meets its bounds to its tolerance
+    assert np.any(k_slow > 2 * cap)
+    assert np.asarray(fast["l"])[-1] == pytest.approx(-3.5, abs=0.2)  # the lane is still reached

@@ -23,7 +23,9 @@
    from the car), a side per obstacle against the free corridor, kept along ``s``, and the
    cut at a blockage.
 5. **Path QP** (``jaxplan.bounds.optimize``): piecewise jerk inside the corridor, the
-   curvature bound from the steering limit, a heading bound (``heading_max`` about the
+   curvature bound from the steering limit and from the lateral acceleration at the car's
+   speed (``speed_curvature_cap``: ``a_lat_max / v(s)^2`` with the speed falling at most at
+   ``lat_decel`` along the path, so a fast car changes lane over a long path), a heading bound (``heading_max`` about the
    route), a jerk bound, from the car's ``(l, l', l'')``.
 6. **Recompute at the optimised heading**: the intervals depend on the car's heading at
    each station; they are recomputed at the optimised path's heading (decisions kept) and
@@ -70,6 +72,9 @@ class PathConfig:
         max_rounds: bounds-at-heading / QP rounds.
         heading_max: |heading - route heading| bound (rad).
         curvature_margin: the path's curvature stays below this share of the steering limit.
+        a_lat_max, lat_decel: the curvature bound from the speed (``speed_curvature_cap``):
+            lateral acceleration (m/s^2) at the speed the car keeps when braking at
+            ``lat_decel`` (m/s^2) along the path.
         room_cap, min_gap: the decision's room rule (``decide_corridor``).
         weights: ``PathWeights`` values (ref, dl, ddl, dddl) as a tuple (hashable).
         qp: ``PathQPConfig``.
@@ -89,6 +94,8 @@ class PathConfig:
     max_rounds: int = 3
     heading_max: float = 0.5
     curvature_margin: float = 0.9
+    a_lat_max: float = 3.0
+    lat_decel: float = 2.0
     room_cap: float = 1.0
     min_gap: float = 0.0
     weights: tuple = (1.0, 10.0, 100.0, 1000.0)
@@ -206,7 +213,15 @@ def _ego_frenet(ref, s0, l0, heading, kappa):
     return dth, dl0, ddl0
 
 
-def solve_path(ref, st, ds, boxes, blocking, edge_left, edge_right, l_pref, init, config: PathConfig):
+def speed_curvature_cap(v0, dist, a_lat_max, decel):
+    """``(N,)`` curvature bound at distances ``dist (N,)`` along the path for a car at speed
+    ``v0 ()`` that brakes at most at ``decel`` (m/s^2): ``a_lat_max / v(s)^2`` with ``v(s)^2 =
+    max(v0^2 - 2 decel s, 0)`` (unbounded where the car could have stopped)."""
+    v2 = jnp.maximum(v0 ** 2 - 2.0 * decel * dist, 0.0)
+    return a_lat_max / jnp.maximum(v2, 1e-6)
+
+
+def solve_path(ref, st, ds, boxes, blocking, edge_left, edge_right, l_pref, init, config: PathConfig, v0=None):
     """Decide, bound and optimise a path on route stations, recomputing at its heading.
 
     The core of ``plan_path``, for any reference line and obstacle footprints.
@@ -219,6 +234,8 @@ def solve_path(ref, st, ds, boxes, blocking, edge_left, edge_right, l_pref, init
         l_pref: ``(N,)`` preferred offset (lane centre).
         init: ``(3,)`` the car's ``(l, l', l'')`` at ``st[0]``.
         config: ``PathConfig``.
+        v0: ``()`` the car's speed (the curvature bound from the lateral acceleration,
+            ``speed_curvature_cap``), or None (the steering limit only).
 
     Returns:
         dict with ``corridor`` (``Corridor``), ``qp`` (``PathQPResult``), ``rounds``,
@@ -233,9 +250,14 @@ def solve_path(ref, st, ds, boxes, blocking, edge_left, edge_right, l_pref, init
     l0 = init[0]
     k_max = jnp.tan(jnp.asarray(veh.max_steer, f)) / jnp.asarray(veh.wheelbase, f)
     tan_h = jnp.tan(jnp.asarray(config.heading_max, f))
-    ddl_lo, ddl_hi = curvature_bounds(k_r, k_max, config.curvature_margin)
-    dth0 = jnp.arctan2(init[1], 1.0 - k_r[0] * l0)
     dist = st - st[0]
+    if v0 is not None:
+        cap = speed_curvature_cap(jnp.asarray(v0, f), dist, config.a_lat_max, config.lat_decel)
+        k_max = jnp.minimum(config.curvature_margin * k_max, cap)
+        ddl_lo, ddl_hi = -k_max - k_r, k_max - k_r
+    else:
+        ddl_lo, ddl_hi = curvature_bounds(k_r, k_max, config.curvature_margin)
+    dth0 = jnp.arctan2(init[1], 1.0 - k_r[0] * l0)
     lat_buf = config.lat_buffer * jnp.clip(dist / config.buffer_ramp, 0.0, 1.0)
     lon_buf = config.lon_buffer + 0.5 * ds
     reach = ds * tan_h * jnp.ones((N,), f)
@@ -320,7 +342,7 @@ def _plan(scene, ctx, config, ego):
     edge_r = jnp.maximum(jnp.maximum(_sample(scene, right_e, st), _sample(scene, right_e, st + front)),
                          _sample(scene, right_e, st + rear))
     l_pref = _sample(scene, scene.lane_offset[scene.own_lane], st)
-    res = solve_path(ref, st, ds, boxes, blocking, edge_l, edge_r, l_pref, jnp.stack([l0, dl0, ddl0]), config)
+    res = solve_path(ref, st, ds, boxes, blocking, edge_l, edge_r, l_pref, jnp.stack([l0, dl0, ddl0]), config, v0)
     cor, qp = res["corridor"], res["qp"]
     xy, th, kap, l = res["xy"], res["theta"], res["kappa"], res["l"]
     # Outputs on the path's own arc length.
