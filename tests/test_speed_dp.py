@@ -370,3 +370,36 @@ def test_hopeless_scene_still_gives_a_valid_profile():
     assert not bool(p.feasible)
     _kinematics_ok(p, 12.0)
     assert float(p.a[0]) <= CFG.a_min + 1e-4
+
+
+def test_speed_envelope_matches_brute_force(rng):
+    from jaxplan.speed.dp import speed_envelope
+
+    for _ in range(300):
+        n = int(rng.integers(2, 80))
+        v = rng.uniform(0.0, 30.0, n)
+        v[rng.random(n) < 0.1] = 0.0
+        ds, b, a = rng.uniform(0.3, 2.0), rng.uniform(0.5, 4.0), rng.uniform(0.5, 4.0)
+        got = np.asarray(speed_envelope(jnp.asarray(v, jnp.float32), ds, b, a), np.float64)
+        d = (np.arange(n)[None, :] - np.arange(n)[:, None]) * ds  # s' - s
+        want = np.min(np.where(d >= 0, v[None] ** 2 + 2 * b * d, v[None] ** 2 - 2 * a * d), axis=1)
+        np.testing.assert_allclose(got ** 2, want, atol=2e-2, rtol=1e-4)
+
+
+def test_a_corner_shorter_than_a_segment_is_slowed_for():
+    """A sharp corner (radius 6 m over 6 m of arc) that the 1 s knots would step over: the
+    knots keep to the braking envelope of its limit sqrt(3 * 6) = 4.2 m/s."""
+    free = _moving([[250.0, 30.0, 1.0, 1.0, 0.0]], [0.0])
+    w = dataclasses.replace(W, v_cruise=jnp.float32(12.0))
+    x = np.linspace(0, 30, 31)
+    ang = np.linspace(0, 1.0, 8)
+    arc = np.stack([30 + 6 * np.sin(ang), 6 - 6 * np.cos(ang)], -1)
+    tail = arc[-1] + np.outer(np.linspace(0, 1, N_REF - 37)[1:] * 150.0, [np.cos(1.0), np.sin(1.0)])
+    ref = ReferenceLine.from_polyline(np.concatenate([np.stack([x, 0 * x], -1)[:-1], arc, tail]))
+    p = _plan(free, 12.0, w=w, ref=ref, s0=0.0)
+    s, v = np.asarray(p.s), np.asarray(p.v)
+    env = np.asarray(p.scene.v_limit)
+    assert env.min() < 5.0
+    lim = np.interp(s, CFG.ds * np.arange(env.shape[0]), env)
+    assert np.all(v <= lim + CFG.dv)
+    assert np.all(v[(s > 20.0) & (s < 45.0)] <= 9.0)  # slowed before and through the corner

@@ -35,7 +35,9 @@ with accelerations in ``[a_min, a_max]`` are states: a band of static width
 * per knot: speed ``w_speed (v - v_target(s))^2`` with ``v_target = min(v_cruise,
   v_limit(s))``, and ``w_limit relu(v - v_limit(s))^2`` above the limit (the lane's speed
   limit and the continuous curvature limit ``sqrt(a_lat_max / |kappa(s)|)``, interpolated
-  in s); ``w_goal_v dist(v, goal speeds)^2`` at knots in that part of the window;
+  in s, made an envelope that the knots every ``dt`` cannot step over (``speed_envelope``:
+  no faster before a slow stretch than braking at ``b_comfort`` reaches, nor after it than
+  accelerating at ``a_max`` reaches)); ``w_goal_v dist(v, goal speeds)^2`` at knots in that part of the window;
 * per segment: ``w_accel a^2``; the first segment also ``w_jerk ((a_1 - a0) / dt)^2``;
 * end of horizon: stopping at ``b_comfort`` (the obstacle ahead braking the same) must
   keep ``follow_dist``; ``big`` if even ``a_min`` cannot stop in time; keep-clear: do not
@@ -269,7 +271,8 @@ class SpeedScene:
         classified: ``Classified`` with boundaries ``(K, F)``.
         wall: ``STBoundary`` ``(1, F)`` the stop station (``road.stop_s``) as a boundary.
         kc_lower, kc_upper, kc_hit: ``(R,)`` keep-clear ranges.
-        v_limit: ``(N,)`` speed limit at stations ``i ds`` (lane limit, curvature, v_max).
+        v_limit: ``(N,)`` speed limit at stations ``i ds`` (lane limit, curvature, v_max;
+            the ``speed_envelope`` of their minimum).
         goal_s, goal_t, goal_v: ``(2,)`` the goal (``SpeedRoad``).
         front, rear: car front / rear ahead of its reference point (m).
     """
@@ -337,6 +340,19 @@ def profile_at(plan: SpeedPlan, t):
 
 # ----------------------------------------------------------------------------- scene
 
+def speed_envelope(v_lim, ds, decel, accel):
+    """The speed limit ``v_lim (N,)`` on stations ``i ds`` lowered to what a car that meets it
+    everywhere can drive: ``v(s) <= sqrt(v_lim(s')^2 + 2 decel (s' - s))`` for every ``s' > s``
+    (braking into a slow stretch) and ``sqrt(v_lim(s')^2 + 2 accel (s - s'))`` for ``s' < s``
+    (accelerating out of it); min-plus scans on ``v^2``."""
+    w = jnp.square(v_lim)
+    i = jnp.arange(w.shape[-1], dtype=w.dtype)
+    cb, ca = 2.0 * decel * ds, 2.0 * accel * ds
+    w = jnp.minimum(w, jax.lax.cummin(w + cb * i, reverse=True) - cb * i)
+    w = jnp.minimum(w, jax.lax.cummin(w - ca * i) + ca * i)
+    return jnp.sqrt(jnp.maximum(w, 0.0))
+
+
 def build_scene(profile: PathProfile, obstacles: Obstacles, vehicle: VehicleParams, config: SpeedConfig,
                 keep_clear=None, v0=0.0, road: SpeedRoad | None = None) -> SpeedScene:
     """Resample obstacles to the check times, project them to the path once per time,
@@ -372,7 +388,8 @@ def build_scene(profile: PathProfile, obstacles: Obstacles, vehicle: VehiclePara
         lo, hi = lo - s0, hi - s0
     lane = jnp.interp(profile.s - s0, jnp.asarray(road.limit_s, dtype), jnp.minimum(jnp.asarray(road.limit_v, dtype), 1e3))
     curve = jnp.sqrt(config.a_lat_max / jnp.maximum(jnp.abs(profile.kappa), 1e-6))
-    v_limit = jnp.minimum(jnp.minimum(lane, curve), config.v_max)
+    v_limit = speed_envelope(jnp.minimum(jnp.minimum(lane, curve), config.v_max), config.ds, config.b_comfort,
+                             config.a_max)
     return SpeedScene(c, wall, lo, hi, hit, v_limit, jnp.asarray(road.goal_s, dtype), jnp.asarray(road.goal_t, dtype),
                       jnp.asarray(road.goal_v, dtype), front, rear)
 
