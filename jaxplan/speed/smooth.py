@@ -44,7 +44,7 @@ from jaxplan.speed.dp import SpeedConfig, SpeedPlan, profile_at
 INF = 1e20
 RHO_LADDER = tuple(float(r) for r in 10.0 ** np.linspace(-3, 3, 13))
 SIGMA = 1e-6  # proximal term of the x-update
-LIMIT_DECEL = 6.0  # m/s^2: the speed limit of the QP is relaxed to what braking at this meets (a curve met too fast is braked for hard)
+LIMIT_DECEL = 3.0  # m/s^2: the speed limit of the QP is relaxed to what braking at this meets
 V_TOL = 0.01  # m/s: speeds down to -V_TOL are feasible in the QP (the output is held at 0)
 
 
