@@ -159,7 +159,7 @@ def qp_comparison(n_cases, rng, reps):
         t = jnp.arange(1, n + 1, dtype=jnp.float32) * h
         s_ref, v_ref, _ = profile_at(plan, t)
         lo, up = corridor(plan, cfg, t)
-        return qp_problem(s_ref, v_ref, lo, up, jnp.full((n,), cfg.v_max), 0.0, v, cfg, w)
+        return qp_problem(s_ref, v_ref, lo, up, jnp.full((n,), cfg.v_max), 0.0, v, cfg, w)[:3]  # (no slack)
 
     q, l, u = (np.asarray(a, np.float64) for a in jax.jit(jax.vmap(problem))(refs, obs, v0))
     m = qp_matrices(n, h, w)

@@ -80,6 +80,9 @@ class SpeedConfig:
         keep_clear_v: slower than this inside a keep-clear region is stopping there (m/s).
         b_comfort: end of horizon: must be able to stop behind blocking obstacles at this
             deceleration (m/s^2).
+        pass_margin: s; a blocking boundary at time t also covers where the obstacle is up to
+            this later (``time_margin``): the car passes ahead of a crossing car with that much
+            time to spare or yields.
         big: cost of a collision.
         qp_dt, a_brake, jerk_max: the smoothing QP (``smooth.py``): its step (s, must divide
             ``dt / n_sub``), its hardest braking (m/s^2, <= a_min) and jerk bound (m/s^3).
@@ -101,6 +104,7 @@ class SpeedConfig:
     blind_front: float = 1.0
     keep_clear_v: float = 1.0
     b_comfort: float = 2.0
+    pass_margin: float = 0.6
     big: float = 1e6
     qp_dt: float = 0.1
     a_brake: float = -7.0
@@ -353,6 +357,22 @@ def speed_envelope(v_lim, ds, decel, accel):
     return jnp.sqrt(jnp.maximum(w, 0.0))
 
 
+def time_margin(b: STBoundary, m: int) -> STBoundary:
+    """Each boundary ``(K, F)`` at check time ``f`` widened to its union over ``f .. f + m``:
+    passing ahead of an obstacle must clear where it will be ``m`` check times later (a
+    crossing car is passed with a time margin, not by a hair); following behind one that
+    drives on is unchanged."""
+    if m <= 0:
+        return b
+    big = jnp.asarray(BIG, b.lower.dtype)
+    lo, hi, hit = jnp.where(b.hit, b.lower, big), jnp.where(b.hit, b.upper, -big), b.hit
+    L, H, X = lo, hi, hit
+    for j in range(1, m + 1):
+        pad = lambda a, v: jnp.concatenate([a[..., j:], jnp.full(a.shape[:-1] + (j,), v, a.dtype)], -1)
+        L, H, X = jnp.minimum(L, pad(lo, big)), jnp.maximum(H, pad(hi, -big)), X | pad(hit, False)
+    return STBoundary(jnp.where(X, L, b.lower), jnp.where(X, H, b.upper), X)
+
+
 def build_scene(profile: PathProfile, obstacles: Obstacles, vehicle: VehicleParams, config: SpeedConfig,
                 keep_clear=None, v0=0.0, road: SpeedRoad | None = None) -> SpeedScene:
     """Resample obstacles to the check times, project them to the path once per time,
@@ -374,6 +394,7 @@ def build_scene(profile: PathProfile, obstacles: Obstacles, vehicle: VehiclePara
     osl = dataclasses.replace(osl, corners=osl.corners.at[..., 0].add(-s0), centre=osl.centre.at[..., 0].add(-s0))
     c = classify(osl, obs, vehicle, tf, v0, config.a_min, side_width=config.side_width, buffer=config.buffer,
                  no_overtake_side=config.no_overtake_side, v_moving=config.v_moving)
+    c = dataclasses.replace(c, blocking=time_margin(c.blocking, int(round(config.pass_margin * config.n_sub / config.dt))))
     front, rear = car_extent(vehicle, dtype)
     stop = jnp.asarray(road.stop_s, dtype)
     has = jnp.isfinite(stop)
