@@ -403,3 +403,46 @@ def test_a_corner_shorter_than_a_segment_is_slowed_for():
     lim = np.interp(s, CFG.ds * np.arange(env.shape[0]), env)
     assert np.all(v <= lim + CFG.dv)
     assert np.all(v[(s > 20.0) & (s < 45.0)] <= 9.0)  # slowed before and through the corner
+
+
+def test_time_margin_matches_brute_force(rng):
+    from jaxplan.speed.dp import time_margin
+    from jaxplan.speed.st_boundary import STBoundary
+
+    K, F = 4, 23
+    lo = rng.uniform(0, 50, (K, F))
+    hi = lo + rng.uniform(0, 10, (K, F))
+    hit = rng.random((K, F)) < 0.5
+    for m in (0, 1, 3):
+        b = time_margin(STBoundary(jnp.asarray(lo), jnp.asarray(hi), jnp.asarray(hit)), m)
+        for k in range(K):
+            for f in range(F):
+                w = [g for g in range(f, min(F, f + m + 1)) if hit[k, g]]
+                assert bool(b.hit[k, f]) == bool(w)
+                if w:
+                    assert float(b.lower[k, f]) == pytest.approx(min(lo[k, g] for g in w))
+                    assert float(b.upper[k, f]) == pytest.approx(max(hi[k, g] for g in w))
+
+
+def test_crossing_is_passed_only_with_the_time_margin():
+    """A pedestrian crossing ahead at 1.4 m/s from several distances: with the 0.6 s margin the
+    car passes ahead in a subset of the cases it passes without one, and not in all of them."""
+    t = np.arange(15) * 0.5
+    w = dataclasses.replace(W, v_cruise=jnp.float32(12.0))
+
+    def passes(y0, cfg):
+        b = np.array(_moving([], []).boxes)
+        b[0, :, 0], b[0, :, 1], b[0, :, 2:4], b[0, :, 4] = 30.0, y0 + 1.4 * t, 0.6, np.pi / 2
+        obs = Obstacles(jnp.asarray(b), jnp.ones((K_OBS, T_OBS), bool), jnp.asarray(t, jnp.float32))
+        p = plan_speed(REF, obs, cfg, w, v0=12.0, a0=0.0, s0=10.0, keep_clear=NO_KC, vehicle=CAR, road=_road())
+        assert bool(p.feasible)
+        # ahead of the pedestrian's crossing point when it reaches the car's lane
+        t_in = (-1.2 - y0) / 1.4
+        s, _, _ = p.at(jnp.asarray(t_in))
+        return float(s) > 30.0 - 10.0
+
+    starts = np.linspace(-9.0, -3.0, 7)
+    without = [passes(y, dataclasses.replace(CFG, pass_margin=0.0)) for y in starts]
+    with_m = [passes(y, CFG) for y in starts]
+    assert all(a or not b for a, b in zip(without, with_m))  # never passes where it would not without
+    assert sum(with_m) < sum(without)
