@@ -290,8 +290,8 @@ def test_spd_inverse_against_numpy_batched():
 
 def test_fast_car_changes_lane_within_the_lateral_acceleration():
     """A lane change asked of a car at 30 m/s: the path's curvature stays under a_lat_max /
-    v(s)^2 (the speed falling at lat_decel), and without the speed it would not (steering
-    limit only)."""
+    v(s)^2 (the speed falling at lat_decel), and planned for a car at rest (steering limit
+    only) it would not."""
     from jaxplan.bounds.path_planner import solve_path, speed_curvature_cap
     from jaxplan.geometry.frenet import ReferenceLine
 
@@ -302,8 +302,9 @@ def test_fast_car_changes_lane_within_the_lateral_acceleration():
     edge = jnp.full((N,), 5.5, jnp.float32)
     args = (ref, st, jnp.float32(ds), jnp.zeros((1, 5), jnp.float32) + jnp.asarray([-500.0, 0, 1, 1, 0]),
             jnp.zeros((1,), bool), edge, -edge, jnp.full((N,), -3.5, jnp.float32), jnp.zeros(3, jnp.float32), PathConfig(vehicle=CAR))
-    fast = solve_path(*args, v0=jnp.float32(v0))
-    slow = solve_path(*args)
+    solve = jax.jit(lambda v: solve_path(*args, v0=v))
+    fast = solve(jnp.float32(v0))
+    slow = solve(jnp.float32(0.0))  # a car at rest: the steering limit only
     assert bool(fast["qp"].ok) and bool(slow["qp"].ok)
     cap = np.asarray(speed_curvature_cap(v0, np.asarray(st) - 20.0, PathConfig.a_lat_max, PathConfig.lat_decel))
     k_fast, k_slow = np.abs(np.asarray(fast["kappa"])), np.abs(np.asarray(slow["kappa"]))
