@@ -25,8 +25,8 @@
 5. **Path QP** (``jaxplan.bounds.optimize``): piecewise jerk inside the corridor, the
    curvature bound from the steering limit and from the lateral acceleration at the car's
    speed (``speed_curvature_cap``: ``a_lat_max / v(s)^2`` with the speed falling at most at
-   ``lat_decel`` along the path, so a fast car changes lane over a long path), a heading bound (``heading_max`` about the
-   route), a jerk bound, from the car's ``(l, l', l'')``.
+   ``lat_decel`` along the path, so a fast car changes lane over a long path), a heading
+   bound (``heading_max`` about the route), a jerk bound, from the car's ``(l, l', l'')``.
 6. **Recompute at the optimised heading**: the intervals depend on the car's heading at
    each station; they are recomputed at the optimised path's heading (decisions kept) and
    the QP re-solved (warm started), until the path's exact footprint (the car's box at

@@ -37,7 +37,8 @@ with accelerations in ``[a_min, a_max]`` are states: a band of static width
   limit and the continuous curvature limit ``sqrt(a_lat_max / |kappa(s)|)``, interpolated
   in s, made an envelope that the knots every ``dt`` cannot step over (``speed_envelope``:
   no faster before a slow stretch than braking at ``b_comfort`` reaches, nor after it than
-  accelerating at ``a_max`` reaches)); ``w_goal_v dist(v, goal speeds)^2`` at knots in that part of the window;
+  accelerating at ``a_max`` reaches)); ``w_goal_v dist(v, goal speeds)^2`` at knots in that
+  part of the window;
 * per segment: ``w_accel a^2``; the first segment also ``w_jerk ((a_1 - a0) / dt)^2``;
 * end of horizon: stopping at ``b_comfort`` (the obstacle ahead braking the same) must
   keep ``follow_dist``; ``big`` if even ``a_min`` cannot stop in time; keep-clear: do not
@@ -394,7 +395,8 @@ def build_scene(profile: PathProfile, obstacles: Obstacles, vehicle: VehiclePara
     osl = dataclasses.replace(osl, corners=osl.corners.at[..., 0].add(-s0), centre=osl.centre.at[..., 0].add(-s0))
     c = classify(osl, obs, vehicle, tf, v0, config.a_min, side_width=config.side_width, buffer=config.buffer,
                  no_overtake_side=config.no_overtake_side, v_moving=config.v_moving)
-    c = dataclasses.replace(c, blocking=time_margin(c.blocking, int(round(config.pass_margin * config.n_sub / config.dt))))
+    held = int(round(config.pass_margin * config.n_sub / config.dt))  # check times in pass_margin
+    c = dataclasses.replace(c, blocking=time_margin(c.blocking, held))
     front, rear = car_extent(vehicle, dtype)
     stop = jnp.asarray(road.stop_s, dtype)
     has = jnp.isfinite(stop)

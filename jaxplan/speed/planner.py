@@ -316,7 +316,7 @@ class PathSpeedPlanner:
             # the moving ones too: the bounds path is taken when its speed plan is collision-free,
             # or when neither is and it costs less (a bypass into a lane where traffic already
             # is would be hit whatever the speed; then the car stays in its lane and stops).
-            # Both paths have one shape: one vmapped speed plan (one trace, half the compile).
+            # Both paths have one shape: one vmapped speed plan (the DP is traced once).
             both = jax.vmap(on)(jax.tree_util.tree_map(lambda a, b: jnp.stack([a, b]), bp, rp))
             pb, pr = (jax.tree_util.tree_map(lambda x, i=i: x[i], both[3]) for i in (0, 1))
             use = use & (pb.feasible | (~pr.feasible & (pb.cost <= pr.cost)))
