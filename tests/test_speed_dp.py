@@ -358,6 +358,8 @@ def test_bad_input_is_refused():
         plan_speed(REF, obs, CFG, W, v0=-1.0)
     with pytest.raises(ValueError, match="qp_dt"):
         plan_speed(REF, obs, SpeedConfig(qp_dt=0.15), W, v0=1.0)
+    with pytest.raises(ValueError, match="pass_margin"):
+        plan_speed(REF, obs, SpeedConfig(pass_margin=-0.5), W, v0=1.0)
     bad = Obstacles(obs.boxes.at[0, 0, 0].set(jnp.nan), obs.valid, obs.t)
     with pytest.raises(ValueError, match="NaN"):
         plan_speed(REF, bad, CFG, W, v0=1.0)

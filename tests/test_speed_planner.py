@@ -192,6 +192,9 @@ def test_config_checks_and_nonblocking_switch():
         PathSpeedPlanner(weights=(1.0, 2.0))
     with pytest.raises(ValueError, match="qp_dt"):
         PathSpeedPlanner(speed=SpeedConfig(qp_dt=0.3))
+    from jaxplan.bounds.path_planner import PathConfig
+    with pytest.raises(ValueError, match="a_lat_max"):
+        PathSpeedPlanner(path=PathConfig(a_lat_max=0.0))
     w = PathSpeedPlanner(nonblocking=False).cost_weights(jnp.float32(10.0))
     assert float(w.w_blind) == 0.0 and float(w.w_no_bypass) == 0.0 and float(w.v_cruise) == 10.0
     w = PathSpeedPlanner().cost_weights(jnp.float32(10.0))

@@ -157,6 +157,9 @@ class SpeedConfig:
             raise ValueError(f"SpeedConfig: qp_dt {self.qp_dt} must divide the check step dt / n_sub")
         if self.a_brake > self.a_min or self.jerk_max <= 0:
             raise ValueError("SpeedConfig: need a_brake <= a_min and jerk_max > 0")
+        if not (self.pass_margin >= 0) or not (self.b_comfort > 0):
+            raise ValueError(f"SpeedConfig.pass_margin ({self.pass_margin}) must be >= 0 and b_comfort "
+                             f"({self.b_comfort}) > 0")
         return self
 
 
