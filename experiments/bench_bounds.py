@@ -7,8 +7,14 @@
    pairs the broad phase gave the construction.
 2. The path QP (piecewise jerk, curvature and jerk bounds, ``--qp-points`` stations) on
    random corridors: this project's ADMM (``optimize_path``) and jaxopt's ``BoxOSQP`` on the
-   same problems, batched with ``vmap``, against OSQP (float64, eps 1e-8, polished) as the
-   reference: ms per frame, the largest ``|l - l_osqp|``, the share solved.
+   same problems against OSQP (float64, eps 1e-8, polished) as the reference: ms per frame,
+   the largest ``|l - l_osqp|``, the share solved. The ADMM runs the frames as one batch;
+   ``BoxOSQP`` runs them one by one through one compiled function (under ``vmap`` its loop
+   runs every frame until the slowest has converged), and also as one ``vmap`` batch of
+   ``--box-vmap-frames`` frames.
+
+The JSON is written after the throughput part and again at the end; the load average
+before the run is recorded (timings on a loaded machine are rough).
 
     python experiments/bench_bounds.py [--batches 1 100 10000] [--out results/bench_bounds.json]
 """
@@ -27,7 +33,7 @@ import numpy as np
 from jaxplan.bounds.frenet_bounds import CASE_UNCONSTRUCTED, path_bounds
 from jaxplan.bounds.optimize import PathQPConfig, PathWeights, curvature_bounds, optimize_path, state_problem
 from jaxplan.eval.bounds_suite import CAR, LANE, make_scenarios
-from jaxplan.eval.timing import best_time
+from jaxplan.eval.timing import best_time, write_figures
 from jaxplan.geometry import reference_line
 
 
@@ -47,7 +53,7 @@ def random_corridors(rng, n, T, ds):
     return lo, up, init
 
 
-def qp_bench(n, T, ds, reps, box_tol):
+def qp_bench(n, T, ds, reps, box_tol, box_vmap=0):
     import jaxopt
     import osqp
     import scipy.sparse as sp
@@ -73,9 +79,17 @@ def qp_bench(n, T, ds, reps, box_tol):
         sol = box.run(params_obj=(P, q), params_eq=A, params_ineq=(l_, u_)).params
         return sol.primal[0][:T]
 
-    peer = jax.jit(jax.vmap(box_one))
+    peer_one = jax.jit(box_one)
+    peer = lambda: jnp.stack([peer_one(*(a[f] for a in args)) for f in range(n)])
     out = {}
-    for name, fn in (("admm", lambda: ours(*args)), ("boxosqp", lambda: peer(*args))):
+    if box_vmap:
+        nb = min(n, box_vmap)
+        vm = jax.jit(jax.vmap(box_one))
+        sub = tuple(a[:nb] for a in args)
+        jax.block_until_ready(vm(*sub))
+        out["boxosqp_vmap_frames"] = nb
+        out["boxosqp_vmap_ms_per_frame"] = round(1e3 * best_time(lambda: jax.block_until_ready(vm(*sub)), 1) / nb, 4)
+    for name, fn in (("admm", lambda: ours(*args)), ("boxosqp", peer)):
         t = time.perf_counter()
         r = jax.block_until_ready(fn())
         out[f"{name}_compile_s"] = round(time.perf_counter() - t, 2)
@@ -86,6 +100,10 @@ def qp_bench(n, T, ds, reps, box_tol):
     ref_l, solved = [], []
     for f in range(n):
         P, q, A, l_, u_ = (np.asarray(x, np.float64) for x in problem(*(a[f] for a in args)))
+        if np.any(l_ > u_):  # the corridor closes somewhere: infeasible by construction (OSQP refuses it)
+            solved.append(False)
+            ref_l.append(np.full(T, np.nan))
+            continue
         m = osqp.OSQP()
         m.setup(sp.csc_matrix(np.triu(P)), q, sp.csc_matrix(A), l_, u_, verbose=False, eps_abs=1e-8, eps_rel=1e-8,
                 max_iter=100000, polish=True)
@@ -120,7 +138,8 @@ def main(argv=None):
     ap.add_argument("--methods", nargs="+", default=["contour", "exact", "slbox", "centerline"])
     ap.add_argument("--baseline-batches", type=int, nargs="+", default=[1, 100],
                     help="batch sizes for the slow baselines (slbox, centerline: they project every corner)")
-    ap.add_argument("--qp-frames", type=int, default=200)
+    ap.add_argument("--qp-frames", type=int, default=50)
+    ap.add_argument("--box-vmap-frames", type=int, default=10, help="frames of the vmapped BoxOSQP timing (0: skip)")
     ap.add_argument("--qp-points", type=int, default=81)
     ap.add_argument("--qp-ds", type=float, default=1.0)
     ap.add_argument("--box-tol", type=float, default=1e-4)
@@ -133,7 +152,7 @@ def main(argv=None):
     S, L, OBS = jnp.asarray(S[0]), jnp.asarray(L[0]), jnp.asarray(OBS[0])
     res = {"device": str(jax.devices()[0]), "cpu_count": os.cpu_count(), "machine": platform.machine(),
            "points_per_frame": int(S.shape[-1]), "obstacles": args.obstacles, "radius_m": args.radius,
-           "note": "shared 2-core machine with other jobs running: timings are indicative",
+           "load_average_1min": round(os.getloadavg()[0], 2),
            "frames_per_s": {}}
     for method in args.methods:
         fn = jax.jit(lambda s, l, o, m=method: path_bounds(ref, s, l, CAR, o, lane_lower=-LANE, lane_upper=LANE,
@@ -155,12 +174,12 @@ def main(argv=None):
                     float(1 - np.mean(np.asarray(b.case)[ov] == CASE_UNCONSTRUCTED)), 4)
             print(f"{method:10s} batch {n:6d}: {fps:10.1f} frames/s "
                   f"(compile {res[f'{method}_compile_s_batch{c}']:.1f} s)", flush=True)
-    res["path_qp"] = qp_bench(args.qp_frames, args.qp_points, args.qp_ds, args.reps, args.box_tol)
-    print("path QP:", json.dumps(res["path_qp"]), flush=True)
-    os.makedirs(os.path.dirname(os.path.abspath(args.out)), exist_ok=True)
-    with open(args.out, "w") as f:
-        json.dump(res, f, indent=1)
-    print(json.dumps(res, indent=1))
+    write_figures(res, args.out)
+    if args.qp_frames:
+        res["path_qp"] = qp_bench(args.qp_frames, args.qp_points, args.qp_ds, args.reps, args.box_tol,
+                                  args.box_vmap_frames)
+        print("path QP:", json.dumps(res["path_qp"]), flush=True)
+        write_figures(res, args.out)
     return res
 
 
