@@ -31,6 +31,9 @@
    each station; they are recomputed at the optimised path's heading (decisions kept) and
    the QP re-solved (warm started), until the path's exact footprint (the car's box at
    each station's pose, SAT) is clear of every blocking obstacle, at most ``max_rounds``.
+   From the third round on the intervals hold for every heading the rounds since the
+   second produced (their range at each station), so the rounds cannot oscillate
+   between two headings: a path whose heading stays in that range clears the obstacles.
 
 ``PathPlan`` resamples the result on a uniform arc-length grid along the path itself
 (spacing ``ds``). ``ok`` = the QP solved, and the car's box at every valid point is clear
@@ -51,6 +54,9 @@ from jaxplan.bounds.optimize import PathQPConfig, PathWeights, curvature_bounds,
 from jaxplan.geometry.boxes import box_has_overlap, poses_to_boxes
 from jaxplan.geometry.frenet import frenet_to_cartesian_state, ref_state
 from jaxplan.types import VehicleParams, _pytree
+
+
+RANGE_MARGIN = 0.01  # m: the car's reach at headings between the sampled ones of a heading range
 
 
 @dataclasses.dataclass(frozen=True)
@@ -241,7 +247,8 @@ def solve_path(ref, st, ds, boxes, blocking, edge_left, edge_right, l_pref, init
         dict with ``corridor`` (``Corridor``), ``qp`` (``PathQPResult``), ``rounds``,
         ``clear`` (the car's boxes at the path's poses, and between them, miss every blocking
         box), ``xy (N, 2)``, ``theta (N,)``, ``kappa (N,)``, ``l, dl, ddl (N,)``
-        (the car's offset kept where the QP failed).
+        (the car's offset kept where the QP failed), ``qp_input``: the last QP's bounds
+        ``(lower, upper, dl_lo, dl_hi, ddl_lo, ddl_hi)`` each ``(N,)`` (for an oracle).
     """
     veh = config.vehicle
     f = ref.xy.dtype
@@ -270,18 +277,35 @@ def solve_path(ref, st, ds, boxes, blocking, edge_left, edge_right, l_pref, init
     else:
         box_n, blk_n = boxes, blocking
 
-    def bounds_at(car_dth, side):
-        lo, hi, hit = obstacle_intervals(base, th_r, th_r + car_dth, veh, box_n, blk_n, lat_buf, lon_buf)
-        rl, rr = car_reach(veh, car_dth)
+    def bounds_at(car_dth, side, dth_hi=None):
+        """The corridor for the car at heading ``car_dth`` (relative to the route), or for any
+        heading in ``[car_dth, dth_hi]`` (the union of the intervals at both ends and the
+        middle, widened by ``RANGE_MARGIN`` for the headings between them)."""
+        if dth_hi is None:
+            lo, hi, hit = obstacle_intervals(base, th_r, th_r + car_dth, veh, box_n, blk_n, lat_buf, lon_buf)
+            rl, rr = car_reach(veh, car_dth)
+        else:
+            heads = (car_dth, 0.5 * (car_dth + dth_hi), dth_hi)
+            parts = [obstacle_intervals(base, th_r, th_r + h, veh, box_n, blk_n, lat_buf + RANGE_MARGIN, lon_buf)
+                     for h in heads]
+            lo = jnp.min(jnp.stack([p[0] for p in parts]), 0)
+            hi = jnp.max(jnp.stack([p[1] for p in parts]), 0)
+            hit = parts[0][2] | parts[1][2] | parts[2][2]
+            body_reach = [car_reach(veh, h) for h in heads]
+            rl = jnp.max(jnp.stack([r[0] for r in body_reach]), 0) + RANGE_MARGIN
+            rr = jnp.max(jnp.stack([r[1] for r in body_reach]), 0) + RANGE_MARGIN
         road_hi = edge_left - rl - config.edge_buffer
         road_lo = edge_right + rr + config.edge_buffer
         return decide_corridor(lo, hi, hit, road_lo, road_hi, l0, reach, l_pref, side,
                                room_cap=config.room_cap, min_gap=config.min_gap)
 
+    def qp_bounds(cor):
+        """The QP's bounds on ``l`` from the corridor (the car's own offset at station 0)."""
+        return (cor.lower.at[0].set(jnp.minimum(cor.lower[0], l0)),
+                cor.upper.at[0].set(jnp.maximum(cor.upper[0], l0)))
+
     def solve(cor, warm):
-        lower = cor.lower.at[0].set(jnp.minimum(cor.lower[0], l0))
-        upper = cor.upper.at[0].set(jnp.maximum(cor.upper[0], l0))
-        return optimize_path(lower, upper, ds, l_pref, init, w, config.qp, dl_b, ddl_b, warm=warm)
+        return optimize_path(*qp_bounds(cor), ds, l_pref, init, w, config.qp, dl_b, ddl_b, warm=warm)
 
     def pose(l, dl, ddl):
         xy, _, kap = frenet_to_cartesian_state(ref, st, l, dl, ddl)
@@ -303,22 +327,27 @@ def solve_path(ref, st, ds, boxes, blocking, edge_left, edge_right, l_pref, init
     fine0 = qp.ok & clear(xy, th, cor.valid)
 
     def body(state):
-        r, cor, qp, _ = state
+        r, cor, qp, _, d_lo, d_hi = state
         _, th, _ = pose(qp.l, qp.dl, qp.ddl)
         dth = jnp.where(qp.ok, th - th_r, car_dth)
-        cor2 = bounds_at(dth, cor.side)
+        # round 2: at the path's heading; later rounds: every heading seen since round 2, so
+        # that the bounds hold at the heading of any path that stays inside that range
+        first = r == 1
+        d_lo = jnp.where(first, dth, jnp.minimum(d_lo, dth))
+        d_hi = jnp.where(first, dth, jnp.maximum(d_hi, dth))
+        cor2 = jax.lax.cond(first, lambda: bounds_at(dth, cor.side), lambda: bounds_at(d_lo, cor.side, d_hi))
         qp2 = solve(cor2, (qp.z, qp.y))
         xy2, th2, _ = pose(qp2.l, qp2.dl, qp2.ddl)
-        return r + 1, cor2, qp2, qp2.ok & clear(xy2, th2, cor2.valid)
+        return r + 1, cor2, qp2, qp2.ok & clear(xy2, th2, cor2.valid), d_lo, d_hi
 
-    rounds, cor, qp, fine = jax.lax.while_loop(lambda s: (s[0] < config.max_rounds) & ~s[3], body,
-                                               (jnp.asarray(1, jnp.int32), cor, qp, fine0))
+    rounds, cor, qp, fine, _, _ = jax.lax.while_loop(lambda s: (s[0] < config.max_rounds) & ~s[3], body,
+                                                     (jnp.asarray(1, jnp.int32), cor, qp, fine0, car_dth, car_dth))
     l = jnp.where(qp.feasible, qp.l, l0)
     dl = jnp.where(qp.feasible, qp.dl, 0.0)
     ddl = jnp.where(qp.feasible, qp.ddl, 0.0)
     xy, th, kap = pose(l, dl, ddl)
     return dict(corridor=cor, qp=qp, rounds=rounds, clear=clear(xy, th, cor.valid), xy=xy, theta=th, kappa=kap,
-                l=l, dl=dl, ddl=ddl)
+                l=l, dl=dl, ddl=ddl, qp_input=(*qp_bounds(cor), *dl_b, *ddl_b))
 
 
 def _plan(scene, ctx, config, ego):

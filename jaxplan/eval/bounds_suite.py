@@ -16,7 +16,9 @@ grid twice as dense as the frame, obstacles at each station's time): side
 decisions against the free corridor, buffer, cut at a blockage, bounds recomputed
 at the optimised heading; the share of frames with a path, the share blocked, the
 QP's success on frames whose corridor is feasible, and the share of solved paths
-that collide (SAT at every station and between stations). Plots: error against
+that collide (SAT at every station and between stations). With ``osqp`` installed
+(the test extra), OSQP's verdict on each frame's last path QP: the QP's success on the
+frames OSQP solves, and the share it certifies infeasible. Plots: error against
 radius; one frame.
 """
 from __future__ import annotations
@@ -124,9 +126,44 @@ def _frame_path(ref, s, l, boxes):
                      jnp.stack([l[0], 0.0, 0.0]).astype(st.dtype), PATH)
     cor, qp = res["corridor"], res["qp"]
     return dict(ok=qp.ok & res["clear"] & (cor.blocked_index > 1), qp_ok=qp.ok, clear=res["clear"],
+                qp_input=jnp.stack(res["qp_input"]), init=jnp.stack([l[0], 0.0, 0.0]).astype(st.dtype),
+                ds=st[1] - st[0],
                 blocked=cor.blocked_index < N, corridor_ok=cor.blocked_index > 1, qp_infeasible=~qp.feasible,
                 rounds=res["rounds"], l=res["l"], lower=cor.lower, upper=cor.upper, valid=cor.valid,
                 theta=res["theta"], xy=res["xy"])
+
+
+def _osqp_verdicts(p, corridor_ok, max_iter=20000):
+    """OSQP's verdict on each frame's last path QP (``"solved"``, ``"infeasible"``,
+    ``"undecided"`` (its iteration cap), ``""`` where the corridor is closed; the QP's
+    data as the planner builds it (float32), solved in float64 to eps 1e-6), or None without ``osqp`` (a test oracle, not a dependency)."""
+    try:
+        import osqp
+        import scipy.sparse as sp
+    except ImportError:
+        return None
+    from jaxplan.bounds.optimize import PathWeights, state_problem
+
+    qi = p["qp_input"].reshape((-1,) + p["qp_input"].shape[-2:])
+    init, ds, cok = p["init"].reshape(-1, 3), p["ds"].reshape(-1), corridor_ok.reshape(-1)
+    out = np.full(cok.shape, "", dtype=object)
+    for f in np.nonzero(cok)[0]:
+        lo_l, up_l, dlo, dhi, ddlo, ddhi = qi[f]
+        T = lo_l.shape[0]
+        j = lambda a: jnp.asarray(a, jnp.float32)
+        P, q, A, lo, hi = (np.asarray(x, np.float64) for x in state_problem(
+            j(ds[f]), jnp.zeros(T, jnp.float32), j(lo_l), j(up_l), j(dlo), j(dhi), j(ddlo), j(ddhi),
+            PATH.qp.jerk_max, j(init[f]), PathWeights(*PATH.weights)))
+        lo, hi = np.where(np.isfinite(lo), lo, -1e30), np.where(np.isfinite(hi), hi, 1e30)
+        if np.any(lo > hi):
+            out[f] = "infeasible"
+            continue
+        m = osqp.OSQP()
+        m.setup(sp.csc_matrix(np.triu(P)), q, sp.csc_matrix(A), lo, hi, verbose=False, eps_abs=1e-6, eps_rel=1e-6,
+                max_iter=max_iter, polish=True)
+        st = m.solve().info.status
+        out[f] = "solved" if st == "solved" else "infeasible" if "infeasible" in st else "undecided"
+    return out.reshape(corridor_ok.shape)
 
 
 def _one_radius(ref_xy, s, l, obs, boxes):
@@ -233,6 +270,15 @@ def _figures(res, radii):
     m["path.qp_infeasible_share"] = round(float((p["corridor_ok"] & p["qp_infeasible"]).mean()), 4)
     m["path.qp_success_on_feasible"] = round(float(p["qp_ok"][feas].mean()) if feas.any() else float("nan"), 4)
     m["path.collide_share_of_solved"] = round(float((~p["clear"][solved]).mean()) if solved.any() else float("nan"), 4)
+    verdict = _osqp_verdicts(p, p["corridor_ok"])
+    if verdict is not None:
+        sol = verdict == "solved"
+        m["path.osqp_solved_share"] = round(float(sol.mean()), 4)
+        m["path.osqp_infeasible_share"] = round(float((verdict == "infeasible").mean()), 4)
+        m["path.qp_success_on_osqp_solved"] = round(float(p["qp_ok"][sol].mean()) if sol.any() else float("nan"), 4)
+        m["path.osqp_undecided_share"] = round(float((verdict == "undecided").mean()), 4)
+        m["path.qp_ok_where_osqp_infeasible"] = int((p["qp_ok"] & (verdict == "infeasible")).sum())
+        m["path.qp_ok_where_osqp_undecided"] = int((p["qp_ok"] & (verdict == "undecided")).sum())
     m["path.mean_rounds"] = round(float(p["rounds"].mean()), 3)
     return m, per
 
