@@ -134,9 +134,10 @@ def _frame_path(ref, s, l, boxes):
 
 
 def _osqp_verdicts(p, corridor_ok, max_iter=20000):
-    """OSQP's verdict on each frame's last path QP (``"solved"``, ``"infeasible"``,
-    ``"undecided"`` (its iteration cap), ``""`` where the corridor is closed; the QP's
-    data as the planner builds it (float32), solved in float64 to eps 1e-6), or None without ``osqp`` (a test oracle, not a dependency)."""
+    """OSQP's verdict on each frame's last path QP: ``"solved"``, ``"infeasible"``,
+    ``"undecided"`` (its iteration cap), ``""`` where the corridor is closed (the QP's data as
+    the planner builds it, in float32, solved in float64 to eps 1e-6); None without ``osqp``
+    (a test oracle, not a dependency)."""
     try:
         import osqp
         import scipy.sparse as sp
@@ -147,10 +148,10 @@ def _osqp_verdicts(p, corridor_ok, max_iter=20000):
     qi = p["qp_input"].reshape((-1,) + p["qp_input"].shape[-2:])
     init, ds, cok = p["init"].reshape(-1, 3), p["ds"].reshape(-1), corridor_ok.reshape(-1)
     out = np.full(cok.shape, "", dtype=object)
+    j = lambda a: jnp.asarray(a, jnp.float32)
     for f in np.nonzero(cok)[0]:
         lo_l, up_l, dlo, dhi, ddlo, ddhi = qi[f]
         T = lo_l.shape[0]
-        j = lambda a: jnp.asarray(a, jnp.float32)
         P, q, A, lo, hi = (np.asarray(x, np.float64) for x in state_problem(
             j(ds[f]), jnp.zeros(T, jnp.float32), j(lo_l), j(up_l), j(dlo), j(dhi), j(ddlo), j(ddhi),
             PATH.qp.jerk_max, j(init[f]), PathWeights(*PATH.weights)))
