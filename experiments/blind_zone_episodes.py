@@ -90,9 +90,7 @@ def main(argv=None):
            "later_neighbour_faster": sum(r["dv"] > 0 for r in later),
            "later_neighbour_slower": sum(r["dv"] <= 0 for r in later),
            "median_episode_s": float(np.median([r["steps"] for r in rows]) * dt) if rows else None}
-    write_figures(res, args.out)
-    with open(args.out, "w") as fh:  # with the episodes
-        json.dump({**res, "rows": rows}, fh, indent=1)
+    write_figures(res, args.out, extra={"rows": rows})
     return res
 
 

@@ -26,11 +26,12 @@ def timed(fn: Callable[[], object]) -> tuple[object, float]:
     return out, time.perf_counter() - t
 
 
-def write_figures(figures: dict, out: str, width: int = 48) -> None:
-    """Print ``figures`` one per line and write them as JSON to ``out``."""
+def write_figures(figures: dict, out: str, width: int = 48, extra: dict | None = None) -> None:
+    """Print ``figures`` one per line and write them as JSON to ``out``, with ``extra`` (long
+    entries, e.g. per-case rows) added to the file but not printed."""
     for k, v in figures.items():
         print(f"{k:{width}s} {v:,.4g}" if isinstance(v, float) else f"{k:{width}s} {v}")
     os.makedirs(os.path.dirname(os.path.abspath(out)), exist_ok=True)
     with open(out, "w") as f:
-        json.dump(figures, f, indent=1)
+        json.dump({**figures, **(extra or {})}, f, indent=1)
     print(f"wrote {out}")
