@@ -122,12 +122,11 @@ def _frame_path(ref, s, l, boxes):
     bx = jnp.swapaxes(_densify(boxes, 1), 0, 1)  # (N, K, 5)
     N = st.shape[0]
     edge = jnp.full((N,), LANE + 0.5 * CAR.width, st.dtype)
-    res = solve_path(ref, st, st[1] - st[0], bx, jnp.ones(bx.shape[:2], bool), edge, -edge, jnp.zeros_like(st),
-                     jnp.stack([l[0], 0.0, 0.0]).astype(st.dtype), PATH)
+    ds, init = st[1] - st[0], jnp.stack([l[0], 0.0, 0.0]).astype(st.dtype)
+    res = solve_path(ref, st, ds, bx, jnp.ones(bx.shape[:2], bool), edge, -edge, jnp.zeros_like(st), init, PATH)
     cor, qp = res["corridor"], res["qp"]
     return dict(ok=qp.ok & res["clear"] & (cor.blocked_index > 1), qp_ok=qp.ok, clear=res["clear"],
-                qp_input=jnp.stack(res["qp_input"]), init=jnp.stack([l[0], 0.0, 0.0]).astype(st.dtype),
-                ds=st[1] - st[0],
+                qp_input=jnp.stack(res["qp_input"]), init=init, ds=ds,
                 blocked=cor.blocked_index < N, corridor_ok=cor.blocked_index > 1, qp_infeasible=~qp.feasible,
                 rounds=res["rounds"], l=res["l"], lower=cor.lower, upper=cor.upper, valid=cor.valid,
                 theta=res["theta"], xy=res["xy"])
