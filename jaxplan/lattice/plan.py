@@ -1,7 +1,6 @@
 """One jitted lattice plan: candidates, collision risk, features, costs, exact and smooth choice."""
 from __future__ import annotations
 
-import functools
 from typing import Any
 
 import jax
@@ -18,6 +17,7 @@ from jaxplan.lattice.risk import (align_obstacles, car_parts, first_contact, inf
                                   min_separation_broad, min_separation_pair, min_separation_topk,
                                   risk_from_separation)
 from jaxplan.lattice.targets import RoadTargets, extents, lane_leader, obstacle_frenet, speed_along
+from jaxplan.compile_options import NO_YNN, jit
 from jaxplan.geometry.boxes import car_reach
 from jaxplan.types import Obstacles, _pytree, is_concrete
 
@@ -270,10 +270,10 @@ def _lane_decision(cand, targets, ok, l_car, config):
     return jnp.where(jnp.isfinite(score[j]), centres[j], centres[route])
 
 
-_plan_jit = jax.jit(_plan, static_argnames=("config",))
+_plan_jit = jit(_plan, options=NO_YNN, static_argnames=("config",))
 
 
-@functools.partial(jax.jit, static_argnames=("config",))
+@jit(options=NO_YNN, static_argnames=("config",))
 def _plan_batch_jit(state, reference_line, obstacles, config, weights, targets=None):
     if targets is None:
         return jax.vmap(lambda s, r, o: _plan(s, r, o, config, weights))(state, reference_line, obstacles)

@@ -1,0 +1,62 @@
+"""Per-kernel XLA compiler options: ``jit`` is ``jax.jit`` with options measured to pay off.
+
+XLA's CPU backend hands small reductions (e.g. a max over a candidate's 31 steps) to its
+YNN fusions, which on the lattice's shapes are slower than XLA's own loops:
+``experiments/bench_lattice.py`` measured the lattice plan with 20 obstacles about 1.6x
+faster with them off (N = 5000: 30 -> 16 ms on the 2-core CI machine), with the same
+choice. The speed DP is slower with them off, so this is opt-in per kernel, not global.
+
+The options are applied only where this JAX accepts them (they are checked once, at the
+first call, never at import): on other JAX versions or backends ``jit`` is plain
+``jax.jit``. Inside a user's own ``jax.jit`` the kernel is inlined and the user's options
+apply.
+"""
+from __future__ import annotations
+
+import functools
+
+import jax
+
+NO_YNN = {"xla_cpu_experimental_ynn_fusion_type": ""}  # XLA CPU: no YNN fusions
+
+
+@functools.cache
+def _supported(items: tuple) -> bool:
+    """Whether this JAX and default backend compile a trivial function with these options."""
+    try:
+        jax.jit(lambda x: x + 1, compiler_options=dict(items)).lower(1.0).compile()
+    except Exception:  # an unknown option, an older jax.jit without compiler_options
+        return False
+    return True
+
+
+class _LazyJit:
+    """``jax.jit(fun, **kwargs)`` built at the first use, with ``options`` when supported."""
+
+    def __init__(self, fun, options: dict, kwargs: dict):
+        self._fun, self._options, self._kwargs, self._jitted = fun, dict(options), kwargs, None
+        functools.update_wrapper(self, fun)
+
+    @property
+    def jitted(self):
+        if self._jitted is None:
+            opts = self._options if self._options and _supported(tuple(sorted(self._options.items()))) else {}
+            kw = dict(self._kwargs, compiler_options=opts) if opts else self._kwargs
+            self._jitted = jax.jit(self._fun, **kw)
+        return self._jitted
+
+    def __call__(self, *args, **kwargs):
+        return self.jitted(*args, **kwargs)
+
+    def __getattr__(self, name):  # lower, eval_shape, _cache_size, ...
+        if name.startswith("__"):
+            raise AttributeError(name)
+        return getattr(self.jitted, name)
+
+
+def jit(fun=None, *, options: dict | None = None, **kwargs):
+    """``jax.jit(fun, **kwargs)`` compiled with the XLA ``options`` (e.g. ``NO_YNN``) where
+    this JAX accepts them; usable as a decorator (``@jit(options=NO_YNN, static_argnames=...)``)."""
+    if fun is None:
+        return lambda f: jit(f, options=options, **kwargs)
+    return _LazyJit(fun, options or {}, kwargs)
