@@ -35,6 +35,7 @@ class _LazyJit:
 
     def __init__(self, fun, options: dict, kwargs: dict):
         self._fun, self._options, self._kwargs, self._jitted = fun, dict(options), kwargs, None
+        self.applied = None  # the options compiled with (set at the first use; {} = plain jax.jit)
         functools.update_wrapper(self, fun)
 
     @property
@@ -42,6 +43,7 @@ class _LazyJit:
         if self._jitted is None:
             opts = self._options if self._options and _supported(tuple(sorted(self._options.items()))) else {}
             kw = dict(self._kwargs, compiler_options=opts) if opts else self._kwargs
+            self.applied = opts
             self._jitted = jax.jit(self._fun, **kw)
         return self._jitted
 

@@ -1,0 +1,31 @@
+"""jaxplan.compile_options.jit: jax.jit with per-kernel XLA options, plain jax.jit where refused."""
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxplan.compile_options import NO_YNN, _supported, jit
+
+
+def _f(x, n):
+    return jnp.max(jnp.cumsum(x, -1), -1) * n
+
+
+def test_options_applied_where_accepted_and_results_equal():
+    x = jnp.asarray(np.random.default_rng(0).normal(size=(50, 31)), jnp.float32)
+    fast = jit(_f, options=NO_YNN, static_argnames=("n",))
+    np.testing.assert_allclose(np.asarray(fast(x, n=2)), np.asarray(jax.jit(_f, static_argnames=("n",))(x, n=2)),
+                               rtol=1e-6)
+    assert fast.applied == (NO_YNN if _supported(tuple(NO_YNN.items())) else {})
+    if jax.default_backend() == "cpu" and jax.__version_info__ >= (0, 10):
+        assert fast.applied == NO_YNN  # XLA CPU of JAX 0.10 has the option (measured there)
+    assert fast._cache_size() == 1  # attributes of the jitted function pass through
+    fast(x, n=2)
+    assert fast._cache_size() == 1
+
+
+def test_refused_option_falls_back_to_plain_jit():
+    bogus = {"xla_cpu_experimental_ynn_fusion_type": "no such value"}
+    assert not _supported(tuple(bogus.items()))
+    g = jit(_f, options=bogus, static_argnames=("n",))
+    assert float(g(jnp.ones((2, 3)), n=1)[0]) == 3.0
+    assert g.applied == {}
