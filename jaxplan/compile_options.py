@@ -8,8 +8,9 @@ choice. The speed DP is slower with them off, so this is opt-in per kernel, not 
 
 The options are applied only where this JAX accepts them (they are checked once, at the
 first call, never at import): on other JAX versions or backends ``jit`` is plain
-``jax.jit``. Inside a user's own ``jax.jit`` the kernel is inlined and the user's options
-apply.
+``jax.jit``. Called on tracers (inside a user's own ``jax.jit``, ``vmap`` or ``grad``) it is
+plain ``jax.jit``, inlined there: JAX takes compiler options only at the top level, and the
+user's apply.
 """
 from __future__ import annotations
 
@@ -35,6 +36,7 @@ class _LazyJit:
 
     def __init__(self, fun, options: dict, kwargs: dict):
         self._fun, self._options, self._kwargs, self._jitted = fun, dict(options), kwargs, None
+        self._plain = None  # plain jax.jit, for calls under another trace
         self.applied = None  # the options compiled with (set at the first use; {} = plain jax.jit)
         functools.update_wrapper(self, fun)
 
@@ -48,6 +50,11 @@ class _LazyJit:
         return self._jitted
 
     def __call__(self, *args, **kwargs):
+        if self._options and any(isinstance(x, jax.core.Tracer) for x in jax.tree_util.tree_leaves((args, kwargs))):
+            # called inside another jit / vmap / grad: JAX takes compiler options only at the top level
+            if self._plain is None:
+                self._plain = jax.jit(self._fun, **self._kwargs)
+            return self._plain(*args, **kwargs)
         return self.jitted(*args, **kwargs)
 
     def __getattr__(self, name):  # lower, eval_shape, _cache_size, ...

@@ -29,3 +29,13 @@ def test_refused_option_falls_back_to_plain_jit():
     g = jit(_f, options=bogus, static_argnames=("n",))
     assert float(g(jnp.ones((2, 3)), n=1)[0]) == 3.0
     assert g.applied == {}
+
+
+def test_inside_another_jit_and_grad():
+    """JAX refuses compiler options on a nested jit: under a trace the plain jit is used."""
+    fast = jit(_f, options=NO_YNN, static_argnames=("n",))
+    x = jnp.arange(6.0).reshape(2, 3)
+    outer = jax.jit(lambda y: fast(y, n=2).sum())
+    assert float(outer(x)) == float(_f(x, 2).sum())
+    g = jax.grad(lambda y: fast(y, n=1).sum())(x)
+    np.testing.assert_allclose(np.asarray(g), np.asarray(jax.grad(lambda y: _f(y, 1).sum())(x)))
