@@ -1,10 +1,10 @@
 """Per-kernel XLA compiler options: ``jit`` is ``jax.jit`` with options measured to pay off.
 
 XLA's CPU backend hands small reductions (e.g. a max over a candidate's 31 steps) to its
-YNN fusions, which on the lattice's shapes are slower than XLA's own loops:
-``experiments/bench_lattice.py`` measured the lattice plan with 20 obstacles about 1.6x
-faster with them off (N = 5000: 30 -> 16 ms on the 2-core CI machine), with the same
-choice. The speed DP is slower with them off, so this is opt-in per kernel, not global.
+YNN fusions, which on the lattice's shapes are slower than XLA's own loops: the lattice
+plan with 20 obstacles (``experiments/bench_lattice.py``'s scene), timed against plain
+``jax.jit`` in one process, took 12.3 -> 8.1 ms (N = 994) and 28.2 -> 15.5 ms (N = 4992)
+with them off on the 2-core CI machine (medians of 30), with the same choice. The speed DP is slower with them off, so this is opt-in per kernel, not global.
 
 The options are applied only where this JAX accepts them (they are checked once, at the
 first call, never at import): on other JAX versions or backends ``jit`` is plain
