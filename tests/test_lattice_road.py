@@ -52,6 +52,7 @@ def targets(**kw):
 
 
 plan_jit = jax.jit(plan, static_argnames=("config",))
+plan_slim_jit = jax.jit(functools.partial(plan, keep_candidates=False), static_argnames=("config",))
 
 
 def plan_cfg(st, ref, obs, **targets_kw):
@@ -193,6 +194,47 @@ def test_feasibility_flags_match_an_oracle_and_nothing_infeasible_is_chosen(rng)
         assert counts["rejected"] == int((~feas & avail).sum())
         assert set(REASONS) <= set(counts)
     assert seen_infeasible_best > 0  # the filter changed the choice somewhere
+
+
+def test_figures_from_the_generator_loop_and_a_plan_without_candidates():
+    """The per-candidate figures computed inside the generator's loop agree with the written-out
+    trajectories (numpy oracle), the chosen trajectory built alone is the chosen candidate's, and
+    ``keep_candidates=False`` gives the same choice and figures without the trajectories."""
+    from jaxplan.lattice.cost import FEATURES, goal_error
+
+    ref = straight_ref()
+    st = PlanState.make(0.0, 0.3, 0.02, 11.0, a=0.5, kappa=0.004, v_set=14.0)
+    obs = obstacles([car(40.0, 0.0, 0.0), car(20.0, 3.5, 12.0)])
+    tk = dict(goal_s=[90.0, 100.0], goal_l=[-2.0, 2.0], goal_t=[5.0, 9.0], goal_v=[6.0, 12.0])
+    full = plan_cfg(st, ref, obs, **tk)
+    tr, c = full.candidates.traj, full.candidates
+    f = np.asarray(full.features, np.float64)
+    col = FEATURES.index
+    np.testing.assert_allclose(f[:, col("rho_max")], np.abs(np.asarray(tr.kappa)).max(-1), rtol=1e-5, atol=1e-7)
+    a, v, kap = (np.asarray(x, np.float64) for x in (tr.a, tr.v, tr.kappa))
+    np.testing.assert_allclose(f[:, col("jerk_lon")], np.mean((np.diff(a) / CFG.dt) ** 2, -1), rtol=1e-3, atol=1e-3)
+    np.testing.assert_allclose(f[:, col("jerk_lat")], np.mean((np.diff(v ** 2 * kap) / CFG.dt) ** 2, -1), rtol=1e-3,
+                               atol=1e-3)
+    np.testing.assert_allclose(f[:, col("v_offset")], np.mean(np.abs(v - 14.0), -1), rtol=1e-5, atol=1e-5)
+    np.testing.assert_allclose(f[:, col("d_lrp")], np.mean(np.abs(np.asarray(c.l) - float(full.l_target)), -1),
+                               rtol=1e-5, atol=1e-5)
+    tg = targets(**tk)
+    goal = goal_error(c.s, c.l, tr.v, jnp.asarray(TT, jnp.float32), tg.goal_s, tg.goal_l, tg.goal_t, tg.goal_v,
+                      CFG.vehicle.center_offset, CFG.goal_weight_time)
+    assert np.asarray(goal).max() > 0  # the goal term is exercised
+    np.testing.assert_allclose(f[:, col("goal")], goal, rtol=1e-5, atol=1e-5)
+    i = int(full.chosen)
+    for name in ("x", "y", "theta", "kappa", "v", "a", "s", "t"):
+        np.testing.assert_allclose(getattr(full.chosen_trajectory(), name), np.asarray(getattr(tr, name))[i],
+                                   rtol=1e-5, atol=1e-4, err_msg=name)
+    slim = plan_slim_jit(st, ref, obs, CFG, targets=tg)
+    assert slim.candidates.traj is None and slim.min_sep is None
+    assert int(slim.chosen) == i and int(slim.mode) == int(full.mode)
+    for name in ("feasible", "collided", "collided_margin", "terminal_ok", "finite"):
+        np.testing.assert_array_equal(getattr(slim, name), getattr(full, name), err_msg=name)
+    np.testing.assert_allclose(slim.features, full.features, rtol=1e-5, atol=1e-5)
+    np.testing.assert_allclose(slim.trajectory.x, full.trajectory.x, atol=1e-5)
+    assert slim.rejected() == full.rejected()
 
 
 # ---------------------------------------------------------------- harm when everything collides

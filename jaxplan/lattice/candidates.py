@@ -369,49 +369,63 @@ def atan2(y, x):
 
 
 def _lateral_targets(config: LatticeConfig, targets, l0, dtype):
-    """Lateral target offsets ``(Pl,)`` = (lateral lane, offset), their lane ids, slots and availability."""
-    from jaxplan.lattice.targets import GOAL_LANE, HOLD_LANE
-
-    Lw, O, _ = config.lateral_grid
+    """Lateral target offsets ``(Pl,)`` = (lateral lane, offset) and whether each exists."""
+    _, O, _ = config.lateral_grid
     centres, ok = [targets.lane_centres.astype(dtype)], [targets.lane_ok]
-    ids = list(config.lanes)
     if config.hold_offset:
         centres.append(jnp.reshape(l0, (1,)).astype(dtype))
         ok.append(jnp.ones((1,), bool))
-        ids.append(HOLD_LANE)
     if config.goal_offset:
         gl = jnp.asarray(targets.goal_l, dtype)
         fin = jnp.all(jnp.isfinite(gl))
         centres.append(jnp.reshape(jnp.where(fin, 0.5 * (gl[0] + gl[1]), l0), (1,)).astype(dtype))
         ok.append(jnp.reshape(fin, (1,)))
-        ids.append(GOAL_LANE)
     centres, ok = jnp.concatenate(centres), jnp.concatenate(ok)
     offs = jnp.linspace(-config.offset_span, config.offset_span, O, dtype=dtype) if O > 1 else jnp.zeros((1,), dtype)
-    return ((centres[:, None] + offs).reshape(Lw * O), np.repeat(np.asarray(ids), O), np.repeat(np.arange(Lw), O),
-            jnp.repeat(ok, O))
+    return (centres[:, None] + offs).reshape(-1), jnp.repeat(ok, O)
 
 
-def generate(state: PlanState, ref: ReferenceLine, config: LatticeConfig, targets=None, leader=None,
-             stop_s=None) -> Candidates:
-    """All candidates of the lattice for one state (any leading batch dims via vmap).
+def _lateral_ids(config: LatticeConfig):
+    """Static lane ids and lateral-lane slots ``(Pl,)`` of the lateral targets (numpy)."""
+    from jaxplan.lattice.targets import GOAL_LANE, HOLD_LANE
 
-    Layout: ``N = G * P``, the longitudinal profile ``g`` major (``jaxplan.lattice.longitudinal``:
-    the seed's ``levels x speeds`` first), then the lateral target ``(lane, offset)`` and the
-    lateral time (``P = lanes' * offsets * lateral times``). With the defaults this is the
-    seed's ``(level, speed, lane, offset)`` order.
+    Lw, O, _ = config.lateral_grid
+    ids = list(config.lanes) + [HOLD_LANE] * config.hold_offset + [GOAL_LANE] * config.goal_offset
+    return np.repeat(np.asarray(ids), O), np.repeat(np.arange(Lw), O)
 
-    Args:
-        state: ``PlanState`` with scalar fields.
-        ref: the reference line (the route lane's centre).
-        config: static settings.
-        targets: ``RoadTargets`` (None: ``RoadTargets.from_config``).
-        leader: optional ``(rear (T,), speed (T,), found ())`` for the following mode (relative
-            to the car's reference point, the car's front length subtracted).
-        stop_s: optional ``()`` distance from the car's reference point to where it stops.
 
-    Returns:
-        ``Candidates`` with ``N = config.n_candidates`` and ``T = config.n_steps``.
+@_pytree(data_fields=("profiles", "ref_at", "S", "offsets", "lat_ok", "l0", "dl0", "ddl0", "s0", "t", "lon",
+                      "l_target"))
+class LatticeParts:
+    """What every candidate of one plan is built from (``generate_from`` expands it).
+
+    Attributes:
+        profiles: ``(s_rel, sdot, sddot) (G, T)`` the longitudinal profiles along the line.
+        ref_at: the reference line at each profile's stations: ``(pos (G, T, 2), cos, sin,
+            theta, kappa, dkappa (G, T))``, evaluated once per profile and shared by its lateral paths.
+        S: ``(G, P)`` arc length over which each lateral path reaches its offset.
+        offsets: ``(P,)`` lateral target offsets; lat_ok: ``(P,)`` the target exists.
+        l0, dl0, ddl0, s0: ``()`` the car's Frenet state; t: ``(T,)``.
+        lon: the ``Longitudinal`` profiles' metadata; l_target: ``()`` the route lane's centre.
     """
+
+    profiles: Any
+    ref_at: Any
+    S: Any
+    offsets: Any
+    lat_ok: Any
+    l0: Any
+    dl0: Any
+    ddl0: Any
+    s0: Any
+    t: Any
+    lon: Any
+    l_target: Any
+
+
+def lattice_parts(state: PlanState, ref: ReferenceLine, config: LatticeConfig, targets=None, leader=None,
+                  stop_s=None) -> LatticeParts:
+    """The longitudinal profiles and lateral targets of one plan (arguments as ``generate``)."""
     from jaxplan.lattice.longitudinal import longitudinal_set
     from jaxplan.lattice.targets import RoadTargets
 
@@ -435,63 +449,147 @@ def generate(state: PlanState, ref: ReferenceLine, config: LatticeConfig, target
                            jnp.inf if stop_s is None else stop_s,
                            goal_mid - s0 - jnp.asarray(config.vehicle.center_offset, dtype),
                            targets.goal_t, targets.goal_v, v_grid=v0)
-    s_rel, sd, sdd = lon.s, lon.v, lon.a  # (G, T)
-    G = s_rel.shape[0]
+    G = lon.s.shape[0]
     Lw, O, Lt = config.lateral_grid
-    offsets, lane_ids, slots, lat_ok = _lateral_targets(config, targets, l0, dtype)
+    offsets, lat_ok = _lateral_targets(config, targets, l0, dtype)
     Pl = Lw * O
     P = Pl * Lt
-    times = config.lateral_times or (config.lateral_time,)
-    k_lat = np.array([T - 1 if x <= 0 else min(T - 1, int(round(x / config.dt))) for x in times])
-    S = jnp.maximum(s_rel[:, k_lat], config.s_min)  # (G, Lt)
+    k_lat = np.array([T - 1 if x <= 0 else min(T - 1, int(round(x / config.dt))) for x in _lateral_times(config)])
+    S = jnp.maximum(lon.s[:, k_lat], config.s_min)  # (G, Lt)
     S = jnp.broadcast_to(S[:, None, :], (G, Pl, Lt)).reshape(G, P)
-    offsets_p = jnp.broadcast_to(offsets[:, None], (Pl, Lt)).reshape(P)
-    s_abs = s0 + s_rel  # the reference line is evaluated once per speed profile
-    pos, theta_r, kr, dkr = ref_state(ref, s_abs)
-    per_group = (s_rel, sd, sdd, S, pos, jnp.cos(theta_r), jnp.sin(theta_r), theta_r, kr, dkr)
+    per_lt = lambda a: jnp.broadcast_to(a[:, None], (Pl, Lt)).reshape(P)
+    pos, theta_r, kr, dkr = ref_state(ref, s0 + lon.s)  # once per speed profile
+    route_lane = jnp.asarray(targets.route_lane)
+    return LatticeParts((lon.s, lon.v, lon.a), (pos, jnp.cos(theta_r), jnp.sin(theta_r), theta_r, kr, dkr), S,
+                        per_lt(offsets), per_lt(lat_ok), l0, dl0, ddl0, s0, t, lon,
+                        targets.lane_centres.astype(dtype)[route_lane])
 
-    def lateral(g):
+
+def _lateral_times(config: LatticeConfig) -> tuple:
+    return config.lateral_times or (config.lateral_time,)
+
+
+def _lateral_paths(parts: LatticeParts, profile, ref_at, offsets, S):
+    """The lateral paths to ``offsets (P,)`` (reached after ``S (P,)`` metres) along one speed
+    profile (``profile``, ``ref_at``: that profile's ``(T,)`` rows of ``LatticeParts``).
+
+    Returns:
+        (x, y, theta, kappa, speed, acc, ux, uy, l, dl) each ``(P, T)``: Frenet -> Cartesian with
+        ``frenet_to_cartesian_state``'s formulas, no trigonometry per candidate.
+    """
+    s_g, sd_g, sdd_g = profile
+    pos_g, cr, sr, th_r, kr_g, dkr_g = ref_at
+    P, T = offsets.shape[0], s_g.shape[-1]
+    coeffs = quintic_coeffs(parts.l0, parts.dl0, parts.ddl0, offsets, S)  # (P, 6)
+    l, dl, ddl = quintic_eval(coeffs, S, jnp.broadcast_to(s_g, (P, T)))
+    one = 1.0 - kr_g * l
+    q = jnp.sqrt(one ** 2 + dl ** 2)
+    r_q, r_one = 1.0 / q, 1.0 / one  # two reciprocals per sample instead of six divisions
+    cos_d, sin_d, tan_d = one * r_q, dl * r_q, dl * r_one
+    d_one = dkr_g * l + kr_g * dl  # -d(one)/ds
+    kappa = ((ddl + d_one * tan_d) * cos_d ** 2 * r_one + kr_g) * cos_d * r_one
+    theta = th_r + atan2(dl, one)
+    x = pos_g[:, 0] - l * sr
+    y = pos_g[:, 1] + l * cr
+    ux, uy = cr * cos_d - sr * sin_d, sr * cos_d + cr * sin_d  # heading unit vector
+    speed = sd_g * q
+    # d(speed)/dt = s'' q + s'^2 dq/ds, with dq/ds = (one * d(one)/ds + l' l'') / q
+    acc = sdd_g * q + sd_g ** 2 * (dl * ddl - one * d_one) * r_q
+    return x, y, theta, kappa, speed, acc, ux, uy, l, dl
+
+
+def arc_length(x, y):
+    """Running sum of chord lengths ``(..., T)`` of the points ``x, y (..., T)`` (0 at the first)."""
+    seg = safe_sqrt(jnp.diff(x, axis=-1) ** 2 + jnp.diff(y, axis=-1) ** 2)  # 0 when stopped
+    return jnp.concatenate([jnp.zeros(x.shape[:-1] + (1,), x.dtype), jnp.cumsum(seg, axis=-1)], axis=-1)
+
+
+def _trajectory(fields, t):
+    x, y, theta, kappa, speed, acc = fields[:6]
+    return Trajectory(x, y, theta, kappa, speed, acc, jnp.broadcast_to(t, x.shape), arc_length(x, y),
+                      jnp.ones_like(x))
+
+
+def candidate_trajectory(parts: LatticeParts, index) -> Trajectory:
+    """The ``Trajectory (T,)`` of candidate ``index ()`` (the flat index of ``generate``'s layout),
+    built alone: the same arithmetic as ``generate_from`` for that candidate."""
+    P = parts.offsets.shape[0]
+    g, p = index // P, index % P
+    row = lambda a: a[g]
+    profile = jax.tree_util.tree_map(row, parts.profiles)
+    ref_at = jax.tree_util.tree_map(row, parts.ref_at)
+    fields = _lateral_paths(parts, profile, ref_at, parts.offsets[p][None], parts.S[g, p][None])
+    return jax.tree_util.tree_map(lambda a: a[0], _trajectory(fields, parts.t))
+
+
+def generate_from(parts: LatticeParts, config: LatticeConfig) -> Candidates:
+    """Every candidate of ``parts`` (built with ``config``); ``generate``'s layout.
+
+    Under ``jit``, candidate arrays nobody reads are never computed or written: a plan that keeps
+    only per-candidate figures and the chosen candidate (``candidate_trajectory``) writes out the
+    few fields its figures read (curvature, speed, acceleration, offsets), not whole trajectories.
+    """
+    f = parts.t.dtype
+    t = parts.t
+    T = t.shape[0]
+    lon = parts.lon
+    s_rel = parts.profiles[0]
+    G = s_rel.shape[0]
+    P = parts.offsets.shape[0]
+    N = G * P
+    s_abs = parts.s0 + s_rel
+
+    def group(g):
         """Every lateral target of one speed profile: fields ``(P, T)``."""
-        s_g, sd_g, sdd_g, S_g, pos_g, cr, sr, th_r, kr_g, dkr_g = g
-        coeffs = quintic_coeffs(l0, dl0, ddl0, offsets_p, S_g)  # (P, 6)
-        l, dl, ddl = quintic_eval(coeffs, S_g, jnp.broadcast_to(s_g, (P, T)))
-        # Frenet -> Cartesian (frenet_to_cartesian_state's formulas, no trigonometry per candidate)
-        one = 1.0 - kr_g * l
-        q = jnp.sqrt(one ** 2 + dl ** 2)
-        cos_d, sin_d, tan_d = one / q, dl / q, dl / one
-        kappa = ((ddl + (dkr_g * l + kr_g * dl) * tan_d) * cos_d ** 2 / one + kr_g) * cos_d / one
-        theta = th_r + atan2(dl, one)
-        x = pos_g[:, 0] - l * sr
-        y = pos_g[:, 1] + l * cr
-        ux, uy = cr * cos_d - sr * sin_d, sr * cos_d + cr * sin_d  # heading unit vector
-        speed = sd_g * q
-        # d(speed)/dt = s'' q + s'^2 dq/ds, with dq/ds = (one * d(one)/ds + l' l'') / q
-        acc = sdd_g * q + sd_g ** 2 * (one * -(dkr_g * l + kr_g * dl) + dl * ddl) / q
-        seg = safe_sqrt(jnp.diff(x, axis=-1) ** 2 + jnp.diff(y, axis=-1) ** 2)  # chord lengths (0 when stopped)
-        arc = jnp.concatenate([jnp.zeros((P, 1), dtype), jnp.cumsum(seg, axis=-1)], axis=-1)
-        return x, y, theta, kappa, speed, acc, arc, ux, uy, l, dl
+        profile, ref_at, S_g = g
+        return _lateral_paths(parts, profile, ref_at, parts.offsets, S_g)
 
     # chunks of speed profiles small enough for the cache (XLA would otherwise materialise
     # every intermediate of all N x T points in memory)
     chunk = max(1, min(G, CHUNK_POINTS // (P * T)))
-    out = lax.map(lateral, per_group, batch_size=chunk) if chunk < G else jax.vmap(lateral)(per_group)
-    N = G * P
-    x, y, theta, kappa, speed, acc, arc, ux, uy, l, dl = (o.reshape(N, T) for o in out)
-    traj = Trajectory(x, y, theta, kappa, speed, acc, jnp.broadcast_to(t, (N, T)), arc,
-                      jnp.ones((N, T), dtype))
+    xs = (parts.profiles, parts.ref_at, parts.S)
+    fields = lax.map(group, xs, batch_size=chunk) if chunk < G else jax.vmap(group)(xs)
+    x, y, theta, kappa, speed, acc, ux, uy, l, dl = (o.reshape(N, T) for o in fields)
+    traj = _trajectory((x, y, theta, kappa, speed, acc), t)
     per_g = lambda a: jnp.broadcast_to(jnp.asarray(a)[:, None], (G, P)).reshape(N)
     per_p = lambda a: jnp.broadcast_to(jnp.asarray(a)[None, :], (G, P)).reshape(N)
+    Lw, O, Lt = config.lateral_grid
+    Pl = Lw * O
     lat_p = lambda a: np.broadcast_to(np.asarray(a)[:, None], (Pl, Lt)).reshape(P)
+    lane_ids, slots = _lateral_ids(config)
+    times = _lateral_times(config)
     E, V = len(config.escalation), len(config.speed_deltas_kmh)
     speed_index = np.full(G, -1)
     speed_index[:E * V] = np.tile(np.arange(V), E)
     lat_times = np.broadcast_to(np.asarray([x if x > 0 else config.horizon for x in times], float)[None], (Pl, Lt))
-    route_lane = jnp.asarray(targets.route_lane)
-    l_target = targets.lane_centres.astype(dtype)[route_lane]
     return Candidates(traj, jnp.stack([ux, uy], -1), jnp.broadcast_to(s_abs[:, None], (G, P, T)).reshape(N, T),
-                      l, dl, per_g(lon.v_end), per_p(offsets_p), per_g(lon.level), per_g(jnp.asarray(speed_index)),
-                      per_p(jnp.asarray(lat_p(lane_ids))), l_target, per_g(lon.kind),
-                      per_g(lon.available) & per_p(jnp.broadcast_to(lat_ok[:, None], (Pl, Lt)).reshape(P)),
-                      per_p(jnp.asarray(lat_times.reshape(P), dtype)), per_p(jnp.asarray(lat_p(slots))),
+                      l, dl, per_g(lon.v_end), per_p(parts.offsets), per_g(lon.level),
+                      per_g(jnp.asarray(speed_index)), per_p(jnp.asarray(lat_p(lane_ids))), parts.l_target,
+                      per_g(lon.kind), per_g(lon.available) & per_p(parts.lat_ok),
+                      per_p(jnp.asarray(lat_times.reshape(P), f)), per_p(jnp.asarray(lat_p(slots))),
                       per_g(jnp.arange(G)), per_g(lon.end_time),
                       jnp.broadcast_to(s_rel[:, None], (G, P, T)).reshape(N, T))
+
+
+def generate(state: PlanState, ref: ReferenceLine, config: LatticeConfig, targets=None, leader=None,
+             stop_s=None) -> Candidates:
+    """All candidates of the lattice for one state (any leading batch dims via vmap).
+
+    Layout: ``N = G * P``, the longitudinal profile ``g`` major (``jaxplan.lattice.longitudinal``:
+    the seed's ``levels x speeds`` first), then the lateral target ``(lane, offset)`` and the
+    lateral time (``P = lanes' * offsets * lateral times``). With the defaults this is the
+    seed's ``(level, speed, lane, offset)`` order.
+
+    Args:
+        state: ``PlanState`` with scalar fields.
+        ref: the reference line (the route lane's centre).
+        config: static settings.
+        targets: ``RoadTargets`` (None: ``RoadTargets.from_config``).
+        leader: optional ``(rear (T,), speed (T,), found ())`` for the following mode (relative
+            to the car's reference point, the car's front length subtracted).
+        stop_s: optional ``()`` distance from the car's reference point to where it stops.
+
+    Returns:
+        ``Candidates`` with ``N = config.n_candidates`` and ``T = config.n_steps``.
+    """
+    return generate_from(lattice_parts(state, ref, config, targets, leader, stop_s), config)

@@ -113,9 +113,15 @@ def cost_features(l, kappa, l_target, ttc, v_end, v_set, min_sep, level, ttc_min
     """
     d_lrp = jnp.mean(jnp.abs(l - jnp.asarray(l_target)[..., None, None]), axis=-1)
     rho = jnp.max(jnp.abs(kappa), axis=-1)
+    return seed_features(d_lrp, rho, ttc, v_end, v_set, jnp.min(min_sep, axis=-1), level, ttc_min, sep_eps)
+
+
+def seed_features(d_lrp, rho, ttc, v_end, v_set, sep_min, level, ttc_min=0.1, sep_eps=0.05):
+    """``cost_features`` from per-candidate reductions ``(..., N)``: ``d_lrp`` (mean ``|l -
+    l_target|``), ``rho`` (max ``|kappa|``) and ``sep_min`` (least separation over the horizon)."""
     risk = jnp.where(jnp.isfinite(ttc), 1.0 / jnp.maximum(ttc, ttc_min), 0.0)
     speed = jnp.abs(v_end - jnp.asarray(v_set)[..., None])
-    coll = jax.nn.sigmoid(-jnp.min(min_sep, axis=-1) / sep_eps)
+    coll = jax.nn.sigmoid(-sep_min / sep_eps)
     lvl = level.astype(d_lrp.dtype) * (1.0 - coll)
     return jnp.stack([d_lrp, rho, risk, speed, coll, lvl], axis=-1)
 
@@ -210,14 +216,31 @@ def road_features(base, traj, dt, min_sep, v_set, goal_err, feasible, terminal_o
     Returns:
         ``(..., N, len(FEATURES))``.
     """
-    f = base.dtype
+    return road_features_from(base, motion_terms(traj, dt, v_set), obstacle_term(min_sep), goal_err, feasible,
+                              terminal_ok, collided)
+
+
+def motion_terms(traj, dt, v_set):
+    """``(..., N, 3)``: the road features ``jerk_lon``, ``jerk_lat`` and ``v_offset`` of
+    trajectories ``(..., N, T)`` (``v_set (...)``)."""
+    f = traj.v.dtype
     jl = jnp.mean((jnp.diff(traj.a, axis=-1) / dt) ** 2, axis=-1)
     lat = traj.v ** 2 * traj.kappa
     jt = jnp.mean((jnp.diff(lat, axis=-1) / dt) ** 2, axis=-1)
-    obst = jnp.mean(jnp.exp(-jnp.maximum(min_sep, 0.0) / OBSTACLE_SCALE), axis=-1)
     voff = jnp.mean(jnp.abs(traj.v - jnp.asarray(v_set, f)[..., None, None]), axis=-1)
-    extra = jnp.stack([jl, jt, obst, voff, goal_err.astype(f), (~feasible).astype(f),
-                       ((~terminal_ok) & ~collided).astype(f)], axis=-1)
+    return jnp.stack([jl, jt, voff], axis=-1)
+
+
+def obstacle_term(min_sep):
+    """``(..., N)``: the road feature ``obstacle`` from the separations ``(..., N, T)``."""
+    return jnp.mean(jnp.exp(-jnp.maximum(min_sep, 0.0) / OBSTACLE_SCALE), axis=-1)
+
+
+def road_features_from(base, motion, obstacle, goal_err, feasible, terminal_ok, collided):
+    """``road_features`` from ``motion_terms (..., N, 3)`` and ``obstacle_term (..., N)``."""
+    f = base.dtype
+    extra = jnp.stack([motion[..., 0], motion[..., 1], obstacle, motion[..., 2], goal_err.astype(f),
+                       (~feasible).astype(f), ((~terminal_ok) & ~collided).astype(f)], axis=-1)
     return jnp.concatenate([base, extra], axis=-1)
 
 

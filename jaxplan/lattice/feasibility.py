@@ -57,23 +57,30 @@ def feasibility(traj, level, config):
     return ~jnp.any(reasons, axis=-1), reasons
 
 
-def usable(feasible, reasons, traj, level, available, config):
+def violation(traj, level, config):
+    """``(..., N)`` how far beyond its lateral limits a candidate goes: the larger of its peak
+    curvature over the curvature limit and its peak lateral acceleration over its level's limit
+    (<= 1: within both)."""
+    emerg = level >= len(config.escalation)
+    lat_max = jnp.where(emerg, config.emergency_lat_acc_max, config.lat_acc_max)
+    kap = jnp.max(jnp.abs(traj.kappa), axis=-1)
+    lat = jnp.max(jnp.abs(traj.v ** 2 * traj.kappa), axis=-1)
+    return jnp.maximum(kap / config.curvature_limit, lat / lat_max)
+
+
+def usable(feasible, reasons, viol, available):
     """``(..., N)`` the candidates the selection may take.
 
     The feasible ones when any is available. Otherwise (typically a start state already
     beyond the curvature or lateral limits, which every lateral path inherits) the
     candidates within the longitudinal limits (acceleration, jerk, no reversing; the
-    fallback level is built to be) whose curvature / lateral-acceleration excess is within
-    10 % of the least one: the least infeasible plans, never one that teleports the car by
-    an impossible speed profile. Only when none is within the longitudinal limits: all.
+    fallback level is built to be) whose curvature / lateral-acceleration excess ``viol``
+    (``violation``) is within 10 % of the least one: the least infeasible plans, never one
+    that teleports the car by an impossible speed profile. Only when none is within the
+    longitudinal limits: all.
     """
     avail_f = available & feasible
     lon_ok = ~jnp.any(reasons[..., 2:], axis=-1)
-    emerg = level >= len(config.escalation)
-    lat_max = jnp.where(emerg, config.emergency_lat_acc_max, config.lat_acc_max)
-    kap = jnp.max(jnp.abs(traj.kappa), axis=-1)
-    lat = jnp.max(jnp.abs(traj.v ** 2 * traj.kappa), axis=-1)
-    viol = jnp.maximum(kap / config.curvature_limit, lat / lat_max)
     cand = available & lon_ok
     best = jnp.min(jnp.where(cand, viol, jnp.inf), axis=-1, keepdims=True)
     least = cand & (viol <= 1.1 * best + 1e-6)

@@ -1,6 +1,7 @@
 """One jitted lattice plan: candidates, collision risk, features, costs, exact and smooth choice."""
 from __future__ import annotations
 
+import dataclasses
 from typing import Any
 
 import jax
@@ -9,11 +10,13 @@ import numpy as np
 
 from jaxplan.geometry.frenet import ReferenceLine
 from jaxplan.geometry.frenet import to_frenet
-from jaxplan.lattice.candidates import Candidates, LatticeConfig, PlanState, generate
-from jaxplan.lattice.cost import INVALID, CostWeights, choose, cost_features, costs, goal_error, road_features
+from jaxplan.lattice.candidates import (Candidates, LatticeConfig, PlanState, candidate_trajectory, generate_from,
+                                       lattice_parts)
+from jaxplan.lattice.cost import (INVALID, CostWeights, choose, costs, goal_error, motion_terms, obstacle_term,
+                                  road_features_from, seed_features)
 from jaxplan.lattice.crossroad import with_stop_target
-from jaxplan.lattice.feasibility import feasibility, usable
-from jaxplan.lattice.risk import (align_obstacles, car_parts, first_contact, inflate, min_separation_axes,
+from jaxplan.lattice.feasibility import feasibility, usable, violation
+from jaxplan.lattice.risk import (BIG, Risk, align_obstacles, car_parts, first_contact, inflate, min_separation_axes,
                                   min_separation_broad, min_separation_pair, min_separation_topk,
                                   risk_from_separation)
 from jaxplan.lattice.targets import RoadTargets, extents, lane_leader, obstacle_frenet, speed_along
@@ -24,7 +27,7 @@ from jaxplan.types import Obstacles, _pytree, is_concrete
 
 @_pytree(data_fields=("candidates", "features", "cost", "selection_cost", "collided", "first_t", "ttc",
                       "min_sep", "chosen", "mode", "obstacles", "finite", "ok", "feasible", "reasons",
-                      "collided_margin", "terminal_ok", "impact", "l_target", "ignored", "off_road"))
+                      "collided_margin", "terminal_ok", "impact", "l_target", "ignored", "off_road", "trajectory"))
 class LatticeResult:
     """Everything one plan computed (``N`` candidates, ``T`` steps, any leading batch dims).
 
@@ -51,6 +54,9 @@ class LatticeResult:
         ignored: ``(..., K, T)`` obstacle steps left out (same-lane obstacles behind the car).
         off_road: ``(..., N)`` the candidate's box leaves the road (``RoadTargets.road_edges``;
             counted in ``collided_margin``: taken only when nothing on the road is free).
+        trajectory: the chosen candidate's ``Trajectory`` ``(..., T)``, built on its own
+            (``candidates.candidate_trajectory``), so that a caller who keeps only it (and the
+            per-candidate figures) never has every candidate's trajectory written out.
     """
 
     candidates: Any
@@ -74,9 +80,12 @@ class LatticeResult:
     l_target: Any = None
     ignored: Any = None
     off_road: Any = None
+    trajectory: Any = None
 
     def chosen_trajectory(self):
         """The chosen ``Trajectory`` ``(..., T)``."""
+        if self.trajectory is not None:
+            return self.trajectory
         i = self.chosen[..., None, None]
         return jax.tree_util.tree_map(lambda f: jnp.take_along_axis(f, i, axis=-2)[..., 0, :],
                                       self.candidates.traj)
@@ -103,15 +112,39 @@ def _stop_distance(config, s_car, d_crossroad, stop_s, leader_rear, stopped, fro
     return jnp.minimum(d, jnp.asarray(stop_s, s_car.dtype) - s_car - front)
 
 
-def _finite(cand: Candidates, sep, feats):
-    """``(N,)`` True where a candidate's trajectory, separations and features hold no NaN / inf."""
+def _kinematics(cand: Candidates, ref, targets, config, v_set, t):
+    """Per-candidate reductions ``(N, ...)`` of the candidates' samples: the feasibility filter, the
+    kinematic features, the goal error, the road-edge check, finiteness and the end state (one
+    pass over the fields they read; nothing else of the trajectories is needed for the choice).
+
+    Returns:
+        dict of ``(N, ...)`` arrays.
+    """
     tr = cand.traj
-    rows = jnp.stack([tr.x, tr.y, tr.theta, tr.kappa, tr.v, tr.a, tr.s, sep], -1)  # (N, T, 8)
-    return jnp.all(jnp.isfinite(rows), axis=(-2, -1)) & jnp.all(jnp.isfinite(feats), axis=-1)
+    f = tr.x.dtype
+    feasible, reasons = feasibility(tr, cand.level, config)
+    centres = targets.lane_centres.astype(f)
+    # NaN / inf anywhere makes the sum non-finite (the heading and the arc length are finite where
+    # these are: they are built from the same l, l' and reference line)
+    total = jnp.sum(tr.x + tr.y + tr.kappa + tr.v + tr.a, axis=-1)
+    veh = config.vehicle
+    out = dict(feasible=feasible, reasons=reasons, viol=violation(tr, cand.level, config),
+               rho=jnp.max(jnp.abs(tr.kappa), axis=-1),
+               d_lane=jnp.mean(jnp.abs(cand.l[..., None] - centres), axis=-2),  # (N, Ln): d_lrp to each lane
+               motion=motion_terms(tr, config.dt, v_set),
+               goal=goal_error(cand.s, cand.l, tr.v, t, targets.goal_s, targets.goal_l, targets.goal_t,
+                               targets.goal_v, jnp.asarray(veh.center_offset, f), config.goal_weight_time),
+               finite=jnp.isfinite(total),
+               s_end=cand.s[:, -1], l_end=cand.l[:, -1], v_last=tr.v[:, -1], s_rel_end=cand.s_rel[:, -1])
+    if targets.road_edges is not None:  # leaving the road counts as touching an obstacle's buffer
+        out["off_road"] = leaves_road(ref, cand, targets.road_edges, veh)
+    else:
+        out["off_road"] = jnp.zeros(feasible.shape, bool)
+    return out
 
 
 def _plan(state: PlanState, ref: ReferenceLine, obstacles: Obstacles, config: LatticeConfig,
-          weights: CostWeights, targets: RoadTargets | None = None) -> LatticeResult:
+          weights: CostWeights, targets: RoadTargets | None = None, keep_candidates: bool = True) -> LatticeResult:
     f = ref.xy.dtype
     if targets is None:
         targets = RoadTargets.from_config(config, f)
@@ -134,7 +167,9 @@ def _plan(state: PlanState, ref: ReferenceLine, obstacles: Obstacles, config: La
         v_along = jnp.zeros(sl.shape[:-1], f)
         rear, lead_v, found, stopped = jnp.zeros_like(t), jnp.zeros_like(t), jnp.asarray(False), jnp.asarray(False)
     d_stop = _stop_distance(config, s_car, state.d_crossroad, targets.stop_s, rear, stopped, front)
-    cand: Candidates = generate(state, ref, config, targets, (rear, lead_v, found), d_stop)
+    parts = lattice_parts(state, ref, config, targets, (rear, lead_v, found), d_stop)
+    cand = generate_from(parts, config)
+    kin = _kinematics(cand, ref, targets, config, state.v_set, t)
     # same-lane obstacles behind the car do not count while they stay in its corridor (unless they overlap it)
     if config.ignore_behind and K:
         rear_car = s_car + jnp.asarray(veh.center_offset - 0.5 * veh.length, f)
@@ -144,7 +179,58 @@ def _plan(state: PlanState, ref: ReferenceLine, obstacles: Obstacles, config: La
     else:
         ignored = jnp.zeros(obs.valid.shape, bool)
     obs = Obstacles(obs.boxes, obs.valid & ~ignored, obs.t, obs.static)
-    obs = with_stop_target(obs, ref, cand.s[0, 0], state.d_crossroad, config)
+    obs = with_stop_target(obs, ref, parts.s0 + parts.profiles[0][0, 0], state.d_crossroad, config)
+    if K:
+        hits = _collisions(cand, obs, t, config)
+    else:  # only the virtual stop box, valid before a crossroad: checked only then, on candidates generated
+        # again inside the branch (so that without it no candidate's trajectory is written out)
+        hits = jax.lax.cond(jnp.any(obs.valid), lambda: _collisions(generate_from(parts, config), obs, t, config),
+                            lambda: _no_collisions(cand.level.shape[0], T, f))
+    sep, risk, collided_m = hits["sep"], hits["risk"], hits["collided_margin"] | kin["off_road"]
+    first_t, impact = hits["first_t"], hits["impact"]
+    off_road = kin["off_road"]
+    feasible, reasons = kin["feasible"], kin["reasons"]
+    if config.terminal and K:
+        terminal_ok = _terminal(ref, kin["s_end"], kin["l_end"], kin["v_last"], obs, sl, ext, v_along, front, half_w,
+                                config)
+    else:
+        terminal_ok = jnp.ones(risk.collided.shape, bool)
+    route = jnp.asarray(targets.route_lane)
+    base = seed_features(kin["d_lane"][:, route], kin["rho"], risk.ttc, cand.v_end, state.v_set,
+                         hits["sep_min"], cand.level, config.ttc_min, config.sep_eps)
+    feats = road_features_from(base, kin["motion"], hits["obstacle"], kin["goal"], feasible, terminal_ok,
+                               risk.collided)
+    # a candidate with a NaN / inf in its trajectory, separations or features is never chosen
+    finite = kin["finite"] & hits["sep_finite"] & jnp.all(jnp.isfinite(feats), axis=-1)
+    avail = cand.available & finite
+    use = usable(feasible, reasons, kin["viol"], avail)  # feasible, else the least infeasible
+    pool = avail & use
+    ok = pool & ~collided_m & terminal_ok
+    l_target, lane = _lane_decision(cand, kin["s_rel_end"], targets, ok, l_car, config)
+    feats = feats.at[:, 0].set(kin["d_lane"][:, lane])
+    n_comfort = len(config.escalation)
+    risk_cost = weights.gamma * feats[:, 2]
+    idx, mode, sel = choose(weights, feats, cand.level, avail, use, ~collided_m, ~risk.collided, terminal_ok,
+                            impact, first_t, risk_cost, n_comfort, config.all_collide)
+    mode = jnp.where(jnp.any(avail), mode, INVALID)
+    ok_plan = jnp.take(finite, idx)
+    if not keep_candidates:  # the per-candidate figures and the choice, not every trajectory
+        cand = dataclasses.replace(cand, traj=None, axis=None, s=None, l=None, dl=None, s_rel=None)
+        sep = None
+    return LatticeResult(cand, feats, costs(weights, feats), sel, risk.collided | ~finite, risk.first_t, risk.ttc,
+                         sep, idx, mode, obs, finite, ok_plan, feasible, reasons, collided_m, terminal_ok, impact,
+                         l_target, ignored, off_road, candidate_trajectory(parts, idx))
+
+
+def _collisions(cand: Candidates, obs: Obstacles, t, config: LatticeConfig) -> dict:
+    """The candidates against the obstacles (the broad phase ``config`` asks for).
+
+    Returns:
+        dict: ``sep`` ``(N, T)`` separation to the plain boxes, ``risk`` (``Risk``), ``collided_margin``
+        ``(N,)`` overlap with the inflated boxes, ``first_t``, ``impact`` (``first_contact``),
+        ``sep_min`` (least separation), ``obstacle`` (``cost.obstacle_term``), ``sep_finite`` ``(N,)``.
+    """
+    veh = config.vehicle
     center, half = car_parts(jnp.stack([cand.traj.x, cand.traj.y], -1), cand.axis, veh)
     G, P = config.n_profiles, config.n_lateral
     buf = (config.buffer_lon, config.buffer_lat)
@@ -152,54 +238,29 @@ def _plan(state: PlanState, ref: ReferenceLine, obstacles: Obstacles, config: La
         Lw, O, Lt = config.lateral_grid
         lane_ok = cand.available.reshape(G * Lw, O * Lt).any(-1)
         sep, sep_m = min_separation_topk(center, cand.axis, half, obs, O * Lt, config.near_k, buf, lane_ok)
+    elif config.near_budget > 0:
+        Kb = obs.boxes.shape[-3]
+        budget = max(1, int(np.ceil(config.near_budget * G * Kb * config.n_steps)))
+        check = lambda o: min_separation_broad(center, cand.axis, half, o, P, budget, config.broad_margin + max(buf))
+        sep = check(obs)
+        sep_m = check(inflate(obs, *buf)) if max(buf) > 0 else sep
+    elif max(buf) > 0:
+        sep, sep_m = min_separation_pair(center, cand.axis, half, obs, buf, P)
     else:
-        if config.near_budget > 0:
-            Kb = obs.boxes.shape[-3]
-            budget = max(1, int(np.ceil(config.near_budget * G * Kb * config.n_steps)))
-            check = lambda o: min_separation_broad(center, cand.axis, half, o, P, budget,
-                                                   config.broad_margin + max(buf))
-            sep = check(obs)
-            sep_m = check(inflate(obs, *buf)) if max(buf) > 0 else sep
-        elif max(buf) > 0:
-            sep, sep_m = min_separation_pair(center, cand.axis, half, obs, buf, P)
-        else:
-            sep = sep_m = min_separation_axes(center, cand.axis, half, obs)
-    risk = risk_from_separation(sep, t)
-    collided_m = jnp.any(sep_m < 0, axis=-1)
-    if targets.road_edges is not None:  # leaving the road counts as touching an obstacle's buffer
-        off_road = leaves_road(ref, cand, targets.road_edges, veh)
-        collided_m = collided_m | off_road
-    else:
-        off_road = jnp.zeros(collided_m.shape, bool)
-    feasible, reasons = feasibility(cand.traj, cand.level, config)
+        sep = sep_m = min_separation_axes(center, cand.axis, half, obs)
     first_t, impact = first_contact(sep, t, center, cand.axis, cand.traj.v, obs, half, config.dt)
-    if config.terminal and K:
-        terminal_ok = _terminal(ref, cand, obs, sl, ext, v_along, front, half_w, config)
-    else:
-        terminal_ok = jnp.ones(risk.collided.shape, bool)
-    base = cost_features(cand.l, cand.traj.kappa, cand.l_target, risk.ttc, cand.v_end, state.v_set, sep,
-                         cand.level, config.ttc_min, config.sep_eps)
-    goal_err = goal_error(cand.s, cand.l, cand.traj.v, t, targets.goal_s, targets.goal_l, targets.goal_t,
-                          targets.goal_v, jnp.asarray(veh.center_offset, f), config.goal_weight_time)
-    feats = road_features(base, cand.traj, config.dt, sep, state.v_set, goal_err, feasible, terminal_ok,
-                          risk.collided)
-    finite = _finite(cand, sep, feats)
-    avail = cand.available & finite  # a candidate with a NaN / inf is never chosen
-    use = usable(feasible, reasons, cand.traj, cand.level, avail, config)  # feasible, else the least infeasible
-    pool = avail & use
-    ok = pool & ~collided_m & terminal_ok
-    l_target = _lane_decision(cand, targets, ok, l_car, config)
-    d_lrp = jnp.mean(jnp.abs(cand.l - l_target), axis=-1)
-    feats = feats.at[:, 0].set(d_lrp)
-    n_comfort = len(config.escalation)
-    risk_cost = weights.gamma * feats[:, 2]
-    idx, mode, sel = choose(weights, feats, cand.level, avail, use, ~collided_m, ~risk.collided, terminal_ok,
-                            impact, first_t, risk_cost, n_comfort, config.all_collide)
-    mode = jnp.where(jnp.any(avail), mode, INVALID)
-    ok_plan = jnp.take(finite, idx)
-    return LatticeResult(cand, feats, costs(weights, feats), sel, risk.collided | ~finite, risk.first_t, risk.ttc,
-                         sep, idx, mode, obs, finite, ok_plan, feasible, reasons, collided_m, terminal_ok, impact,
-                         l_target, ignored, off_road)
+    return dict(sep=sep, risk=risk_from_separation(sep, t), collided_margin=jnp.any(sep_m < 0, axis=-1),
+                first_t=first_t, impact=impact, sep_min=jnp.min(sep, axis=-1), obstacle=obstacle_term(sep),
+                sep_finite=jnp.all(jnp.isfinite(sep), axis=-1))
+
+
+def _no_collisions(N: int, T: int, f) -> dict:
+    """``_collisions``' result without any valid obstacle (every separation ``BIG``)."""
+    no = jnp.zeros((N,), bool)
+    inf = jnp.full((N,), jnp.inf, f)
+    return dict(sep=jnp.full((N, T), BIG, f), risk=Risk(jnp.full((N, T), BIG, f), no, inf, inf), collided_margin=no,
+                first_t=inf, impact=jnp.zeros((N,), f), sep_min=jnp.full((N,), BIG, f),
+                obstacle=obstacle_term(jnp.full((N, 1), BIG, f)), sep_finite=~no)
 
 
 ROAD_TOL = 0.1  # m: a candidate's box may reach this far past a road edge (map seams, edge sampling)
@@ -223,10 +284,10 @@ def leaves_road(ref, cand, road_edges, vehicle):
     return jnp.any(out, axis=-1)
 
 
-def _terminal(ref, cand, obs, sl, ext, v_along, front, half_w, config):
-    """``(N,)``: the end state can stop behind every obstacle ahead in its corridor (module ``cost``)."""
+def _terminal(ref, s_e, l_e, v_e, obs, sl, ext, v_along, front, half_w, config):
+    """``(N,)``: the end states ``s_e, l_e, v_e (N,)`` can stop behind every obstacle ahead in
+    their corridor (module ``cost``)."""
     K = sl.shape[0]
-    s_e, l_e, v_e = cand.s[:, -1], cand.l[:, -1], cand.traj.v[:, -1]
     valid = obs.valid[:K, -1]
     so, lo, es, el = sl[:, -1, 0], sl[:, -1, 1], ext[:, -1, 0], ext[:, -1, 1]
     vo = jnp.maximum(v_along[:, -1], 0.0)
@@ -246,13 +307,14 @@ def _terminal(ref, cand, obs, sl, ext, v_along, front, half_w, config):
     return jnp.all(~rel | (gap >= need), axis=-1)
 
 
-def _lane_decision(cand, targets, ok, l_car, config):
-    """The target lane's centre ``()``: the route lane unless another lane lets the car get
-    further over the horizon (level-0 candidates that pass every check) by more than
-    ``lane_change_gain`` than the route lane and the car's current lane (each keeps that bonus);
-    a lane running the other way (``RoadTargets.lane_borrow``) needs ``borrow_gain`` more."""
+def _lane_decision(cand, progress, targets, ok, l_car, config):
+    """The target lane: its centre ``()`` and index ``()`` into ``targets.lane_centres``. The route
+    lane unless another lane lets the car get further over the horizon (``progress (N,)``, of the
+    level-0 candidates that pass every check) by more than ``lane_change_gain`` than the route
+    lane and the car's current lane (each keeps that bonus); a lane running the other way
+    (``RoadTargets.lane_borrow``) needs ``borrow_gain`` more."""
     Ln = targets.lane_centres.shape[0]
-    prog = cand.s_rel[:, -1]
+    prog = progress
     slot = cand.lane_slot
     good = ok & (cand.level == 0) & (slot < Ln)
     best = jnp.max(jnp.where(good[None] & (slot[None] == jnp.arange(Ln)[:, None]), prog[None], -jnp.inf), axis=-1)
@@ -267,17 +329,20 @@ def _lane_decision(cand, targets, ok, l_car, config):
     # ties go to the route lane
     score = score + 1e-3 * (lanes == route)
     j = jnp.argmax(score)
-    return jnp.where(jnp.isfinite(score[j]), centres[j], centres[route])
+    lane = jnp.where(jnp.isfinite(score[j]), j, route)
+    return centres[lane], lane
 
 
-_plan_jit = jit(_plan, options=NO_YNN, static_argnames=("config",))
+_plan_jit = jit(_plan, options=NO_YNN, static_argnames=("config", "keep_candidates"))
 
 
-@jit(options=NO_YNN, static_argnames=("config",))
-def _plan_batch_jit(state, reference_line, obstacles, config, weights, targets=None):
+@jit(options=NO_YNN, static_argnames=("config", "keep_candidates"))
+def _plan_batch_jit(state, reference_line, obstacles, config, weights, targets=None, keep_candidates=True):
     if targets is None:
-        return jax.vmap(lambda s, r, o: _plan(s, r, o, config, weights))(state, reference_line, obstacles)
-    return jax.vmap(lambda s, r, o, g: _plan(s, r, o, config, weights, g))(state, reference_line, obstacles, targets)
+        return jax.vmap(lambda s, r, o: _plan(s, r, o, config, weights, None, keep_candidates))(
+            state, reference_line, obstacles)
+    return jax.vmap(lambda s, r, o, g: _plan(s, r, o, config, weights, g, keep_candidates))(
+        state, reference_line, obstacles, targets)
 
 
 def _check_shapes(where: str, state: PlanState, ref: ReferenceLine, obstacles: Obstacles, batch: int):
@@ -305,7 +370,7 @@ def _validate(state, reference_line, obstacles, config, weights):
 
 def plan(state: PlanState, reference_line: ReferenceLine, obstacles: Obstacles,
          config: LatticeConfig = LatticeConfig(), weights: CostWeights | None = None,
-         targets: RoadTargets | None = None) -> LatticeResult:
+         targets: RoadTargets | None = None, keep_candidates: bool = True) -> LatticeResult:
     """Plan once: every candidate of the lattice, its risk and cost, and the choice.
 
     Host-side checks run on concrete inputs (under jit they are skipped; then check
@@ -322,6 +387,11 @@ def plan(state: PlanState, reference_line: ReferenceLine, obstacles: Obstacles,
         weights: ``CostWeights`` (default weights if None).
         targets: ``RoadTargets`` (lanes, stop point, goal, the obstacles' Frenet coordinates);
             None: the seed's lanes from ``config`` and nothing else.
+        keep_candidates: False: the result holds every candidate's figures (features, costs,
+            flags, metadata) and the chosen ``trajectory``, but not every candidate's trajectory
+            (``candidates.traj``, ``axis``, ``s``, ``l``, ``dl``, ``s_rel`` and ``min_sep`` are None),
+            which are then never written out: with few obstacles that is most of a plan's time.
+            Inside a caller's ``jit`` the same happens by itself for whatever is not read.
 
     Returns:
         ``LatticeResult``.
@@ -329,15 +399,15 @@ def plan(state: PlanState, reference_line: ReferenceLine, obstacles: Obstacles,
     weights = CostWeights() if weights is None else weights
     _check_shapes("plan", state, reference_line, obstacles, 0)
     _validate(state, reference_line, obstacles, config, weights)
-    return _plan_jit(state, reference_line, obstacles, config, weights, targets)
+    return _plan_jit(state, reference_line, obstacles, config, weights, targets, keep_candidates)
 
 
 def plan_batch(state: PlanState, reference_line: ReferenceLine, obstacles: Obstacles,
                config: LatticeConfig = LatticeConfig(), weights: CostWeights | None = None,
-               targets: RoadTargets | None = None) -> LatticeResult:
+               targets: RoadTargets | None = None, keep_candidates: bool = True) -> LatticeResult:
     """``plan`` over a leading batch dimension ``B`` of the state, the reference line and the
     obstacles (and of ``targets`` when given; ``config`` and ``weights`` are shared; default
-    weights if None)."""
+    weights if None; ``keep_candidates`` as in ``plan``)."""
     weights = CostWeights() if weights is None else weights
     _check_shapes("plan_batch", state, reference_line, obstacles, 1)
     sizes = {"state": jnp.shape(state.x)[0], "reference line": jnp.shape(reference_line.xy)[0],
@@ -348,4 +418,4 @@ def plan_batch(state: PlanState, reference_line: ReferenceLine, obstacles: Obsta
     state = jax.tree_util.tree_map(lambda f: jnp.broadcast_to(f, (sizes["state"],) + jnp.shape(f)[1:])
                                    if jnp.ndim(f) == 0 else f, state)
     _validate(state, reference_line, obstacles, config, weights)
-    return _plan_batch_jit(state, reference_line, obstacles, config, weights, targets)
+    return _plan_batch_jit(state, reference_line, obstacles, config, weights, targets, keep_candidates)
