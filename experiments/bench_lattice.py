@@ -21,6 +21,13 @@ stages:
   trajectory against a ``CollisionChecker`` of the obstacles' time-variant boxes; that
   check is timed separately and included.
 
+jaxplan's headline figure times one plan call that returns what a planner uses: the choice, the
+chosen trajectory and every candidate's features, costs and flags (``plan(...,
+keep_candidates=False)``; inside a caller's ``jit``, such as ``jaxplan drive``'s step, XLA drops the
+unread arrays by itself). Every candidate is still generated and checked at every sample; its
+trajectory arrays are not written out. The call that also returns every candidate's trajectory
+(the whole ``LatticeResult``) is timed beside it (``..._all_trajectories_out``).
+
 Frenetix runs sequentially (``evaluate_all_current_functions``) and concurrently
 (``evaluate_all_current_functions_concurrent``, and the pycrcc checks in a thread pool
 of ``os.cpu_count()`` threads). Throughput in trajectories/s, best of ``--reps``; the
@@ -95,7 +102,14 @@ def lattice_config(n, near_k=None):
                          near_k=NEAR_K if near_k is None else near_k)
 
 
-def jaxplan_rate(n, k, reps, near_k=None):
+def jaxplan_rate(n, k, reps, near_k=None, keep_candidates=False):
+    """(trajectories/s, compile s, candidates, collided, feasible) of one plan call.
+
+    ``keep_candidates=False`` (the headline): the call returns the choice, the chosen trajectory and
+    every candidate's features, costs and flags, as a planner uses it (``plan(...,
+    keep_candidates=False)``; inside a caller's jit the same by dead-code elimination): every
+    candidate is still generated and checked at every sample, but its trajectory arrays are not
+    written out. ``True``: the whole ``LatticeResult`` with every candidate's trajectory."""
     cfg = lattice_config(n, near_k)
     ref_xy = reference()
     ref = ReferenceLine.from_polyline(ref_xy)
@@ -103,8 +117,8 @@ def jaxplan_rate(n, k, reps, near_k=None):
     t = np.arange(cfg.n_steps) * DT
     obs = Obstacles(jnp.asarray(_obstacles(k, t, ref_xy), jnp.float32), jnp.ones((k, len(t)), bool),
                     jnp.asarray(t, jnp.float32)) if k else Obstacles.empty(jnp.asarray(t, jnp.float32))
-    w = CostWeights()
-    run = lambda: jax.block_until_ready(_plan_jit(st, ref, obs, cfg, w))
+    w = jax.tree_util.tree_map(jnp.asarray, CostWeights())  # on the device once, as a caller's weights are
+    run = lambda: jax.block_until_ready(_plan_jit(st, ref, obs, cfg, w, None, keep_candidates))
     t0 = time.perf_counter()
     res = run()
     compile_s = time.perf_counter() - t0
@@ -229,6 +243,8 @@ def main(argv=None):
         for k, tag in ((0, "kinematic"), (args.obstacles, f"obstacles{args.obstacles}")):
             rate, comp, n_c, n_col, n_feas = jaxplan_rate(n, k, args.reps, args.near_k)
             res[f"jaxplan_{tag}_N{n}_traj_per_s"] = rate
+            res[f"jaxplan_{tag}_N{n}_traj_per_s_all_trajectories_out"] = jaxplan_rate(n, k, args.reps, args.near_k,
+                                                                                      True)[0]
             res[f"jaxplan_{tag}_N{n}_compile_s"] = comp
             res[f"jaxplan_{tag}_N{n}_candidates"] = n_c
             res[f"jaxplan_{tag}_N{n}_feasible"] = n_feas
