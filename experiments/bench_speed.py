@@ -77,9 +77,9 @@ def main(argv=None):
 
     from jaxplan.eval.batch import sharded_map
     from jaxplan.eval.timing import best_time, timed, write_figures
-    from jaxplan.speed import CostWeights, SpeedConfig, band_widths
+    from jaxplan.speed import CostWeights, SpeedConfig
     from jaxplan.speed.compose import compose_profile
-    from jaxplan.speed.dp import _plan_one
+    from jaxplan.speed.dp import _batched, _plan_one, dp_band
     from jaxplan.speed.smooth import SmoothWeights, smooth_plan
     from jaxplan.types import VehicleParams
 
@@ -97,7 +97,7 @@ def main(argv=None):
             tr = compose_profile(ref, 20.0, prof)
             return tr.x, tr.y, tr.v, prof.ok
 
-        return jax.jit(jax.vmap(one))
+        return jax.jit(lambda *batch: _batched(one, 1, batch))  # plan_speed's batching (chunks of BATCH_CHUNK)
 
     def bench(fn, B, reps):
         refs, obs, v0 = scenes(rng, B, 7.0)
@@ -125,11 +125,10 @@ def main(argv=None):
         fig["plans_per_s_with_qp"][str(B)] = round(pps, 1)
         print(f"default grid, batch {B:5d}: {pps:9.1f} plans/s (DP + QP + trajectory)", flush=True)
     for name, g in grids.items():
-        bw = band_widths(g)
+        n_states = g.n_v * sum(dp_band(g)[0])  # the DP's states: every speed x the band's h
         pps, _ = bench(planner_fn(g, False), 100, args.reps)
         fig["grids"][name] = {"ds": g.ds, "dv": g.dv, "da": g.da, "accels": len(g.accel_offsets),
-                              "states": int(sum(s * v for s, v in bw)),
-                              "transitions": int(sum(s * v for s, v in bw) * len(g.accel_offsets)),
+                              "states": int(n_states), "transitions": int(n_states * len(g.accel_offsets)),
                               "plans_per_s_batch100": round(pps, 1)}
         print(f"{name:26s} states {fig['grids'][name]['states']:6d}: {pps:9.1f} plans/s at batch 100", flush=True)
     if args.qp_cases:

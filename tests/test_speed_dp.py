@@ -449,3 +449,91 @@ def test_crossing_is_passed_only_with_the_time_margin():
     with_m = [passes(y, CFG) for y in starts]
     assert all(a or not b for a, b in zip(without, with_m))  # never passes where it would not without
     assert sum(with_m) < sum(without)
+
+
+def _dense_dp(d, cfg):
+    """The DP's optimum over every (station, speed) state (host numpy, float64, no band):
+    the reference of the band DP on grids too large for ``_exhaustive``."""
+    from jaxplan.speed.dp import COLLISION_V, _substep_tables
+
+    table, node, terminal = (np.asarray(a, np.float64) for a in (d.table, d.node, d.terminal))
+    first, accel, gv, gk = (np.asarray(a, np.float64) for a in (d.first, d.accel, d.goal_v, d.goal_k))
+    R, SLOW, VQ = _substep_tables(cfg)
+    U0, X, ns, V = _u0(cfg), table.shape[-1], cfg.n_sub, cfg.n_v
+    n_i = cfg.n_s + 2 * V
+    i = np.arange(n_i)
+    val = np.full((n_i, V), np.inf)
+    for j in range(V):
+        if first[j] < unreach(cfg):
+            val[j, j] = first[j] + node[U0 + j, j] + (gv[j] if gk[0] else 0.0)
+    for k in range(1, cfg.n_t):
+        new = np.full((n_i, V), np.inf)
+        for j in range(V):
+            for mi, om in enumerate(cfg.accel_offsets):
+                j2 = j + om
+                if not 0 <= j2 < V:
+                    continue
+                cost = np.zeros(n_i)
+                prev = None
+                for q in range(ns + 1):
+                    g = table[SLOW[j, mi, q], k * ns + q, np.clip(U0 + i + R[j, mi, q], 0, X - 1)]
+                    inside = g >= 0.5 * cfg.big
+                    if q > 0:
+                        enter = np.where(inside & ~prev, cfg.big * (1 + VQ[j, mi, q] / COLLISION_V), 0.0)
+                        cost += np.where(inside, g - cfg.big, g) + enter
+                    prev = inside
+                tot = val[:, j] + cost + accel[mi]
+                i2 = i + j + j2
+                ok = i2 < n_i
+                np.minimum.at(new[:, j2], i2[ok], tot[ok])
+        u = np.clip(U0 + i, 0, X - 1)
+        val = new + node[u] + np.where(gk[k], gv, 0.0)[None]
+    return np.min(val + terminal[np.clip(U0 + i, 0, X - 1)])
+
+
+def test_dp_matches_dense_reference_at_every_start_speed(rng):
+    """CFG (9 speeds, 5 knots, band offsets that move with v0 and stop at the largest
+    reachable station): for start speeds from standstill to v_max (10 and 12 m/s: the widest
+    bands), random cost tables (3 % of the cells in collision) tilted towards the least or
+    the most distance, so optima lie at the band's edges: the DP's optimum equals a DP over
+    every state, and its profile costs that much (``profile_cost``)."""
+    from jaxplan.speed.dp import band_offsets
+
+    X, V, F = _n_table(CFG), CFG.n_v, CFG.n_t * CFG.n_sub + 1
+    dp = jax.jit(dp_from_costs, static_argnums=1)
+    for trial, v0 in enumerate((0.0, 0.7, 10.0, 10.0, 12.0, 12.0, 13.9, 16.0)):
+        vj = np.arange(V) * CFG.dv
+        a1 = (vj - v0) / CFG.dt
+        ok = (a1 >= CFG.a_min - 1e-4) & (a1 <= CFG.a_max + 1e-4)
+        table = rng.uniform(0, 5, (2, F, X))
+        table[rng.uniform(size=table.shape) < 0.03] = CFG.big
+        tilt = (1 if trial % 2 else -1) * rng.uniform(3.0, 6.0) * np.arange(X)[:, None]
+        node = rng.uniform(0, 5, (X, V)) + tilt - tilt.min()
+        ilo, jlo = band_offsets(jnp.float32(v0), CFG)
+        d = DPCosts(jnp.asarray(table, jnp.float32), jnp.asarray(node, jnp.float32),
+                    jnp.asarray(rng.uniform(0, 3, V), jnp.float32), jnp.asarray(rng.uniform(size=CFG.n_t) < 0.5),
+                    jnp.asarray(rng.uniform(0, 3, len(CFG.accel_offsets)), jnp.float32),
+                    jnp.asarray(np.where(ok, rng.uniform(0, 5, V), unreach(CFG)), jnp.float32),
+                    jnp.asarray(rng.uniform(0, 5, (X, V)), jnp.float32), ilo, jlo, jnp.float32(v0 * CFG.dt / 2))
+        ii, jj, cost = dp(d, CFG)
+        best = _dense_dp(d, CFG)
+        assert float(cost) == pytest.approx(best, rel=1e-5), (v0, float(cost), best)
+        assert profile_cost(d, CFG, np.asarray(jj)) == pytest.approx(best, rel=1e-5)
+        assert np.array_equal(np.asarray(ii), np.cumsum(np.asarray(jj) + np.concatenate([[0], np.asarray(jj)[:-1]])))
+
+
+def test_large_batches_run_in_chunks_with_the_same_plans(monkeypatch):
+    """A batch larger than ``BATCH_CHUNK`` runs as a loop over vmapped chunks (and a
+    remainder): the same plans as one at a time."""
+    import jaxplan.speed.dp as dp_mod
+
+    monkeypatch.setattr(dp_mod, "BATCH_CHUNK", 2)
+    scenes = [_moving([[18.0 + 4 * k, 0.0, 4.5, 1.8, 0.0]], [1.5 * k]) for k in range(5)]
+    batch = jax.tree_util.tree_map(lambda *x: jnp.stack(x), *scenes)
+    stack = lambda tree: jax.tree_util.tree_map(lambda x: jnp.stack([x] * 5), tree)
+    v0 = jnp.array([5.0, 3.0, 6.0, 0.5, 4.0])
+    pb = plan_speed(stack(REF), batch, SMALL, W, v0=v0, s0=10.0, keep_clear=stack(NO_KC), vehicle=CAR,
+                    road=stack(_road()))
+    for k in range(5):
+        p1 = plan_speed(REF, scenes[k], SMALL, W, v0=float(v0[k]), s0=10.0, keep_clear=NO_KC, vehicle=CAR, road=_road())
+        assert np.allclose(pb.s[k], p1.s) and np.allclose(pb.v[k], p1.v) and np.allclose(pb.cost[k], p1.cost)

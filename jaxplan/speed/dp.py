@@ -14,8 +14,12 @@ profile: its accelerations (not differences of segment averages) lie in
 smoothing QP's (``smooth.py``), which runs after the DP.
 
 **Reachable band.** At ``t_k`` only the stations and speeds reachable from ``(0, v0)``
-with accelerations in ``[a_min, a_max]`` are states: a band of static width
-(``band_widths``, the widest over every ``v0``) at an offset that depends on ``v0``.
+with accelerations in ``[a_min, a_max]`` are states. Station and speed have the same
+parity (``i_1 = j_1`` and every step adds ``j + j'``), so the DP indexes a state by
+``h = (i - j) / 2 = j_1 + ... + j_{k-1}`` and ``j``: every speed, and a run of ``h`` of
+static width (``dp_band``, the widest over every ``v0``) from an offset fixed by the
+least first-knot speed (``dp_offsets``). ``band_widths`` / ``band_offsets`` give the
+rectangle of reachable stations and speeds (``DPCosts.ilo``, ``jlo``).
 
 **Costs** (per-second terms times their duration), on tables built once per plan:
 
@@ -370,10 +374,12 @@ def time_margin(b: STBoundary, m: int) -> STBoundary:
         return b
     big = jnp.asarray(BIG, b.lower.dtype)
     lo, hi, hit = jnp.where(b.hit, b.lower, big), jnp.where(b.hit, b.upper, -big), b.hit
-    L, H, X = lo, hi, hit
-    for j in range(1, m + 1):
-        pad = lambda a, v: jnp.concatenate([a[..., j:], jnp.full(a.shape[:-1] + (j,), v, a.dtype)], -1)
-        L, H, X = jnp.minimum(L, pad(lo, big)), jnp.maximum(H, pad(hi, -big)), X | pad(hit, False)
+    # one windowed min / max over f .. f + m (the identity as padding past the last check time)
+    win = lambda a, init, op: jax.lax.reduce_window(a, init, op, (1,) * (a.ndim - 1) + (m + 1,), (1,) * a.ndim,
+                                                    [(0, 0)] * (a.ndim - 1) + [(0, m)])
+    inf = jnp.asarray(jnp.inf, lo.dtype)
+    L, H = win(lo, inf, jax.lax.min), win(hi, -inf, jax.lax.max)
+    X = win(hit.astype(jnp.int32), jnp.asarray(np.iinfo(np.int32).min, jnp.int32), jax.lax.max) > 0
     return STBoundary(jnp.where(X, L, b.lower), jnp.where(X, H, b.upper), X)
 
 
@@ -394,8 +400,7 @@ def build_scene(profile: PathProfile, obstacles: Obstacles, vehicle: VehiclePara
     tf = jnp.asarray(config.fine_times(), dtype)
     obs = resample_obstacles(obstacles, tf)
     s0 = profile.s[0]
-    osl = project_obstacles(profile.ref, obs)
-    osl = dataclasses.replace(osl, corners=osl.corners.at[..., 0].add(-s0), centre=osl.centre.at[..., 0].add(-s0))
+    osl = project_obstacles(profile.ref, obs, s0)  # stations relative to the car now
     c = classify(osl, obs, vehicle, tf, v0, config.a_min, side_width=config.side_width, buffer=config.buffer,
                  no_overtake_side=config.no_overtake_side, v_moving=config.v_moving)
     held = int(round(config.pass_margin * config.n_sub / config.dt))  # check times in pass_margin
@@ -437,7 +442,8 @@ class DPCosts:
         first: ``(V,)`` cost of the first segment ending at speed j (accel, jerk from a0,
             obstacles on its sub-steps; ``UNREACH`` where its acceleration is out of range).
         terminal: ``(X, V)``.
-        ilo, jlo: ``(n_t,)`` int32 band offsets.
+        ilo, jlo: ``(n_t,)`` int32 offsets of the reachable stations and speeds
+            (``band_offsets``; the DP's own band follows from ``first``, ``dp_offsets``).
         c0: ``()`` station of index 0.
     """
 
@@ -504,8 +510,9 @@ def _obstacle_tables(xs, x0, ds, scene: SpeedScene, config: SpeedConfig, w: Cost
         g = jnp.maximum(g, jnp.where(hit_k & (uf > z), hi_k + w.overtake_dist, -big))
         return (col, e, g), None
 
-    init = (jnp.zeros((F, X), bool), jnp.full((F, X), big, dtype), jnp.full((F, X), -big, dtype))
-    (collide, e, g), _ = jax.lax.scan(block, init, jnp.arange(lo.shape[0]))
+    # the first boundary from scalar initial values (no table-sized fills), the rest scanned
+    init, _ = block((jnp.zeros((), bool), big, -big), 0)
+    (collide, e, g), _ = jax.lax.scan(block, init, jnp.arange(1, lo.shape[0]))
     cl = scene.classified
     slo, shit = cl.side.lower, cl.side.hit  # (K, F)
 
@@ -521,7 +528,9 @@ def _obstacle_tables(xs, x0, ds, scene: SpeedScene, config: SpeedConfig, w: Cost
         nbp = nbp + jnp.where(on_n, mult[k] * jnp.maximum(xs - cpos, 0.0) ** 2, 0.0)
         return (zone, nbp), None
 
-    (zone, nbp), _ = jax.lax.scan(side, (jnp.zeros((F, X), dtype), jnp.zeros((F, X), dtype)), jnp.arange(slo.shape[0]))
+    zero = jnp.zeros((), dtype)
+    init, _ = side((zero, zero), 0) if slo.shape[0] else ((jnp.zeros((F, X), dtype),) * 2, None)
+    (zone, nbp), _ = jax.lax.scan(side, init, jnp.arange(1, slo.shape[0]))
     rate = w.w_block * (jnp.maximum(xs - e, 0.0) ** 2 + jnp.maximum(g - xs, 0.0) ** 2)
     return rate + w.w_no_bypass * nbp + w.w_blind * zone, collide
 
@@ -567,7 +576,8 @@ def stage_costs(scene: SpeedScene, config: SpeedConfig, w: CostWeights, v0, a0) 
     rate = rate + _goal_table(xs, f_goal, scene, w)
     moving = rate * h + jnp.where(collide, c.big, 0.0)  # (F, X)
     kc = jnp.any(scene.kc_hit & (xs[:, None] > scene.kc_lower - c.ds) & (xs[:, None] < scene.kc_upper + c.ds), -1)
-    table = jnp.stack([moving, moving + w.w_keep_clear * h * kc])
+    layer = jnp.arange(2)[:, None, None]  # one elementwise pass (a stack of two tables is two)
+    table = jnp.where(layer == 1, moving + w.w_keep_clear * h * kc, moving)
     # per-knot speed cost against the target speed and the limit at each station
     n_lim = scene.v_limit.shape[0]
     q = jnp.clip(xs / c.ds, 0.0, n_lim - 1.0)
@@ -651,110 +661,193 @@ def segment_cost(g, v, big):
     return jnp.sum(rate + jnp.where(enter, big * (1.0 + v[..., 1:] / COLLISION_V), 0.0), -1)
 
 
-def _forward(d: DPCosts, config: SpeedConfig, temperature=None, probes=None):
-    """Forward pass over the band. Returns (final values ``(V_n, S_n)`` incl. terminal,
-    argmins per step ``[(V_k, S_k)]`` for k >= 2).
+def _h_range(jlo1, jhi1, k: int, c: SpeedConfig, xp=np):
+    """Least and most ``h = j_1 + ... + j_{k-1}`` at knot ``k`` (1-based) over the speed
+    sequences from a first knot speed in ``[jlo1, jhi1]`` (steps ``accel_offsets``, speeds
+    in ``[0, n_v)``; each sum of the pointwise extreme sequences)."""
+    offs = c.accel_offsets
+    lo = hi = 0
+    for l in range(1, k):
+        lo = lo + xp.maximum(0, jlo1 + offs[0] * (l - 1))
+        hi = hi + xp.minimum(c.n_v - 1, jhi1 + offs[-1] * (l - 1))
+    return lo, hi
 
-    Values are kept speed-major, ``(V, S)``: for a target speed j' and an acceleration
-    offset m, the predecessors of the band's stations are one contiguous run of stations
-    at speed ``j' - off[m]``, and each sub-step's costs one contiguous run of a table row,
-    so every read is a window (``lax.dynamic_slice``), not a scalar gather.
+
+@functools.lru_cache(maxsize=None)
+def dp_band(config: SpeedConfig) -> tuple:
+    """The DP's static band: ``(H, D, cap)``. At knot ``k`` the states are ``(h, j)``, ``h`` in
+    ``[hlo_k, hlo_k + H[k-1])`` (``dp_offsets``), every speed ``j < n_v``; ``D``: the most
+    first-knot speeds above the least; ``cap[k-1]``: the largest offset (the band never
+    reaches past the largest reachable ``h``)."""
+    c = config
+    D = int(math.floor((c.a_max - c.a_min + 2e-4) * c.dt / c.dv + 1e-9))
+    jlo = np.arange(c.n_v)
+    H, cap, lo_prev = [], [], None
+    for k in range(1, c.n_t + 1):
+        lo, hi = _h_range(jlo, np.minimum(c.n_v - 1, jlo + D), k, c)
+        Hk = int(np.max(hi - lo)) + 1
+        H.append(Hk)
+        cap.append(int(_h_range(0, c.n_v - 1, k, c)[1]) - Hk + 1)
+        off = np.minimum(lo, cap[-1])
+        # the step's table block (stations up to 2 (cap + H) + n_v) lies inside the table
+        assert _u0(c) + 2 * (cap[-1] + Hk) + c.n_v <= _n_table(c), (k, cap[-1], Hk)
+        if lo_prev is not None:  # the offsets grow by at most n_v - 1 a knot (the windows below)
+            assert np.all(off >= lo_prev) and np.all(off - lo_prev < c.n_v), (k, off, lo_prev)
+        lo_prev = off
+    return tuple(H), D, tuple(cap)
+
+
+def dp_offsets(first, config: SpeedConfig):
+    """``(n_t,)`` int32 offsets ``hlo_k`` of the band from the reachable first-knot speeds
+    (``first < unreach``)."""
+    c = config
+    H, D, cap = dp_band(c)
+    jlo1 = jnp.argmax(first < unreach(c)).astype(jnp.int32)
+    return jnp.stack([jnp.minimum(_h_range(jlo1, jlo1 + D, k, c, jnp)[0], cap[k - 1])
+                      for k in range(1, c.n_t + 1)]).astype(jnp.int32)
+
+
+@functools.lru_cache(maxsize=None)
+def _step_tables(config: SpeedConfig, k: int):
+    """Static tables of the DP step into knot ``k`` (per target speed ``j'``, rows):
+    ``(V, M (n_sub + 1) + M)`` int32 flat starts of the sub-step windows in the step's table
+    block (``m``-major, then ``q``) and of the predecessor windows in the padded value block,
+    and ``(V, M (n_sub + 1))`` the collision cost ``big (1 + v / COLLISION_V)`` of each sub-step."""
+    c = config
+    H, _, _ = dp_band(c)
+    Hk, V, ns, offs = H[k - 1], c.n_v, c.n_sub, c.accel_offsets
+    M = len(offs)
+    R, SLOW, VQ = _substep_tables(c)
+    half = Hk + V - 1  # table block columns of one parity
+    top = max(0, max(offs))
+    starts = np.zeros((V, M * (ns + 1) + M), np.int32)
+    K = np.zeros((V, M * (ns + 1)))
+    for mi, om in enumerate(offs):
+        for jp in range(V):
+            j = jp - om  # speed at the segment's start (a padding row of big_u when out of range)
+            starts[jp, M * (ns + 1) + mi] = (j + top) * half + min(max(V - 1 - j, 0), V - 1)
+            jc = min(max(j, 0), V - 1)
+            for q in range(ns + 1):
+                y = int(R[jc, mi, q]) - jc + V - 1  # block column of the sub-step at h' = hlo
+                starts[jp, mi * (ns + 1) + q] = ((y % 2 * 2 + int(SLOW[jc, mi, q])) * (ns + 1) + q) * half + y // 2
+                K[jp, mi * (ns + 1) + q] = c.big * (1.0 + float(VQ[jc, mi, q]) / COLLISION_V)
+    return starts, K
+
+
+def _forward(d: DPCosts, config: SpeedConfig, temperature=None, probes=None):
+    """Forward pass. Returns (final values ``(V, H_n)`` incl. terminal, argmins per step
+    ``[(V, H_k)]`` int8 for k >= 2, band offsets ``(n_t,)``).
+
+    **States.** ``h = j_1 + ... + j_{k-1}`` (the knot speeds before, in ``dv``): station
+    ``i = 2 h + j`` (every reachable station has the parity of its speed), and a transition
+    ``(h, j) -> (h + j, j')``. Values are rows per speed ``j``, each over the band's ``h``.
+
+    **Reads.** For a target row ``j'`` and acceleration ``m`` the predecessors and every
+    sub-step's table cells are contiguous runs (``i = 2 h' + const`` splits the table by
+    parity) at offsets that depend on ``(j', m, q)`` only: per step the table block and
+    the previous values are cut out once per plan (the band's dynamic offsets), then a
+    ``scan`` over ``j'`` reads them with ``dynamic_slice`` at offsets shared by the whole
+    batch (vectorised loops, no gathers), with every ``m`` and sub-step unrolled.
     """
     c = config
-    bw = band_widths(c)
-    offs = np.asarray(c.accel_offsets)
-    M = len(offs)
-    U0, X, F = _u0(c), d.table.shape[-1], d.table.shape[1]
-    ns = c.n_sub
-    R, SLOW, VQ = (jnp.asarray(a) for a in _substep_tables(c))
+    H, _, _ = dp_band(c)
+    offs = c.accel_offsets
+    M, V, ns = len(offs), c.n_v, c.n_sub
+    U0 = _u0(c)
     big_u = unreach(c)
     dtype = d.table.dtype
-    S_max = max(b[0] for b in bw)
-    flat = jnp.concatenate([d.table.reshape(-1), jnp.zeros((S_max + 1,), dtype)])
-    node_t = d.node.T  # (V, X)
-    offs_j = jnp.asarray(offs)
+    hlo = dp_offsets(d.first, c)
+    z = jnp.zeros((), hlo.dtype)  # every start index int32 (also under x64)
+    top, bot = max(0, max(offs)), max(0, -min(offs))
 
-    def node_cost(k, ilo, jlo, S, V):  # (V, S) at knot k = 1..n_t
-        nc = jax.lax.dynamic_slice(node_t, (jlo, U0 + ilo), (V, S))
-        j = jlo + jnp.arange(V)
-        nc = nc + jnp.where(d.goal_k[k - 1], d.goal_v[j], 0.0)[:, None]
-        if probes is not None:
-            nc = nc + probes[k - 1]
-        return nc
+    def rows(src, k):  # (V, X) -> (V, H_k): src[j, U0 + 2 (hlo_k + a) + j]
+        Hk = H[k - 1]
+        blk = jax.lax.dynamic_slice(src, (z, U0 + 2 * hlo[k - 1]), (V, 2 * Hk + V))
+        idx = np.arange(V)[:, None] * (2 * Hk + V + 1) + 2 * np.arange(Hk)[None, :]
+        return blk.reshape(-1)[idx]
 
-    S1, V1 = bw[0]
-    i1 = d.ilo[0] + jnp.arange(S1)
-    j1 = d.jlo[0] + jnp.arange(V1)
-    val = jnp.where(i1[None, :] == j1[:, None], d.first[j1][:, None], big_u)
-    val = jnp.minimum(val + node_cost(1, d.ilo[0], d.jlo[0], S1, V1), big_u)
+    def knot_cost(k):  # (V, H_k)
+        nc = rows(d.node.T, k) + jnp.where(d.goal_k[k - 1], d.goal_v, 0.0)[:, None]
+        return nc if probes is None else nc + probes[k - 1]
+
+    val = jnp.minimum(d.first[:, None] + knot_cost(1), big_u)  # knot 1: h = 0
+    accel = d.accel.astype(dtype)
     args = []
-    q = jnp.arange(0, ns + 1)
-    for k in range(2, c.n_t + 1):  # unrolled: the band changes size every step
-        S, V = bw[k - 1]
-        Sp, Vp = bw[k - 2]
-        ilo, jlo, ilo_p, jlo_p = d.ilo[k - 1], d.jlo[k - 1], d.ilo[k - 2], d.jlo[k - 2]
-        j2 = jlo + jnp.arange(V)
-        js = j2[:, None] - offs_j[None, :]  # (V, M) speed at the segment start
-        o = ilo - 2 * j2[:, None] + offs_j[None, :]  # (V, M) station of the first target's start
-        # predecessors: value at (station o + a - ilo_p, speed js - jlo_p), a = 0..S-1
-        pr, pc = S + 2 * c.n_v + M + 2, M + 1
-        vp = jnp.pad(val, ((pc, pc), (pr, pr)), constant_values=big_u)
-        r0 = jnp.clip(o - ilo_p + pr, 0, Sp + 2 * pr - S)
-        c0 = jnp.clip(js - jlo_p + pc, 0, Vp + 2 * pc - 1)
-        win = lambda ci, ri: jax.lax.dynamic_slice(vp, (ci, ri), (1, S))[0]
-        pred = jax.vmap(jax.vmap(win))(c0, r0)  # (V, M, S)
-        # obstacle costs of the segment's sub-steps: a window of one table row each
-        jc = jnp.clip(js, 0, c.n_v - 1)
-        mm = jnp.arange(M)[None, :]
-        r = R[jc, mm]  # (V, M, ns + 1) station offsets of the sub-steps (the start knot first)
-        layer = SLOW[jc, mm]
-        start = layer * (F * X) + ((k - 1) * ns + q)[None, None, :] * X + U0 + o[..., None] + r  # (V, M, ns + 1)
-        start = jnp.clip(start, 0, flat.shape[0] - S)
-        row = lambda st: jax.lax.dynamic_slice(flat, (st,), (S,))
-        g = jax.vmap(jax.vmap(jax.vmap(row)))(start)  # (V, M, ns + 1, S)
-        obst = segment_cost(jnp.moveaxis(g, 2, -1), VQ[jc, mm][:, :, None, :], c.big)  # (V, M, S)
-        tot = pred + obst + d.accel.astype(dtype)[None, :, None]  # (V, M, S)
-        if temperature is None:
-            args.append(jnp.argmin(tot, 1).astype(jnp.int8))
-            best = jnp.min(tot, 1)
-        else:
-            best = -temperature * jax.nn.logsumexp(-tot / temperature, 1)
-        val = jnp.minimum(best + node_cost(k, ilo, jlo, S, V), big_u)
-    Sn, Vn = bw[-1]
-    term = jax.lax.dynamic_slice(d.terminal.T, (d.jlo[-1], U0 + d.ilo[-1]), (Vn, Sn))
-    return val + term, args
+    for k in range(2, c.n_t + 1):
+        Hk, Hp = H[k - 1], H[k - 2]
+        half = Hk + V - 1
+        # previous values at h = hlo_k + a - j - (V - 1) + x, rows j = -top .. V - 1 + bot
+        vp = jnp.pad(val, ((top, bot), (V - 1, Hk + V)), constant_values=big_u)
+        pblk = jax.lax.dynamic_slice(vp, (z, hlo[k - 1] - hlo[k - 2]), (V + top + bot, half)).reshape(-1)
+        # table block: check times (k-1) n_sub .. k n_sub, stations from 2 hlo_k - (V - 1), by parity
+        tb = jax.lax.dynamic_slice(d.table, (z, z + (k - 1) * ns, U0 + 2 * hlo[k - 1] - (V - 1)), (2, ns + 1, 2 * half))
+        tb = jnp.stack([tb[..., 0::2], tb[..., 1::2]]).reshape(-1)  # (parity, layer, q, half)
+        inside = tb >= 0.5 * c.big
+        rate = jnp.where(inside, tb - c.big, tb)
+        starts, K = _step_tables(c, k)
+
+        def body(_, xs, Hk=Hk, pblk=pblk, inside=inside, rate=rate):
+            st, kq, nc = xs  # this target row's window starts, collision costs and knot costs
+            tots = []
+            for mi in range(M):
+                obst, prev = None, None
+                for q in range(ns + 1):
+                    s = st[mi * (ns + 1) + q]
+                    ins = jax.lax.dynamic_slice(inside, (s,), (Hk,))
+                    if q > 0:  # segment_cost: the sub-step's rate, big on entering a boundary
+                        enter = jnp.where(ins & ~prev, kq[mi * (ns + 1) + q], 0.0)
+                        term = jax.lax.dynamic_slice(rate, (s,), (Hk,)) + enter
+                        obst = term if obst is None else obst + term
+                    prev = ins
+                pred = jax.lax.dynamic_slice(pblk, (st[M * (ns + 1) + mi],), (Hk,))
+                tots.append(pred + obst + accel[mi])
+            if temperature is None:  # min over m, the first on ties (argmin)
+                best, arg = tots[0], jnp.zeros((Hk,), jnp.int8)
+                for mi in range(1, M):
+                    better = tots[mi] < best
+                    best, arg = jnp.where(better, tots[mi], best), jnp.where(better, jnp.int8(mi), arg)
+            else:
+                best = -temperature * jax.nn.logsumexp(-jnp.stack(tots) / temperature, 0)
+                arg = jnp.zeros((Hk,), jnp.int8)
+            return None, (jnp.minimum(best + nc, big_u), arg)
+
+        # a scan over the target rows (the rows come out stacked; no carry to update in place)
+        _, (val, arg) = jax.lax.scan(body, None, (jnp.asarray(starts), jnp.asarray(K, dtype), knot_cost(k)))
+        args.append(arg)
+    return val + rows(d.terminal.T, c.n_t), args, hlo
 
 
-def _backtrack(final, args, d: DPCosts, config: SpeedConfig):
+def _backtrack(final, args, hlo, config: SpeedConfig):
     """Station and speed indices ``(n_t,)`` at t_1..t_n and the total cost."""
     c = config
-    bw = band_widths(c)
+    Hn = dp_band(c)[0][-1]
     offs = jnp.asarray(c.accel_offsets)
-    Sn = bw[-1][0]
     flat = jnp.argmin(final)
     cost = final.reshape(-1)[flat]
-    pj, pi = flat // Sn, flat % Sn
-    i, j = d.ilo[-1] + pi, d.jlo[-1] + pj
-    ii, jj = [i], [j]
+    j = (flat // Hn).astype(jnp.int32)
+    h = hlo[-1] + (flat % Hn).astype(jnp.int32)
+    hh, jj = [h], [j]
     for k in range(c.n_t, 1, -1):
-        m = args[k - 2][j - d.jlo[k - 1], i - d.ilo[k - 1]].astype(jnp.int32)
+        m = args[k - 2][j, h - hlo[k - 1]].astype(jnp.int32)
         jp = j - offs[m]
-        i, j = i - j - jp, jp
-        ii.append(i)
+        h, j = h - jp, jp
+        hh.append(h)
         jj.append(j)
-    return jnp.stack(ii[::-1]), jnp.stack(jj[::-1]), cost
+    hh, jj = jnp.stack(hh[::-1]), jnp.stack(jj[::-1])
+    return 2 * hh + jj, jj, cost
 
 
 def dp_from_costs(d: DPCosts, config: SpeedConfig):
     """Exact DP on given cost tensors. Returns (station idx ``(n_t,)`` at t_1..t_n, speed
     idx ``(n_t,)``, total cost)."""
-    final, args = _forward(d, config)
-    return _backtrack(final, args, d, config)
+    final, args, hlo = _forward(d, config)
+    return _backtrack(final, args, hlo, config)
 
 
 def soft_value(d: DPCosts, config: SpeedConfig, temperature, probes=None):
-    """Soft-min DP value (a smooth lower bound of the DP optimum; equal as temperature -> 0)."""
-    final, _ = _forward(d, config, temperature, probes)
+    """Soft-min DP value (a smooth lower bound of the DP optimum; equal as temperature -> 0).
+    ``probes``: optional ``[(n_v, H_k)]`` added to the knot costs (``dp_band``)."""
+    final, _, _ = _forward(d, config, temperature, probes)
     return -temperature * jax.nn.logsumexp(-final / temperature)
 
 
@@ -821,14 +914,15 @@ def _plan_from_indices(ii, jj, cost, d, v0, config, scene):
 def _expected_one(path, obstacles, v0, a0, s0, keep_clear, road, vehicle, config, weights, temperature):
     _, scene = make_scene(path, obstacles, config, vehicle, s0, keep_clear, v0, road)
     d = stage_costs(scene, config, weights, v0, a0)
-    bw = band_widths(config)
-    probes = [jnp.zeros((b[1], b[0]), d.table.dtype) for b in bw]
-    value, p = jax.value_and_grad(lambda pr: soft_value(d, config, temperature, pr))(probes)
     dtype = d.table.dtype
+    H = dp_band(config)[0]
+    probes = [jnp.zeros((config.n_v, Hk), dtype) for Hk in H]
+    value, p = jax.value_and_grad(lambda pr: soft_value(d, config, temperature, pr))(probes)
+    hlo = dp_offsets(d.first, config)
+    j = jnp.arange(config.n_v, dtype=dtype)[:, None]
     es, ev = [], []
-    for k, (pk, (S, V)) in enumerate(zip(p, bw)):
-        i = (d.ilo[k] + jnp.arange(S)).astype(dtype)[None, :]
-        j = (d.jlo[k] + jnp.arange(V)).astype(dtype)[:, None]
+    for k, (pk, Hk) in enumerate(zip(p, H)):
+        i = 2.0 * (hlo[k] + jnp.arange(Hk)).astype(dtype)[None, :] + j  # station index 2 h + j
         es.append(d.c0 + config.ds * jnp.sum(pk * i))
         ev.append(config.dv * jnp.sum(pk * j))
     v0c = jnp.clip(jnp.asarray(v0, dtype), 0.0, config.v_max)
@@ -838,11 +932,24 @@ def _expected_one(path, obstacles, v0, a0, s0, keep_clear, road, vehicle, config
     return SpeedPlan(t, s, v, jnp.diff(v) / config.dt, value, value < 0.5 * config.big, scene)
 
 
+BATCH_CHUNK = 100  # plans per vectorised chunk of a large leading batch
+
+
 def _batched(fn, batch_ndim, args):
+    """``fn`` mapped over ``batch_ndim`` leading dims of ``args``: ``vmap``, except that a
+    leading batch of more than ``BATCH_CHUNK`` plans runs as a loop over vmapped chunks of
+    that many (``lax.map``): a plan's tables stay in the CPU's caches between the passes
+    over them (``experiments/bench_speed.py``'s scenes, batch 1000, one process, load average
+    3: 1,095 and 1,081 plans/s in one vmap, 1,438 and 1,244 in chunks of 100)."""
+    if batch_ndim == 0:
+        return fn(*args)
     f = fn
-    for _ in range(batch_ndim):
+    for _ in range(batch_ndim - 1):
         f = jax.vmap(f)
-    return f(*args)
+    n = jax.tree_util.tree_leaves(args)[0].shape[0]
+    if n > BATCH_CHUNK:
+        return jax.lax.map(lambda a: f(*a), tuple(args), batch_size=BATCH_CHUNK)
+    return jax.vmap(f)(*args)
 
 
 def _check_inputs(path, obstacles, config, v0, weights):
