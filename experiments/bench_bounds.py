@@ -8,7 +8,8 @@
 2. The path QP (piecewise jerk, curvature and jerk bounds, ``--qp-points`` stations) on
    random corridors: this project's ADMM (``optimize_path``) and jaxopt's ``BoxOSQP`` on the
    same problems against OSQP (float64, eps 1e-8, polished) as the reference: ms per frame,
-   the largest ``|l - l_osqp|``, the share solved. The ADMM runs the frames as one batch;
+   the largest ``|l - l_osqp|``, the share solved (and the share whose answer is the polished
+   solution, ``PathQPConfig.polish``). The ADMM runs the frames as one batch;
    ``BoxOSQP`` runs them one by one through one compiled function (under ``vmap`` its loop
    runs every frame until the slowest has converged), and also as one ``vmap`` batch of
    ``--box-vmap-frames`` frames.
@@ -124,7 +125,8 @@ def qp_bench(n, T, ds, reps, box_tol, box_vmap=0):
                 "boxosqp_tol": box_tol,
                 "boxosqp_max_err_m": float(np.nanmax(err_b)) if err_b.size else float("nan"),
                 "boxosqp_p99_err_m": float(np.nanpercentile(err_b, 99)) if err_b.size else float("nan"),
-                "admm_iterations_median": float(np.median(np.asarray(r.iterations)))})
+                "admm_iterations_median": float(np.median(np.asarray(r.iterations))),
+                "admm_polished_share_on_solved": float(np.asarray(r.polished)[solved].mean())})
     return out
 
 

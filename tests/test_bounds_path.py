@@ -136,6 +136,11 @@ def _qp_jit():
 
 
 def test_path_qp_against_osqp_1000_frames():
+    """Against OSQP (float64, eps 1e-8, polished) on 1000 random corridors: a path on every frame
+    OSQP solves (99.9 % without the solution polishing: one frame stops at the iteration cap),
+    on none that OSQP certifies infeasible; every path returned passes OSQP's convergence test
+    again in float64 (bounds met, its multipliers stationary and correctly signed), also on the
+    frames OSQP leaves undecided at 50,000 iterations."""
     osqp = pytest.importorskip("osqp")
     sp = pytest.importorskip("scipy.sparse")
     rng = np.random.default_rng(5)
@@ -154,26 +159,41 @@ def test_path_qp_against_osqp_1000_frames():
     init = np.stack([rng.uniform(-0.3, 0.3, F), rng.uniform(-0.2, 0.2, F), rng.uniform(-0.1, 0.1, F)], -1)
     cfg, dl, ddl, fn = _qp_jit()
     r = jax.tree_util.tree_map(np.asarray, fn(*(jnp.asarray(x, jnp.float32) for x in (lo, up, l_ref, init))))
-    solved = np.zeros(F, bool)
-    err = []
+    status = np.full(F, "infeasible (crossing bounds)", dtype=object)
+    err, kkt_fail = [], []
     for f in range(F):
         P, q, A, l_, u_ = (np.asarray(x, np.float64) for x in state_problem(
             0.8, jnp.asarray(l_ref[f]), jnp.asarray(lo[f]), jnp.asarray(up[f]), dl[0], dl[1], ddl[0], ddl[1],
             cfg.jerk_max, jnp.asarray(init[f]), PathWeights()))
+        if r.ok[f]:  # OSQP's test, in float64, on the path and multipliers returned
+            x, y = r.z[f].astype(np.float64), r.y[f].astype(np.float64)
+            Ax, Px, Aty = A @ x, P @ x, A.T @ y
+            prim = np.max(np.abs(Ax - np.clip(Ax, l_, u_)))
+            dual = np.max(np.abs(Px + q + Aty))
+            d_scale = max(np.max(np.abs(Px)), np.max(np.abs(Aty)), np.max(np.abs(q)))
+            ineq = u_ - l_ > 1e-9
+            wrong = max(np.max(y[ineq & (Ax < u_ - 1e-4)], initial=0.0),  # a multiplier of the wrong sign
+                        -np.min(y[ineq & (Ax > l_ + 1e-4)], initial=0.0))
+            if (prim > cfg.eps_abs + cfg.eps_rel * np.max(np.abs(Ax)) or dual > cfg.eps_abs + cfg.eps_rel * d_scale
+                    or wrong > 1e-3 * max(1.0, np.max(np.abs(y)))):
+                kkt_fail.append(f)
         if np.any(l_ > u_):  # crossing bounds: infeasible on their face (OSQP refuses such data)
             continue
         m = osqp.OSQP()
         m.setup(sp.csc_matrix(np.triu(P)), q, sp.csc_matrix(A), l_, u_, verbose=False, eps_abs=1e-8, eps_rel=1e-8,
                 max_iter=50000, polish=True)
         res = m.solve()
-        solved[f] = res.info.status in ("solved", "solved inaccurate")
-        if solved[f] and r.ok[f]:
+        status[f] = res.info.status
+        if res.info.status in ("solved", "solved inaccurate") and r.ok[f]:
             err.append(np.max(np.abs(res.x[:QP_T] - r.l[f])))
-    assert 0.2 < solved.mean() < 0.95  # both kinds of frames
-    assert np.mean(r.ok[solved]) >= 0.99  # solved where OSQP solves
-    assert not np.any(r.ok[~solved])  # never a path where OSQP finds none
-    assert np.mean(~r.feasible[~solved]) >= 0.9  # the certificate (or the input check) says so
-    assert np.max(err) <= 3e-3 and np.percentile(err, 95) <= 1e-3
+    solved = np.isin(status, ["solved", "solved inaccurate"])
+    infeasible = np.array(["infeasible" in s_ for s_ in status])
+    assert 0.2 < solved.mean() < 0.95 and infeasible.mean() > 0.05  # both kinds of frames
+    assert np.all(r.ok[solved])  # a path wherever OSQP solves
+    assert not np.any(r.ok[infeasible])  # never a path where OSQP certifies there is none
+    assert np.mean(~r.feasible[infeasible]) >= 0.9  # the certificate (or the input check) says so
+    assert np.max(err) <= 1e-5  # the polished solution is OSQP's
+    assert not kkt_fail  # every path returned is the QP's solution by OSQP's test (its own multipliers)
 
 
 # --------------------------------------------------------------------------- the planner on scenes
@@ -313,6 +333,21 @@ def test_fast_car_changes_lane_within_the_lateral_acceleration():
     assert np.asarray(fast["l"])[-1] == pytest.approx(-3.5, abs=0.2)  # the lane is still reached
 
 
+@functools.lru_cache(maxsize=None)
+def _suite_paths():
+    """The planner's paths on the seed-000 suite's frames of radius 12 m and 80 m (``bounds_suite``,
+    12 frames per radius, 4 obstacles): ``(pick, boxes (2, F, K, T, 5), out)``, shared by the tests."""
+    import jaxplan.eval.bounds_suite as bs
+    from jaxplan.geometry import reference_line
+
+    refs, S, L, _, _, BOX = bs.make_scenarios(np.random.default_rng(0), 12, 4)
+    pick = [2, 5]  # R 12 m, R 80 m
+    one = lambda ref_xy, s, l, b: bs._frame_path(reference_line(ref_xy), s, l, b)
+    fn = jax.jit(jax.vmap(jax.vmap(one, (None, 0, 0, 0)), (0, 0, 0, 0)))
+    out = fn(*(jnp.asarray(a[pick]) for a in (refs, S, L, BOX)))
+    return pick, BOX[pick], jax.tree_util.tree_map(np.asarray, out)
+
+
 def test_solved_suite_paths_are_clear_by_shapely():
     """The seed-000 suite's frames (curves of radius 12 m and 80 m, where re-bounding at the
     path's heading alone oscillated and left two solved paths overlapping an obstacle): every
@@ -320,17 +355,13 @@ def test_solved_suite_paths_are_clear_by_shapely():
     path's pose against the obstacle's box at that station's time, up to a blockage)."""
     shapely = pytest.importorskip("shapely")
     import jaxplan.eval.bounds_suite as bs
-    from jaxplan.geometry import reference_line, vehicle_corners
+    from jaxplan.geometry import vehicle_corners
 
-    refs, S, L, _, _, BOX = bs.make_scenarios(np.random.default_rng(0), 12, 4)
-    pick = [2, 5]  # R 12 m, R 80 m
-    one = lambda ref_xy, s, l, b: bs._frame_path(reference_line(ref_xy), s, l, b)
-    fn = jax.jit(jax.vmap(jax.vmap(one, (None, 0, 0, 0)), (0, 0, 0, 0)))
-    out = fn(*(jnp.asarray(a[pick]) for a in (refs, S, L, BOX)))
-    ok, xy, th, valid = (np.asarray(out[k]) for k in ("qp_ok", "xy", "theta", "valid"))
-    corridor = np.asarray(out["corridor_ok"])
+    pick, boxes, out = _suite_paths()
+    ok, xy, th, valid = (out[k] for k in ("qp_ok", "xy", "theta", "valid"))
+    corridor = out["corridor_ok"]
     assert (ok & corridor).sum() >= 16  # most frames have a path
-    dense = np.asarray(jax.vmap(jax.vmap(lambda b: bs._densify(b, 1)))(jnp.asarray(BOX[pick])))  # (R, F, K, N, 5)
+    dense = np.asarray(jax.vmap(jax.vmap(lambda b: bs._densify(b, 1)))(jnp.asarray(boxes)))  # (R, F, K, N, 5)
     checked = 0
     for r, f in zip(*np.nonzero(ok & corridor)):
         cars = shapely.polygons(np.asarray(vehicle_corners(jnp.asarray(xy[r, f]), bs.CAR, jnp.asarray(th[r, f]))))
@@ -340,3 +371,30 @@ def test_solved_suite_paths_are_clear_by_shapely():
         assert not hit.any(), (pick[r], f, np.argwhere(hit)[:3])
         checked += 1
     assert checked == (ok & corridor).sum()
+
+
+def test_hard_suite_frame_is_solved_like_osqp():
+    """The seed-000 suite's first frame of radius 12 m: a path QP the ADMM does not finish
+    within the planner's 2,000 iterations (OSQP's own ADMM, in float64, takes thousands more;
+    without the solution polishing the QP stopped 1.1 mm outside a bound and the frame had no
+    path). With it: a path, clear, and OSQP's solution of the same QP (float64, eps 1e-8,
+    polished) to 1e-5 m."""
+    osqp = pytest.importorskip("osqp")
+    sp = pytest.importorskip("scipy.sparse")
+    import jaxplan.eval.bounds_suite as bs
+
+    _, _, out = _suite_paths()
+    r, f = 0, 0  # R 12 m, frame 0
+    assert out["corridor_ok"][r, f] and out["qp_ok"][r, f] and out["clear"][r, f]
+    lo_l, up_l, dlo, dhi, ddlo, ddhi = out["qp_input"][r, f]
+    N = lo_l.shape[0]
+    j = lambda a: jnp.asarray(a, jnp.float32)
+    P, q, A, lo, hi = (np.asarray(x, np.float64) for x in state_problem(
+        j(out["ds"][r, f]), jnp.zeros(N, jnp.float32), j(lo_l), j(up_l), j(dlo), j(dhi), j(ddlo), j(ddhi),
+        bs.PATH.qp.jerk_max, j(out["init"][r, f]), PathWeights(*bs.PATH.weights)))
+    m = osqp.OSQP()
+    m.setup(sp.csc_matrix(np.triu(P)), q, sp.csc_matrix(A), lo, hi, verbose=False, eps_abs=1e-8, eps_rel=1e-8,
+            max_iter=100000, polish=True)
+    res = m.solve()
+    assert res.info.status == "solved"
+    assert np.max(np.abs(res.x[:N] - out["l"][r, f])) <= 1e-5

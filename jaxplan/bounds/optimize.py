@@ -28,6 +28,13 @@ refactorised when it moves by more than 5x) and the primal-infeasibility certifi
 ||dy||``). The ``T - 1`` by ``T - 1`` matrix is inverted densely (it is small), so an
 iteration is two small matrix-vector products. Warm starts (``z0``, ``y0``) are accepted.
 
+After the ADMM, OSQP's solution polishing (``polish_state``, ``PathQPConfig.polish``): the QP
+with the rows the ADMM finds active as equalities is solved directly (its KKT system is block
+tridiagonal along the stations), the active set corrected pass by pass; the polished solution
+replaces the ADMM's only where it passes the same convergence test. It finishes the QPs on
+which the ADMM's tail is slow (rows next to the active ones almost active: thousands of
+iterations for OSQP's ADMM too) and makes every polished path exact on its active set.
+
 Infeasible input is reported, never returned as a path: where ``lower > upper``
 somewhere, the initial state lies outside its bounds, or the certificate fires,
 ``feasible`` is False and ``l`` is NaN. ``ok`` = feasible, converged, and every bound met
@@ -74,6 +81,14 @@ class PathQPConfig:
         max_iter: iteration cap (a multiple of ``check_every``).
         tol_violation: bound violation (m) above which a solution is not ``ok``.
         ruiz_iters: equilibration passes.
+        polish: OSQP's solution polishing after the ADMM (``polish_state``): the QP with the
+            constraints the ADMM finds active as equalities, solved directly, the active set
+            corrected pass by pass (block principal pivoting); the polished solution replaces the
+            ADMM's (and counts as converged) only where it passes the convergence test itself
+            (``eps_abs``, ``eps_rel``: bounds met, complementary, correctly signed multipliers).
+        polish_passes: at most this many active-set passes (each one block-tridiagonal KKT
+            factorisation, ``O(T)``).
+        polish_refine: iterative-refinement steps per pass.
         early_exit: stop when converged (``lax.while_loop``); False runs every iteration
             (``fori_loop``), so that ``jax.grad`` can differentiate through the solve by
             unrolling (solved problems keep their state).
@@ -93,6 +108,9 @@ class PathQPConfig:
     max_iter: int = 4000
     tol_violation: float = 1e-3
     ruiz_iters: int = 10
+    polish: bool = True
+    polish_passes: int = 16
+    polish_refine: int = 2
 
 
 class PathQPResult(NamedTuple):
@@ -102,7 +120,8 @@ class PathQPResult(NamedTuple):
     Attributes:
         feasible: bounds consistent, start inside, no infeasibility certificate.
         infeasible_certificate: the ADMM's primal-infeasibility certificate fired.
-        converged: OSQP's residual test passed.
+        converged: OSQP's residual test passed (by the ADMM's iterate or the polished solution).
+        polished: the polished solution was accepted (``PathQPConfig.polish``).
         ok: feasible, converged and every bound met within ``tol_violation``.
         max_violation: largest bound violation of ``l`` (m).
         iterations: ADMM iterations run.
@@ -117,6 +136,7 @@ class PathQPResult(NamedTuple):
     feasible: jnp.ndarray
     infeasible_certificate: jnp.ndarray
     converged: jnp.ndarray
+    polished: jnp.ndarray
     ok: jnp.ndarray
     max_violation: jnp.ndarray
     iterations: jnp.ndarray
@@ -292,7 +312,10 @@ def admm_solve(P, q, C, lo, hi, config: PathQPConfig, z0=None, y0=None, matvec=N
             ``C`` is then used only for the equilibration).
 
     Returns:
-        (z ``(n,)``, y ``(m,)``, converged, infeasible, iterations, rho).
+        (z ``(n,)``, y ``(m,)``, converged, infeasible, iterations, rho, active_lo ``(m,)``,
+        active_hi ``(m,)``): the last two OSQP's guess of the inequality rows active at their
+        lower / upper bound (``w - lo < -y``, ``hi - w < y`` in the scaled problem), for
+        ``polish_state``.
     """
     dtype = P.dtype
     n, m = P.shape[0], C.shape[0]
@@ -390,7 +413,9 @@ def admm_solve(P, q, C, lo, hi, config: PathQPConfig, z0=None, y0=None, matvec=N
             ratio = (prim / jnp.maximum(ps_, 1e-10)) / jnp.maximum(dual / jnp.maximum(ds_, 1e-10), 1e-10)
             rho = jnp.clip(rho * jnp.sqrt(ratio), 1e-6, 1e6)
     zs, ws, ys, it, _, _, conv, infeas = st[:8]
-    return d * zs, e * ys / c, conv, infeas, it, rho
+    act_lo = ~eq & (ws - los < -ys)
+    act_hi = ~eq & (his - ws < ys)
+    return d * zs, e * ys / c, conv, infeas, it, rho, act_lo, act_hi
 
 
 def state_matvec(ds, T):
@@ -406,6 +431,187 @@ def state_matvec(ds, T):
     return mv
 
 
+# --------------------------------------------------------------------------- solution polishing
+def _small_inverse(S):
+    """Inverse of a small ``(k, k)`` quasi-definite matrix by Gauss-Jordan elimination without
+    pivoting (unrolled; a quasi-definite matrix is strongly factorisable, Vanderbei 1995)."""
+    k = S.shape[-1]
+    M = jnp.concatenate([S, jnp.eye(k, dtype=S.dtype)], -1)
+    for j in range(k):
+        row = M[j] / M[j, j]
+        M = (M - M[:, j:j + 1] * row[None, :]).at[j].set(row)
+    return M[:, k:]
+
+
+def _block_factor(D, L):
+    """Block LDL' of a symmetric block-tridiagonal quasi-definite matrix: ``D (T, b, b)`` the
+    diagonal blocks, ``L (T, b, b)`` the blocks below them (``L[i] = K[i, i-1]``, ``L[0]``
+    unused). Returns ``Si`` (the inverses of the pivot blocks) and ``G[i] = L[i] Si[i-1]``."""
+
+    def step(si_prev, dl):
+        di, li = dl
+        g = li @ si_prev
+        si = _small_inverse(di - g @ li.T)
+        return si, (si, g)
+
+    si0 = _small_inverse(D[0])
+    _, (Si, G) = jax.lax.scan(step, si0, (D[1:], L[1:]))
+    return jnp.concatenate([si0[None], Si], 0), jnp.concatenate([jnp.zeros_like(G[:1]), G], 0)
+
+
+def _block_solve(Si, G, L, r):
+    """Solve ``K v = r`` (``r, v (T, b)``) with ``_block_factor``'s factors."""
+
+    def fwd(u_prev, gr):
+        u = gr[1] - gr[0] @ u_prev
+        return u, u
+
+    _, u = jax.lax.scan(fwd, r[0], (G[1:], r[1:]))
+    u = jnp.concatenate([r[:1], u], 0)
+    v_last = Si[-1] @ u[-1]
+
+    def bwd(v_next, sul):
+        si, ui, l_next = sul
+        v = si @ (ui - l_next.T @ v_next)
+        return v, v
+
+    _, v = jax.lax.scan(bwd, v_last, (Si[:-1], u[:-1], L[1:]), reverse=True)
+    return jnp.concatenate([v, v_last[None]], 0)
+
+
+def polish_state(P, q, A, lo, hi, z, act_lo, act_hi, config: PathQPConfig, matvec=None, skip=False):
+    """OSQP-style solution polishing of ``state_problem``'s QP (one problem; vmap it).
+
+    The QP with the active rows as equalities (``lo`` where ``act_lo``, ``hi`` where ``act_hi``,
+    and every row with ``lo == hi``) is solved directly: its KKT matrix, ordered by station
+    (each station's three states, the multipliers of its three box rows and of the three rows
+    of the interval ending there), is block tridiagonal with ``9 x 9`` blocks, factorised by a
+    block LDL' (``_block_factor``, ``O(T)``; symmetrically scaled to a unit diagonal of ``P``
+    and unit rows, regularised by ``-1e-8`` on the active rows' diagonal, inactive rows pinned
+    to a zero multiplier), then iteratively refined against the exact KKT system. The active
+    set is corrected pass by pass (block principal pivoting with Murty's single pivot as the
+    fallback: rows whose multiplier has the wrong sign leave, rows the solution violates
+    join), at most ``config.polish_passes`` passes, until no row is wrong. A pass's solution is
+    a candidate if it passes OSQP's convergence test itself (``eps_abs``, ``eps_rel`` on the
+    unscaled residuals, the multipliers projected onto their signs, every active row met with
+    equality within the primal tolerance, every value finite): bounds met, stationary,
+    complementary, so the QP's optimum to that tolerance. Of the candidates the one with the
+    smallest primal residual is returned.
+
+    Args:
+        P ``(3T, 3T)``, q ``(3T,)``, A ``(6T-3, 3T)``, lo, hi ``(6T-3,)``: ``state_problem``'s data
+            (its row layout: boxes, jerks, position and velocity integration).
+        z: ``(3T,)`` the ADMM's solution (start of the refinement).
+        act_lo, act_hi: ``(6T-3,)`` the ADMM's guess of the active rows (``admm_solve``).
+        config: ``PathQPConfig`` (``eps_abs``, ``eps_rel``, ``polish_passes``, ``polish_refine``,
+            ``early_exit``: stop once no row is wrong (``while_loop``), or run every pass).
+        matvec: optional ``x -> A x`` (``state_matvec``).
+        skip: ``()`` bool, no polishing (e.g. certified infeasible: the passes stop at once).
+
+    Returns:
+        (x ``(3T,)``, y ``(6T-3,)`` unscaled multipliers, ok: a candidate was found, passes run).
+    """
+    dt = P.dtype
+    n, m = P.shape[0], A.shape[0]
+    T = n // 3
+    mv = (lambda x: A @ x) if matvec is None else matvec
+    eq = (hi - lo) <= 1e-9 * (1.0 + jnp.abs(hi))
+    i = jnp.arange(T)
+    ix = jnp.stack([i, T + i, 2 * T + i], -1)  # (T, 3): the station's states, and its box rows
+    ip = jnp.maximum(i - 1, 0)
+    ri = jnp.stack([3 * T + ip, 4 * T - 1 + ip, 5 * T - 2 + ip], -1)  # rows of the interval ending at i
+    has = (i > 0)[:, None]
+    # The blocks, read off the dense data (so that they are state_problem's by construction),
+    # scaled symmetrically: unit diagonal of P, unit largest entry of each constraint row.
+    Pd = P[ix[:, :, None], ix[:, None, :]]
+    sx = 1.0 / jnp.sqrt(jnp.diagonal(Pd, axis1=1, axis2=2))  # (T, 3)
+    sxp = sx[ip]
+    Pd = sx[:, :, None] * Pd * sx[:, None, :]
+    Pl = sx[:, :, None] * P[ix[:, :, None], ix[ip][:, None, :]] * sxp[:, None, :] * has[..., None]
+    Ab = A[ix[:, :, None], ix[:, None, :]] * sx[:, None, :]
+    sb = 1.0 / jnp.maximum(jnp.max(jnp.abs(Ab), -1), 1e-12)  # (T, 3)
+    Ab = sb[..., None] * Ab
+    B1 = A[ri[:, :, None], ix[:, None, :]] * sx[:, None, :]
+    B0 = A[ri[:, :, None], ix[ip][:, None, :]] * sxp[:, None, :]
+    si = 1.0 / jnp.maximum(jnp.maximum(jnp.max(jnp.abs(B1), -1), jnp.max(jnp.abs(B0), -1)), 1e-12)
+    B1, B0 = si[..., None] * B1, si[..., None] * B0
+    scale = jnp.concatenate([sx, sb, si], -1)  # (T, 9): K = diag(1/scale) K~ diag(1/scale)
+    Z3 = jnp.zeros((T, 3, 3), dt)
+    eye3 = jnp.eye(3, dtype=dt)
+    delta = jnp.asarray(1e-8, dt)
+    tiny = 10 * jnp.finfo(dt).eps
+
+    def solve_eqp(act, b, x):
+        fb = act[ix].astype(dt)
+        fi = (act[ri] & has).astype(dt)
+        pin = lambda f: jnp.where(f > 0, -delta, -1.0)[..., None] * eye3
+        Ab_, B1_, B0_ = fb[..., None] * Ab, fi[..., None] * B1, fi[..., None] * B0
+        D = jnp.concatenate([jnp.concatenate([Pd, jnp.swapaxes(Ab_, 1, 2), jnp.swapaxes(B1_, 1, 2)], 2),
+                             jnp.concatenate([Ab_, pin(fb), Z3], 2),
+                             jnp.concatenate([B1_, Z3, pin(fi)], 2)], 1)
+        L = jnp.concatenate([jnp.concatenate([Pl, Z3, Z3], 2), jnp.concatenate([Z3, Z3, Z3], 2),
+                             jnp.concatenate([B0_, Z3, Z3], 2)], 1)
+        Si, G = _block_factor(D, L)
+        af = act.astype(dt)
+        y = jnp.zeros(m, dt)
+        for _ in range(1 + config.polish_refine):  # the first solve, then refinement on the exact system
+            rx = -q - P @ x - A.T @ y
+            ry = af * (b - mv(x))
+            r = jnp.concatenate([rx[ix], ry[ix], ry[ri] * has], -1)
+            v = scale * _block_solve(Si, G, L, scale * r)
+            x = x + jnp.zeros(n, dt).at[ix].set(v[:, :3])
+            y = y + af * jnp.zeros(m, dt).at[ix].set(v[:, 3:6]).at[ri[1:]].set(v[1:, 6:9])
+        return x, y
+
+    def one_pass(c):
+        k, a_lo, a_hi, x, _, found, best, xb, yb, n_best, trials = c
+        act = eq | a_lo | a_hi
+        b = jnp.where(a_hi, hi, lo)
+        x, y = solve_eqp(act, b, x)
+        # OSQP's test on the polished point, multipliers projected onto their signs
+        yp = jnp.where(eq, y, jnp.where(a_lo, jnp.minimum(y, 0.0), jnp.where(a_hi, jnp.maximum(y, 0.0), 0.0)))
+        Ax = mv(x)
+        w = jnp.clip(Ax, lo, hi)
+        prim = jnp.maximum(jnp.max(jnp.abs(Ax - w)), jnp.max(jnp.where(act, jnp.abs(Ax - b), 0.0)))
+        Px, Aty = P @ x, A.T @ yp
+        dual = jnp.max(jnp.abs(Px + q + Aty))
+        p_scale = jnp.maximum(jnp.max(jnp.abs(Ax)), jnp.max(jnp.abs(w)))
+        d_scale = jnp.maximum(jnp.maximum(jnp.max(jnp.abs(Px)), jnp.max(jnp.abs(Aty))), jnp.max(jnp.abs(q)))
+        finite = jnp.all(jnp.isfinite(x)) & jnp.all(jnp.isfinite(y))  # a singular active set: never a candidate
+        good = (finite & (prim <= config.eps_abs + config.eps_rel * p_scale)
+                & (dual <= config.eps_abs + config.eps_rel * d_scale))
+        take = good & (prim < best)
+        xb, yb = jnp.where(take, x, xb), jnp.where(take, yp, yb)
+        best = jnp.where(take, prim, best)
+        # Active-set step (block principal pivoting, Judice & Pires 1994): every row whose
+        # multiplier has the wrong sign leaves, every row the solution violates joins, while
+        # that lowers the number of such rows (or for 3 more tries); otherwise only the first
+        # of them changes (Murty's single pivot), so that the passes cannot cycle for ever.
+        wrong_hi, wrong_lo = a_hi & (y < 0), a_lo & (y > 0)
+        v_hi = ~eq & ~act & (Ax > hi + tiny * (1.0 + jnp.abs(hi)))
+        v_lo = ~eq & ~act & (Ax < lo - tiny * (1.0 + jnp.abs(lo)))
+        bad = wrong_hi | wrong_lo | v_hi | v_lo
+        n_bad = jnp.sum(bad, dtype=jnp.int32)
+        lower = n_bad < n_best
+        block = lower | (trials > 0)
+        trials = jnp.where(lower, 3, jnp.where(block, trials - 1, trials))
+        n_best = jnp.minimum(n_best, n_bad)
+        sel = jnp.where(block, bad, bad & (jnp.arange(m) == jnp.argmax(bad)))
+        n_hi = (a_hi & ~(sel & wrong_hi)) | (sel & v_hi)
+        n_lo = (a_lo & ~(sel & wrong_lo)) | (sel & v_lo)
+        x = jnp.where(finite, x, z)
+        return k + 1, n_lo, n_hi, x, (n_bad == 0) | ~finite, found | good, best, xb, yb, n_best, trials
+
+    inf = jnp.asarray(jnp.inf, dt)
+    c = (jnp.asarray(0, jnp.int32), act_lo & ~eq, act_hi & ~eq, z, jnp.asarray(skip), jnp.asarray(False), inf, z,
+         jnp.zeros(m, dt), jnp.asarray(m + 1, jnp.int32), jnp.asarray(3, jnp.int32))
+    if config.early_exit:
+        c = jax.lax.while_loop(lambda c: (c[0] < config.polish_passes) & ~c[4], one_pass, c)
+    else:
+        c = jax.lax.fori_loop(0, config.polish_passes, lambda _, c: one_pass(c), c)
+    return c[7], c[8], c[5] & ~skip, c[0]
+
+
 def _frame(lower, upper, dl_lo, dl_hi, ddl_lo, ddl_hi, l_ref, init, ds, weights, config, z0, y0):
     T = lower.shape[-1]
     dtype = lower.dtype
@@ -419,15 +625,23 @@ def _frame(lower, upper, dl_lo, dl_hi, ddl_lo, ddl_hi, l_ref, init, ds, weights,
     dlo, dhi = fix(dl_lo, dl_hi)
     alo, ahi = fix(ddl_lo, ddl_hi)
     P, q, A, lo, hi = state_problem(ds, l_ref, lo_s, up_s, dlo, dhi, alo, ahi, config.jerk_max, init, weights)
-    z, y, conv, infeas, it, rho = admm_solve(P, q, A, lo, hi, config, z0, y0, state_matvec(ds, T))
+    mv = state_matvec(ds, T)
+    z, y, conv, infeas, it, rho, act_lo, act_hi = admm_solve(P, q, A, lo, hi, config, z0, y0, mv)
+    polished = jnp.asarray(False)
+    if config.polish:
+        zp, yp, pol_ok, _ = polish_state(P, q, A, lo, hi, z, act_lo, act_hi, config, mv, skip=infeas)
+        polished = pol_ok & ~infeas
+        z, y = jnp.where(polished, zp, z), jnp.where(polished, yp, y)
+        conv = conv | polished
     l, dl, ddl = z[:T], z[T:2 * T], z[2 * T:]
     viol = jnp.maximum(jnp.max(jnp.maximum(l[1:] - upper[1:], lower[1:] - l[1:])), 0.0)
     feasible = ~bad_bounds & ~start_out & ~infeas
-    ok = feasible & conv & (viol <= config.tol_violation)
+    ok = feasible & conv & (viol <= config.tol_violation) & jnp.all(jnp.isfinite(z))
     nan = jnp.asarray(jnp.nan, dtype)
     mask = lambda v: jnp.where(feasible, v, nan)
     jerk = (ddl[1:] - ddl[:-1]) / ds
-    return PathQPResult(mask(l), mask(dl), mask(ddl), mask(jerk), feasible, infeas, conv, ok, viol, it, rho, z, y)
+    return PathQPResult(mask(l), mask(dl), mask(ddl), mask(jerk), feasible, infeas, conv, polished, ok, viol, it, rho,
+                        z, y)
 
 
 def optimize_path(lower, upper, ds, l_ref=None, init=None, weights: PathWeights | None = None,
