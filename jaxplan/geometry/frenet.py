@@ -18,6 +18,13 @@ import numpy as np
 from jaxplan.geometry.lines import cross2, dot2
 from jaxplan.types import check_finite, check_trailing
 
+def _count_index(knots, s):
+    """``searchsorted(knots (n,), s (...), side="right")`` by counting the knots at or below each
+    query, the knots on a leading axis: one fused kernel and no reduction over a small trailing
+    axis (XLA's CPU backend runs bisection as a loop of small kernels, and reductions over small
+    trailing axes slowly). For lookups of few points or on short lines."""
+    return jnp.sum((knots.reshape((-1,) + (1,) * s.ndim) <= s[None]).astype(jnp.int32), 0)
+
 
 # Points closer than this (m) to the previous one are dropped.
 MIN_SPACING = 1e-3
@@ -159,39 +166,67 @@ def to_cartesian(ref: ReferenceLine, s, l):
     return xy + jnp.asarray(l, xy.dtype)[..., None] * nrm
 
 
-def to_frenet(ref: ReferenceLine, xy, newton_steps: int = 4):
-    """Cartesian points ``(..., 2)`` to Frenet ``(s, l)``, each ``(...)``.
+def _line_state(ref: ReferenceLine, s):
+    """``ref_state`` (x, y, theta, kappa) and the chord index at arc lengths ``s``, in components."""
+    n = ref.s.shape[0]
+    i = jnp.clip(_count_index(ref.s, s) - 1, 0, n - 2)
+    s0 = ref.s[i]
+    seg = ref.s[i + 1] - s0
+    u = s - s0
+    x0, y0 = ref.xy[i, 0], ref.xy[i, 1]
+    x = x0 + u * ((ref.xy[i + 1, 0] - x0) / seg)
+    y = y0 + u * ((ref.xy[i + 1, 1] - y0) / seg)
+    inside = (s >= ref.s[0]) & (s <= ref.s[-1])
+    f = jnp.clip(u / seg, 0.0, 1.0)
+    theta = ref.theta[i] + f * (ref.theta[i + 1] - ref.theta[i])
+    kappa = jnp.where(inside, ref.kappa[i] + f * (ref.kappa[i + 1] - ref.kappa[i]), 0.0)
+    theta = jnp.where(inside, theta, jnp.where(s < ref.s[0], ref.theta[0], ref.theta[-1]))
+    return x, y, theta, kappa, i
 
-    The nearest chord gives a first guess; Newton steps on
-    ``<p - pos(s), tangent(s)> = 0`` make it the exact inverse of ``to_cartesian``.
-    """
-    p = jnp.asarray(xy, ref.xy.dtype)
-    a = ref.xy[:-1]
-    d = ref.xy[1:] - a
+
+def frenet_points(ref: ReferenceLine, px, py, newton_steps: int = 4):
+    """``to_frenet`` of points ``(px, py)`` ``(...)`` given as components, with the line's
+    heading and curvature there: ``(s, l, theta, kappa)`` ``(...)``.
+
+    The nearest chord gives a first guess; Newton steps on ``<p - pos(s), tangent(s)> = 0``
+    make it the exact inverse of ``to_cartesian`` (the end chords extend the line). Written in
+    components with the chords on a leading axis: XLA's CPU backend runs reductions over
+    small trailing axes (2, or the chord count) slowly (several times faster on the speed
+    planner's 720 boxes a plan; 0.1 ms less for the lattice's one point on 600 chords)."""
+    ax, ay = ref.xy[:-1, 0], ref.xy[:-1, 1]
+    dx, dy = ref.xy[1:, 0] - ax, ref.xy[1:, 1] - ay
     seg = ref.s[1:] - ref.s[:-1]
-    t = dot2(p[..., None, :] - a, d) / (seg * seg)  # (..., N-1)
+    e = (slice(None),) + (None,) * px.ndim
+    rx, ry = px[None] - ax[e], py[None] - ay[e]
+    t = (rx * dx[e] + ry * dy[e]) / (seg * seg)[e]  # (N - 1, ...)
     tc = jnp.clip(t, 0.0, 1.0)
-    dist = jnp.linalg.norm(p[..., None, :] - (a + tc[..., None] * d), axis=-1)
-    i = jnp.argmin(dist, axis=-1)
+    qx, qy = rx - tc * dx[e], ry - tc * dy[e]
+    i = jnp.argmin(jnp.sqrt(qx * qx + qy * qy), axis=0)
     nseg = seg.shape[0]
-    ti = jnp.take_along_axis(t, i[..., None], axis=-1)[..., 0]
-    lo = jnp.where(i == 0, -jnp.inf, 0.0)  # the end chords extend the line
-    hi = jnp.where(i == nseg - 1, jnp.inf, 1.0)
-    ti = jnp.clip(ti, lo, hi)
+    ti = jnp.take_along_axis(t, i[None], axis=0)[0]
+    ti = jnp.clip(ti, jnp.where(i == 0, -jnp.inf, 0.0), jnp.where(i == nseg - 1, jnp.inf, 1.0))
     s = ref.s[i] + ti * seg[i]
     max_step = jnp.max(seg)
-    for _ in range(newton_steps):
-        pos, theta, kappa, _ = ref_state(ref, s)
-        tan = _unit(theta)
-        r = p - pos
-        f = dot2(r, tan)
-        i = jnp.clip(jnp.searchsorted(ref.s, s, side="right") - 1, 0, nseg - 1)
-        chord = d[i] / seg[i][..., None]
-        fp = -dot2(chord, tan) + kappa * cross2(tan, r)
+
+    def newton(_, s):
+        x, y, theta, kappa, j = _line_state(ref, s)
+        tx, ty = jnp.cos(theta), jnp.sin(theta)
+        wx, wy = px - x, py - y
+        fp = -((dx[j] / seg[j]) * tx + (dy[j] / seg[j]) * ty) + kappa * (tx * wy - ty * wx)
         fp = jnp.where(fp < -0.05, fp, -0.05)
-        s = s - jnp.clip(f / fp, -max_step, max_step)
-    pos, theta, _, _ = ref_state(ref, s)
-    l = cross2(_unit(theta), p - pos)
+        return s - jnp.clip((wx * tx + wy * ty) / fp, -max_step, max_step)
+
+    # a loop, not unrolled: each step's s is materialised (unrolled, XLA fuses every step
+    # into each use of the next and recomputes them many times over)
+    s = jax.lax.fori_loop(0, newton_steps, newton, s)
+    x, y, theta, kappa, _ = _line_state(ref, s)
+    return s, jnp.cos(theta) * (py - y) - jnp.sin(theta) * (px - x), theta, kappa
+
+
+def to_frenet(ref: ReferenceLine, xy, newton_steps: int = 4):
+    """Cartesian points ``(..., 2)`` to Frenet ``(s, l)``, each ``(...)`` (``frenet_points``)."""
+    p = jnp.asarray(xy, ref.xy.dtype)
+    s, l, _, _ = frenet_points(ref, p[..., 0], p[..., 1], newton_steps)
     return s, l
 
 

@@ -424,8 +424,9 @@ class LatticeParts:
 
 
 def lattice_parts(state: PlanState, ref: ReferenceLine, config: LatticeConfig, targets=None, leader=None,
-                  stop_s=None) -> LatticeParts:
-    """The longitudinal profiles and lateral targets of one plan (arguments as ``generate``)."""
+                  stop_s=None, sl=None) -> LatticeParts:
+    """The longitudinal profiles and lateral targets of one plan (arguments as ``generate``;
+    ``sl``: optional ``(s, l)`` of the car's position on ``ref``, already computed)."""
     from jaxplan.lattice.longitudinal import longitudinal_set
     from jaxplan.lattice.targets import RoadTargets
 
@@ -436,7 +437,7 @@ def lattice_parts(state: PlanState, ref: ReferenceLine, config: LatticeConfig, t
     t = jnp.arange(T, dtype=dtype) * config.dt
     v0 = jnp.asarray(state.v, dtype)
     s0, l0, dl0, ddl0 = cartesian_to_frenet_state(ref, jnp.stack([state.x, state.y]).astype(dtype),
-                                                  state.heading, state.kappa)
+                                                  state.heading, state.kappa, sl)
     _, _, kr0, _ = ref_state(ref, s0)
     # the profiles run in ds/dt along the reference line: ds/dt = v / sqrt((1 - kr l)^2 + l'^2)
     to_sdot = 1.0 / jnp.sqrt((1.0 - kr0 * l0) ** 2 + dl0 ** 2)

@@ -167,7 +167,7 @@ def _plan(state: PlanState, ref: ReferenceLine, obstacles: Obstacles, config: La
         v_along = jnp.zeros(sl.shape[:-1], f)
         rear, lead_v, found, stopped = jnp.zeros_like(t), jnp.zeros_like(t), jnp.asarray(False), jnp.asarray(False)
     d_stop = _stop_distance(config, s_car, state.d_crossroad, targets.stop_s, rear, stopped, front)
-    parts = lattice_parts(state, ref, config, targets, (rear, lead_v, found), d_stop)
+    parts = lattice_parts(state, ref, config, targets, (rear, lead_v, found), d_stop, (s_car, l_car))
     cand = generate_from(parts, config)
     kin = _kinematics(cand, ref, targets, config, state.v_set, t)
     # same-lane obstacles behind the car do not count while they stay in its corridor (unless they overlap it)

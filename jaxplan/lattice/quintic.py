@@ -44,7 +44,7 @@ def quintic_eval(coeffs, S, s):
     return l, jnp.where(past, 0.0, dl), jnp.where(past, 0.0, ddl)
 
 
-def cartesian_to_frenet_state(ref: ReferenceLine, xy, theta, kappa):
+def cartesian_to_frenet_state(ref: ReferenceLine, xy, theta, kappa, sl=None):
     """Frenet state ``(s, l, dl/ds, d2l/ds2)`` of a pose with curvature.
 
     Inverse of ``frenet_to_cartesian_state`` (valid where ``1 - kappa_r l > 0`` and the
@@ -52,11 +52,12 @@ def cartesian_to_frenet_state(ref: ReferenceLine, xy, theta, kappa):
 
     Args:
         xy: ``(..., 2)``; theta, kappa: ``(...)``.
+        sl: optional ``(s, l)`` of ``xy`` already computed (``to_frenet``).
 
     Returns:
         (s, l, dl, ddl) each ``(...)``.
     """
-    s, l = to_frenet(ref, xy)
+    s, l = to_frenet(ref, xy) if sl is None else sl
     _, theta_r, kr, dkr = ref_state(ref, s)
     d = wrap_angle(jnp.asarray(theta) - theta_r)
     one = 1.0 - kr * l

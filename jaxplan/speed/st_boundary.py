@@ -1,16 +1,15 @@
 """ST boundaries: where (in station s) an obstacle occupies a band along the path, per time.
 
 Every obstacle is projected to the path's Frenet frame **once per time** (its centre with
-``frenet_points``, the geometry core's ``to_frenet`` method written for XLA's CPU backend,
-its corners rigidly about the centre at its heading relative to the path), not once per
-station. A band is a strip ``l_lo <= l <= l_hi`` of the path frame; the station range of
-the obstacle inside the band is the exact extent of the convex quadrilateral clipped to
-the strip (its corners inside the strip and its edges' crossings of the strip's sides),
-so on a straight path it equals the range of car positions whose footprint overlaps the
-obstacle (the brute-force ``station_intervals`` with one car box per station, kept here
-as the reference). On a curved path the corners'
-offset from the tangent (``kappa u^2 / 2`` at ``u`` metres from the reference point)
-widens the car's band (``curvature_margin``).
+the geometry core's ``frenet_points``, its corners rigidly about the centre at its heading
+relative to the path), not once per station. A band is a strip ``l_lo <= l <= l_hi`` of the
+path frame; the station range of the obstacle inside the band is the exact extent of the
+convex quadrilateral clipped to the strip (its corners inside the strip and its edges'
+crossings of the strip's sides), so on a straight path it equals the range of car positions
+whose footprint overlaps the obstacle (the brute-force ``station_intervals`` with one car box
+per station, kept here as the reference). On a curved path the corners' offset from the
+tangent (``kappa u^2 / 2`` at ``u`` metres from the reference point) widens the car's band
+(``curvature_margin``).
 
 Conventions: a *blocking* boundary ``[lower, upper]`` is in the station of the car's
 reference point (the car at station x overlaps the obstacle iff ``lower <= x <= upper``);
@@ -25,7 +24,7 @@ import jax
 import jax.numpy as jnp
 
 from jaxplan.geometry.boxes import box_has_overlap, poses_to_boxes
-from jaxplan.geometry.frenet import ReferenceLine, wrap_angle
+from jaxplan.geometry.frenet import ReferenceLine, frenet_points, wrap_angle
 from jaxplan.speed.path_profile import PathProfile
 from jaxplan.types import Obstacles, VehicleParams
 
@@ -64,68 +63,6 @@ class ObstaclesSL:
     centre: Any
     kappa: Any
     valid: Any
-
-
-def _search_right(knots, s):
-    """``searchsorted(knots, s, side="right")`` by counting (the knots on a leading axis: no
-    reduction over a small trailing axis, which XLA's CPU backend runs slowly)."""
-    return jnp.sum((knots.reshape((-1,) + (1,) * s.ndim) <= s[None]).astype(jnp.int32), 0)
-
-
-def _line_state(ref: ReferenceLine, s):
-    """``ref_state`` (x, y, theta, kappa) and the chord index at arc lengths ``s``, in components."""
-    n = ref.s.shape[0]
-    i = jnp.clip(_search_right(ref.s, s) - 1, 0, n - 2)
-    s0 = ref.s[i]
-    seg = ref.s[i + 1] - s0
-    u = s - s0
-    x0, y0 = ref.xy[i, 0], ref.xy[i, 1]
-    x = x0 + u * ((ref.xy[i + 1, 0] - x0) / seg)
-    y = y0 + u * ((ref.xy[i + 1, 1] - y0) / seg)
-    inside = (s >= ref.s[0]) & (s <= ref.s[-1])
-    f = jnp.clip(u / seg, 0.0, 1.0)
-    theta = ref.theta[i] + f * (ref.theta[i + 1] - ref.theta[i])
-    kappa = jnp.where(inside, ref.kappa[i] + f * (ref.kappa[i + 1] - ref.kappa[i]), 0.0)
-    theta = jnp.where(inside, theta, jnp.where(s < ref.s[0], ref.theta[0], ref.theta[-1]))
-    return x, y, theta, kappa, i
-
-
-def frenet_points(ref: ReferenceLine, px, py, newton_steps: int = 4):
-    """The geometry core's ``to_frenet`` (nearest chord, then Newton steps on
-    ``<p - pos(s), tangent(s)> = 0``; the end chords extend the line) for points
-    ``(px, py)`` ``(...)``, written in components with the chords on a leading axis: the
-    same arithmetic without XLA CPU's slow reductions over trailing axes of 2 or N
-    (several times faster on the speed planner's 720 boxes a plan). Returns
-    ``(s, l, theta, kappa)`` ``(...)``: the projection and the line's heading and
-    curvature there."""
-    ax, ay = ref.xy[:-1, 0], ref.xy[:-1, 1]
-    dx, dy = ref.xy[1:, 0] - ax, ref.xy[1:, 1] - ay
-    seg = ref.s[1:] - ref.s[:-1]
-    e = (slice(None),) + (None,) * px.ndim
-    rx, ry = px[None] - ax[e], py[None] - ay[e]
-    t = (rx * dx[e] + ry * dy[e]) / (seg * seg)[e]  # (N - 1, ...)
-    tc = jnp.clip(t, 0.0, 1.0)
-    qx, qy = rx - tc * dx[e], ry - tc * dy[e]
-    i = jnp.argmin(jnp.sqrt(qx * qx + qy * qy), axis=0)
-    nseg = seg.shape[0]
-    ti = jnp.take_along_axis(t, i[None], axis=0)[0]
-    ti = jnp.clip(ti, jnp.where(i == 0, -jnp.inf, 0.0), jnp.where(i == nseg - 1, jnp.inf, 1.0))
-    s = ref.s[i] + ti * seg[i]
-    max_step = jnp.max(seg)
-
-    def newton(_, s):
-        x, y, theta, kappa, j = _line_state(ref, s)
-        tx, ty = jnp.cos(theta), jnp.sin(theta)
-        wx, wy = px - x, py - y
-        fp = -((dx[j] / seg[j]) * tx + (dy[j] / seg[j]) * ty) + kappa * (tx * wy - ty * wx)
-        fp = jnp.where(fp < -0.05, fp, -0.05)
-        return s - jnp.clip((wx * tx + wy * ty) / fp, -max_step, max_step)
-
-    # a loop, not unrolled: each step's s is materialised (unrolled, XLA fuses every step
-    # into each use of the next and recomputes them many times over)
-    s = jax.lax.fori_loop(0, newton_steps, newton, s)
-    x, y, theta, kappa, _ = _line_state(ref, s)
-    return s, jnp.cos(theta) * (py - y) - jnp.sin(theta) * (px - x), theta, kappa
 
 
 def project_obstacles(ref: ReferenceLine, obstacles: Obstacles, s_offset=None) -> ObstaclesSL:
