@@ -15,8 +15,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxplan.geometry.lines import cross2, dot2
 from jaxplan.types import check_finite, check_trailing
+
 
 def _count_index(knots, s):
     """``searchsorted(knots (n,), s (...), side="right")`` by counting the knots at or below each
@@ -137,21 +137,10 @@ def ref_state(ref: ReferenceLine, s):
         (xy ``(..., 2)``, theta ``(...)`` unwrapped, kappa ``(...)``, dkappa ``(...)``).
     """
     s = jnp.asarray(s, ref.xy.dtype)
-    n = ref.s.shape[0]
-    i = jnp.clip(jnp.searchsorted(ref.s, s, side="right") - 1, 0, n - 2)
-    s0, s1 = ref.s[i], ref.s[i + 1]
-    seg = s1 - s0
-    u = s - s0
-    chord = (ref.xy[i + 1] - ref.xy[i]) / seg[..., None]
-    xy = ref.xy[i] + u[..., None] * chord
+    x, y, theta, kappa, i = _line_state(ref, s, jnp.searchsorted(ref.s, s, side="right"))
     inside = (s >= ref.s[0]) & (s <= ref.s[-1])
-    f = jnp.clip(u / seg, 0.0, 1.0)
-    theta = ref.theta[i] + f * (ref.theta[i + 1] - ref.theta[i])
-    kappa = jnp.where(inside, ref.kappa[i] + f * (ref.kappa[i + 1] - ref.kappa[i]), 0.0)
-    dkappa = jnp.where(inside, (ref.kappa[i + 1] - ref.kappa[i]) / seg, 0.0)
-    # Straight extension beyond the ends: heading of the end chord.
-    end_theta = jnp.where(s < ref.s[0], ref.theta[0], ref.theta[-1])
-    theta = jnp.where(inside, theta, end_theta)
+    dkappa = jnp.where(inside, (ref.kappa[i + 1] - ref.kappa[i]) / (ref.s[i + 1] - ref.s[i]), 0.0)
+    xy = jnp.stack([x, y], axis=-1)
     return xy, theta, kappa, dkappa
 
 
@@ -166,10 +155,12 @@ def to_cartesian(ref: ReferenceLine, s, l):
     return xy + jnp.asarray(l, xy.dtype)[..., None] * nrm
 
 
-def _line_state(ref: ReferenceLine, s):
-    """``ref_state`` (x, y, theta, kappa) and the chord index at arc lengths ``s``, in components."""
+def _line_state(ref: ReferenceLine, s, right=None):
+    """Position ``x, y``, heading and curvature of the line at arc lengths ``s (...)``, in
+    components, and the chord index ``i``. ``right``: ``searchsorted(ref.s, s, side="right")``
+    if already found (else ``_count_index``)."""
     n = ref.s.shape[0]
-    i = jnp.clip(_count_index(ref.s, s) - 1, 0, n - 2)
+    i = jnp.clip((_count_index(ref.s, s) if right is None else right) - 1, 0, n - 2)
     s0 = ref.s[i]
     seg = ref.s[i + 1] - s0
     u = s - s0

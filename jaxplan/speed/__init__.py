@@ -45,6 +45,7 @@ from jaxplan.speed.st_boundary import (
     car_probes,
     project_obstacles,
     side_boundaries,
+    strip_boundaries,
     station_intervals,
     strip_extent,
 )

@@ -32,8 +32,7 @@ import jax.numpy as jnp
 from jaxplan.geometry.boxes import box_corners
 from jaxplan.geometry.polygons import has_overlap
 from jaxplan.speed.path_profile import PathProfile
-from jaxplan.speed.st_boundary import (BIG, ObstaclesSL, STBoundary, car_extent, car_probes, curvature_margin,
-                                       _strip_extent)
+from jaxplan.speed.st_boundary import BIG, ObstaclesSL, STBoundary, car_extent, car_probes, strip_boundaries
 from jaxplan.types import Obstacles, VehicleParams
 
 LEFT, RIGHT, NONE = 1, -1, 0
@@ -99,23 +98,6 @@ def braking_station(v0, a_min, t):
     return v0 * tc + 0.5 * a_min * tc * tc
 
 
-def _three_strips(osl: ObstaclesSL, vehicle: VehicleParams, side_width, buffer):
-    """``blocking_boundaries`` and the left and right ``side_boundaries`` (the same
-    arithmetic), the three ``strip_extent`` as one ``scan`` over the strips: the corners are
-    computed once and read by every strip (inlined, XLA would recompute the projection's
-    trigonometry in each of the strips' many elementwise fusions)."""
-    dtype = osl.corners.dtype
-    front, rear = car_extent(vehicle, dtype)
-    half = 0.5 * jnp.asarray(vehicle.width, dtype) + buffer + curvature_margin(osl.kappa, vehicle)
-    outer = half + side_width
-    strips = (jnp.stack([-half, half, -outer]), jnp.stack([half, outer, -half]))  # blocking, left, right
-    comps = jnp.stack([osl.corners[..., c, i] for i in range(2) for c in range(4)])  # (8, K, T) contiguous
-    _, (lo, hi, hit) = jax.lax.scan(lambda _, b: (None, _strip_extent(comps[:4], comps[4:], b[0], b[1])), None, strips)
-    hit = hit & osl.valid
-    return (STBoundary(lo[0] - front - buffer, hi[0] - rear + buffer, hit[0]), STBoundary(lo[1], hi[1], hit[1]),
-            STBoundary(lo[2], hi[2], hit[2]))
-
-
 def classify(osl: ObstaclesSL, obstacles: Obstacles, vehicle: VehicleParams, t, v0=0.0, a_min=-5.0, *,
              side_width=3.5, buffer=0.0, no_overtake_side: int = LEFT, v_moving=1.0) -> Classified:
     """Blocking / non-blocking classification with decisions.
@@ -128,7 +110,7 @@ def classify(osl: ObstaclesSL, obstacles: Obstacles, vehicle: VehicleParams, t, 
     """
     dtype = osl.corners.dtype
     t = jnp.asarray(t, dtype)
-    blk, left, right = _three_strips(osl, vehicle, side_width, buffer)
+    blk, left, right = strip_boundaries(osl, vehicle, side_width, buffer)
     enters = jnp.any(blk.hit, -1)
     f = _first(blk.hit)
     centre = 0.5 * (jnp.take_along_axis(blk.lower, f[:, None], -1) + jnp.take_along_axis(blk.upper, f[:, None], -1))[:, 0]
