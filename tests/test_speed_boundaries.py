@@ -10,7 +10,7 @@ import shapely
 from jaxplan.geometry.frenet import ReferenceLine, ref_state
 from jaxplan.speed import (LEFT, RIGHT, blocking_boundaries, classify, compose_plan, first_trajectory,
                            keep_clear_intervals, path_profile, project_obstacles, resample_obstacles,
-                           side_boundaries, strip_extent)
+                           side_boundaries, strip_boundaries, strip_extent)
 from jaxplan.speed.dp import SpeedPlan
 from jaxplan.types import Obstacles, VehicleParams
 
@@ -182,6 +182,21 @@ def test_side_boundaries_mirror():
     assert list(np.asarray(left.hit[:, 0])) == [True, False]
     assert list(np.asarray(right.hit[:, 0])) == [False, True]
     assert float(left.lower[0, 0]) == pytest.approx(58.0, abs=1e-4) and float(left.upper[0, 0]) == pytest.approx(62.0, abs=1e-4)
+
+
+def test_strip_boundaries_agree_with_each_strip_alone(rng):
+    """The classifier's one-scan form gives each strip's boundaries as computed alone."""
+    x = np.linspace(0, 60, 60)
+    ref = ReferenceLine.from_polyline(np.stack([x, 0.5 * x ** 2 / 60.0], -1))
+    _, _, obs = _random_obstacles(rng, 12, 4, x_max=40.0)
+    osl = _project(ref, obs)
+    blk, left, right = jax.jit(strip_boundaries)(osl, CAR, 3.0, 0.3)
+    for got, want in ((blk, _blocking(osl, CAR, 0.3)), (left, _side(osl, CAR, 3.0, LEFT, 0.3)),
+                      (right, _side(osl, CAR, 3.0, RIGHT, 0.3))):
+        assert np.array_equal(np.asarray(got.hit), np.asarray(want.hit)) and np.asarray(want.hit).any()
+        h = np.asarray(want.hit)
+        np.testing.assert_allclose(np.asarray(got.lower)[h], np.asarray(want.lower)[h], atol=1e-4)
+        np.testing.assert_allclose(np.asarray(got.upper)[h], np.asarray(want.upper)[h], atol=1e-4)
 
 
 def test_resample_obstacles_matches_numpy(rng):

@@ -138,42 +138,54 @@ def curvature_margin(kappa, vehicle: VehicleParams):
     return 0.5 * jnp.abs(kappa) * u * u
 
 
-def strip_boundaries(osl: ObstaclesSL, vehicle: VehicleParams, side_width, buffer=0.0) -> tuple:
-    """The blocking boundaries and the left and right side boundaries, ``STBoundary (K, T)``
-    each, as one ``scan`` over the three strips (the corners split into components once and
-    read by every strip; inlined, XLA would recompute the projection's trigonometry in each
-    strip's elementwise fusions).
+def _band_half(osl: ObstaclesSL, vehicle: VehicleParams, buffer):
+    """Half width ``(T,)`` of the car's band along the path: ``width / 2 + buffer`` plus
+    ``curvature_margin``."""
+    return 0.5 * jnp.asarray(vehicle.width, osl.corners.dtype) + buffer + curvature_margin(osl.kappa, vehicle)
 
-    The car's band is ``|l| <= width / 2 + buffer`` (plus ``curvature_margin``); a blocking
-    boundary is the obstacle's range in it extended by the car's front / rear and ``buffer``
-    (reference stations). A side boundary is the road-station range inside the strip of
-    ``side_width`` beside the band (left: ``l`` from the band's edge outwards; right: mirrored).
+
+def _blocking(osl: ObstaclesSL, vehicle: VehicleParams, buffer, lo, hi, hit) -> STBoundary:
+    """The obstacles' range ``(K, T)`` in the car's band as a blocking boundary: extended by the
+    car's front / rear and ``buffer`` (reference stations), valid steps only."""
+    front, rear = car_extent(vehicle, osl.corners.dtype)
+    return STBoundary(lo - front - buffer, hi - rear + buffer, hit & osl.valid)
+
+
+def strip_boundaries(osl: ObstaclesSL, vehicle: VehicleParams, side_width, buffer=0.0) -> tuple:
+    """``blocking_boundaries`` and the left and right ``side_boundaries`` (strips of
+    ``side_width``), ``STBoundary (K, T)`` each, as one ``scan`` over the three strips: the
+    corners are split into components once and read by every strip (inlined, XLA would
+    recompute the projection's trigonometry in each strip's elementwise fusions).
 
     Returns:
         (blocking, left, right).
     """
-    dtype = osl.corners.dtype
-    front, rear = car_extent(vehicle, dtype)
-    half = 0.5 * jnp.asarray(vehicle.width, dtype) + buffer + curvature_margin(osl.kappa, vehicle)
+    half = _band_half(osl, vehicle, buffer)
     outer = half + side_width
     strips = (jnp.stack([-half, half, -outer]), jnp.stack([half, outer, -half]))  # blocking, left, right
     comps = jnp.stack([osl.corners[..., c, i] for i in range(2) for c in range(4)])  # (8, K, T) contiguous
     _, (lo, hi, hit) = jax.lax.scan(lambda _, b: (None, _strip_extent(comps[:4], comps[4:], b[0], b[1])), None, strips)
-    hit = hit & osl.valid
-    return (STBoundary(lo[0] - front - buffer, hi[0] - rear + buffer, hit[0]), STBoundary(lo[1], hi[1], hit[1]),
-            STBoundary(lo[2], hi[2], hit[2]))
+    return (_blocking(osl, vehicle, buffer, lo[0], hi[0], hit[0]), STBoundary(lo[1], hi[1], hit[1] & osl.valid),
+            STBoundary(lo[2], hi[2], hit[2] & osl.valid))
 
 
 def blocking_boundaries(osl: ObstaclesSL, vehicle: VehicleParams, buffer=0.0) -> STBoundary:
-    """ST boundaries ``(K, T)`` of obstacles against the car driving the path (reference
-    stations): ``strip_boundaries``'s first."""
-    return strip_boundaries(osl, vehicle, 0.0, buffer)[0]
+    """ST boundaries ``(K, T)`` of obstacles against the car driving the path (reference stations).
+
+    The car's band is ``|l| <= width / 2 + buffer`` (plus ``curvature_margin``); the
+    obstacle's range in it is extended by the car's front / rear and ``buffer``.
+    """
+    half = _band_half(osl, vehicle, buffer)
+    return _blocking(osl, vehicle, buffer, *strip_extent(osl.corners, -half, half))
 
 
 def side_boundaries(osl: ObstaclesSL, vehicle: VehicleParams, width, side: int, buffer=0.0) -> STBoundary:
     """Road-station range ``(K, T)`` of each obstacle inside the strip of ``width`` beside the
-    car's band (``side`` +1 left, -1 right): ``strip_boundaries``'s left or right."""
-    return strip_boundaries(osl, vehicle, width, buffer)[1 if side > 0 else 2]
+    car's band (``side`` +1 left, -1 right), from the band's edge outwards."""
+    inner = _band_half(osl, vehicle, buffer)
+    outer = inner + width
+    lo, hi, hit = strip_extent(osl.corners, *((inner, outer) if side > 0 else (-outer, -inner)))
+    return STBoundary(lo, hi, hit & osl.valid)
 
 
 # ---------------------------------------------------------------- brute-force reference
