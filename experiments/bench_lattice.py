@@ -186,7 +186,7 @@ def frenetix_rates(n, k, reps, threads):
     M = np.array(list(itertools.product([0.0], [HORIZON], [20.0], [V0], [0.0], V0 + np.linspace(-10, 10, V), [0.0],
                                         [0.0], [0.0], [0.0], np.linspace(-3, 3, L), [0.0], [0.0])))
     pool = concurrent.futures.ThreadPoolExecutor(threads)
-    calls = {False: [], True: []}  # (whole call, collision check) seconds of each call
+    seq_calls = []  # (whole call, collision check) seconds of each sequential call
 
     def run(concurrent_eval):
         t_call = time.perf_counter()
@@ -197,7 +197,8 @@ def frenetix_rates(n, k, reps, threads):
         else:
             h.evaluate_all_current_functions(True)
         if not k:
-            calls[concurrent_eval].append((time.perf_counter() - t_call, 0.0))
+            if not concurrent_eval:
+                seq_calls.append((time.perf_counter() - t_call, 0.0))
             return None
         trajs = list(h.get_sorted_trajectories())
         t0 = time.perf_counter()
@@ -207,15 +208,16 @@ def frenetix_rates(n, k, reps, threads):
         else:
             flags = _pycrcc_check(cc, trajs)
         t1 = time.perf_counter()
-        calls[concurrent_eval].append((t1 - t_call, t1 - t0))
+        if not concurrent_eval:
+            seq_calls.append((t1 - t_call, t1 - t0))
         return flags
 
     flags = run(False)
-    calls[False].clear()
+    seq_calls.clear()
     seq = len(M) / best_time(lambda: run(False), reps)
     con = len(M) / best_time(lambda: run(True), reps)
     pool.shutdown()
-    total, check = min(calls[False])  # the best sequential call: the share of its time spent in pycrcc
+    total, check = min(seq_calls)  # the best sequential call: the share of its time spent in pycrcc
     return seq, con, len(M), int(np.sum(flags)) if flags is not None else 0, check / total
 
 

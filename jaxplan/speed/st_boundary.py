@@ -144,6 +144,12 @@ def _band_half(osl: ObstaclesSL, vehicle: VehicleParams, buffer):
     return 0.5 * jnp.asarray(vehicle.width, osl.corners.dtype) + buffer + curvature_margin(osl.kappa, vehicle)
 
 
+def _side_strip(half, width, side: int) -> tuple:
+    """Offsets ``(l_lo, l_hi)`` ``(T,)`` of the strip of ``width`` beside the band of half width
+    ``half`` (``side`` +1 left, -1 right), from the band's edge outwards."""
+    return (half, half + width) if side > 0 else (-half - width, -half)
+
+
 def _blocking(osl: ObstaclesSL, vehicle: VehicleParams, buffer, lo, hi, hit) -> STBoundary:
     """The obstacles' range ``(K, T)`` in the car's band as a blocking boundary: extended by the
     car's front / rear and ``buffer`` (reference stations), valid steps only."""
@@ -161,8 +167,8 @@ def strip_boundaries(osl: ObstaclesSL, vehicle: VehicleParams, side_width, buffe
         (blocking, left, right).
     """
     half = _band_half(osl, vehicle, buffer)
-    outer = half + side_width
-    strips = (jnp.stack([-half, half, -outer]), jnp.stack([half, outer, -half]))  # blocking, left, right
+    bands = ((-half, half), _side_strip(half, side_width, 1), _side_strip(half, side_width, -1))
+    strips = tuple(jnp.stack(b) for b in zip(*bands))  # (l_lo, l_hi), each (3, T): blocking, left, right
     comps = jnp.stack([osl.corners[..., c, i] for i in range(2) for c in range(4)])  # (8, K, T) contiguous
     _, (lo, hi, hit) = jax.lax.scan(lambda _, b: (None, _strip_extent(comps[:4], comps[4:], b[0], b[1])), None, strips)
     return (_blocking(osl, vehicle, buffer, lo[0], hi[0], hit[0]), STBoundary(lo[1], hi[1], hit[1] & osl.valid),
@@ -182,9 +188,7 @@ def blocking_boundaries(osl: ObstaclesSL, vehicle: VehicleParams, buffer=0.0) ->
 def side_boundaries(osl: ObstaclesSL, vehicle: VehicleParams, width, side: int, buffer=0.0) -> STBoundary:
     """Road-station range ``(K, T)`` of each obstacle inside the strip of ``width`` beside the
     car's band (``side`` +1 left, -1 right), from the band's edge outwards."""
-    inner = _band_half(osl, vehicle, buffer)
-    outer = inner + width
-    lo, hi, hit = strip_extent(osl.corners, *((inner, outer) if side > 0 else (-outer, -inner)))
+    lo, hi, hit = strip_extent(osl.corners, *_side_strip(_band_half(osl, vehicle, buffer), width, side))
     return STBoundary(lo, hi, hit & osl.valid)
 
 
