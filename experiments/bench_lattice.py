@@ -53,6 +53,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxplan.cli_args import nonnegative_int, positive_int
 from jaxplan.eval.timing import best_time, write_figures
 from jaxplan.geometry import ReferenceLine
 from jaxplan.lattice import CostWeights, LatticeConfig, PlanState
@@ -223,10 +224,10 @@ def frenetix_rates(n, k, reps, threads):
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--sizes", type=int, nargs="+", default=[1000, 5000])
-    ap.add_argument("--obstacles", type=int, default=20)
-    ap.add_argument("--reps", type=int, default=10, help="best of this many calls, on both sides")
-    ap.add_argument("--near-k", type=int, default=NEAR_K,
+    ap.add_argument("--sizes", type=positive_int, nargs="+", default=[1000, 5000])
+    ap.add_argument("--obstacles", type=nonnegative_int, default=20)
+    ap.add_argument("--reps", type=positive_int, default=10, help="best of this many calls, on both sides")
+    ap.add_argument("--near-k", type=nonnegative_int, default=NEAR_K,
                     help=f"jaxplan's collision broad phase: obstacles checked exactly per lateral group and step "
                          f"(default {NEAR_K}, the road planner's; 0: every obstacle)")
     ap.add_argument("--out", default="results/bench_lattice.json")
