@@ -140,7 +140,11 @@ def test_path_qp_against_osqp_1000_frames():
     OSQP solves (99.9 % without the solution polishing: one frame stops at the iteration cap),
     on none that OSQP certifies infeasible; every path returned passes OSQP's convergence test
     again in float64 (bounds met, its multipliers stationary and correctly signed), also on the
-    frames OSQP leaves undecided at 50,000 iterations."""
+    frames OSQP leaves undecided at 50,000 iterations. The path agrees with OSQP's to 5e-5 m
+    and its cost (in float64) to 1e-6 relative; without the polishing, 2.5e-3 m and 1.3e-3.
+    Float32 with the QP's condition number of about 6e3 resolves the minimiser no finer:
+    frame 677 is 1.8e-5 m from OSQP's with costs 2.5e-9 relative apart, and that digit moves
+    with how XLA fuses the ADMM loop."""
     osqp = pytest.importorskip("osqp")
     sp = pytest.importorskip("scipy.sparse")
     rng = np.random.default_rng(5)
@@ -160,7 +164,7 @@ def test_path_qp_against_osqp_1000_frames():
     cfg, dl, ddl, fn = _qp_jit()
     r = jax.tree_util.tree_map(np.asarray, fn(*(jnp.asarray(x, jnp.float32) for x in (lo, up, l_ref, init))))
     status = np.full(F, "infeasible (crossing bounds)", dtype=object)
-    err, kkt_fail = [], []
+    err, gap, kkt_fail = [], [], []
     for f in range(F):
         P, q, A, l_, u_ = (np.asarray(x, np.float64) for x in state_problem(
             0.8, jnp.asarray(l_ref[f]), jnp.asarray(lo[f]), jnp.asarray(up[f]), dl[0], dl[1], ddl[0], ddl[1],
@@ -186,13 +190,15 @@ def test_path_qp_against_osqp_1000_frames():
         status[f] = res.info.status
         if res.info.status in ("solved", "solved inaccurate") and r.ok[f]:
             err.append(np.max(np.abs(res.x[:QP_T] - r.l[f])))
+            cost = lambda x: 0.5 * x @ P @ x + q @ x
+            gap.append(abs(cost(r.z[f].astype(np.float64)) - cost(res.x)) / (1.0 + abs(cost(res.x))))
     solved = np.isin(status, ["solved", "solved inaccurate"])
     infeasible = np.array(["infeasible" in s_ for s_ in status])
     assert 0.2 < solved.mean() < 0.95 and infeasible.mean() > 0.05  # both kinds of frames
     assert np.all(r.ok[solved])  # a path wherever OSQP solves
     assert not np.any(r.ok[infeasible])  # never a path where OSQP certifies there is none
     assert np.mean(~r.feasible[infeasible]) >= 0.9  # the certificate (or the input check) says so
-    assert np.max(err) <= 1e-5  # the polished solution is OSQP's
+    assert np.max(err) <= 5e-5 and np.max(gap) <= 1e-6  # the polished solution is OSQP's
     assert not kkt_fail  # every path returned is the QP's solution by OSQP's test (its own multipliers)
 
 

@@ -400,18 +400,34 @@ def admm_solve(P, q, C, lo, hi, config: PathQPConfig, z0=None, y0=None, matvec=N
     rho = jnp.asarray(config.rho, dtype)
     total = max(config.max_iter // config.check_every, 1)
     n_stages = config.rho_updates + 1 if config.adaptive_rho else 1
-    used = 0
+    budgets = []  # blocks per stage: 2, 4, 8, ... and the rest of max_iter in the last
     for k in range(n_stages):
-        last = k == n_stages - 1
-        budget = total - used if last else min(2 ** (k + 1), total - used)
-        if budget <= 0:
+        rest = total - sum(budgets)
+        if rest <= 0:
             break
-        used += budget
-        st = run_stage(st, rho, factor(rho), budget)
-        if not last:
-            prim, dual, ps_, ds_ = st[8:12]
-            ratio = (prim / jnp.maximum(ps_, 1e-10)) / jnp.maximum(dual / jnp.maximum(ds_, 1e-10), 1e-10)
-            rho = jnp.clip(rho * jnp.sqrt(ratio), 1e-6, 1e6)
+        budgets.append(rest if k == n_stages - 1 else min(2 ** (k + 1), rest))
+
+    def adapt(st, rho):
+        prim, dual, ps_, ds_ = st[8:12]
+        ratio = (prim / jnp.maximum(ps_, 1e-10)) / jnp.maximum(dual / jnp.maximum(ds_, 1e-10), 1e-10)
+        return jnp.clip(rho * jnp.sqrt(ratio), 1e-6, 1e6)
+
+    if config.early_exit:
+        # One loop over the stages: the factorisation and the ADMM block are traced once (the
+        # unrolled stages made the planners' programs several times larger and slower to compile).
+        last = len(budgets) - 1
+
+        def stage(k, carry):
+            st, rho = carry
+            st = run_stage(st, rho, factor(rho), jnp.asarray(budgets, jnp.int32)[k])
+            return st, jnp.where(k < last, adapt(st, rho), rho)
+
+        st, rho = jax.lax.fori_loop(0, len(budgets), stage, (st, rho))
+    else:  # static trip counts, so that reverse mode can differentiate through the solve
+        for k, budget in enumerate(budgets):
+            st = run_stage(st, rho, factor(rho), budget)
+            if k < len(budgets) - 1:
+                rho = adapt(st, rho)
     zs, ws, ys, it, _, _, conv, infeas = st[:8]
     act_lo = ~eq & (ws - los < -ys)
     act_hi = ~eq & (his - ws < ys)

@@ -279,27 +279,20 @@ def solve_path(ref, st, ds, boxes, blocking, edge_left, edge_right, l_pref, init
     else:
         box_n, blk_n = boxes, blocking
 
-    def bounds_at(car_dth, side, dth_hi=None):
-        """The corridor for the car at heading ``car_dth`` (relative to the route), or for any
-        heading in ``[car_dth, dth_hi]`` (the union of the intervals at both ends and the
-        middle, widened by ``RANGE_MARGIN`` for the headings between them)."""
-        if dth_hi is None:
-            lo, hi, hit = obstacle_intervals(base, th_r, th_r + car_dth, veh, box_n, blk_n, lat_buf, lon_buf)
-            rl, rr = car_reach(veh, car_dth)
-        else:
-            heads = (car_dth, 0.5 * (car_dth + dth_hi), dth_hi)
-            parts = [obstacle_intervals(base, th_r, th_r + h, veh, box_n, blk_n, lat_buf + RANGE_MARGIN, lon_buf)
-                     for h in heads]
-            lo = jnp.min(jnp.stack([p[0] for p in parts]), 0)
-            hi = jnp.max(jnp.stack([p[1] for p in parts]), 0)
-            hit = parts[0][2] | parts[1][2] | parts[2][2]
-            body_reach = [car_reach(veh, h) for h in heads]
-            rl = jnp.max(jnp.stack([r[0] for r in body_reach]), 0) + RANGE_MARGIN
-            rr = jnp.max(jnp.stack([r[1] for r in body_reach]), 0) + RANGE_MARGIN
-        road_hi = edge_left - rl - config.edge_buffer
-        road_lo = edge_right + rr + config.edge_buffer
-        return decide_corridor(lo, hi, hit, road_lo, road_hi, l0, reach, l_pref, side,
-                               room_cap=config.room_cap, min_gap=config.min_gap)
+    def bounds_at(d_lo, d_hi, margin, side):
+        """The corridor for the car at any heading (relative to the route) in ``[d_lo, d_hi]``
+        (``(N,)`` each): the union of the intervals at both ends and the middle, widened by
+        ``margin`` (``RANGE_MARGIN``) for the headings between them; with ``d_lo == d_hi`` and
+        ``margin == 0``, exactly the corridor at that one heading. The three headings are one
+        vmapped call, so the interval kernel is traced once."""
+        heads = jnp.stack([d_lo, 0.5 * (d_lo + d_hi), d_hi])  # (3, N)
+        lo, hi, hit = jax.vmap(lambda h: obstacle_intervals(base, th_r, th_r + h, veh, box_n, blk_n,
+                                                            lat_buf + margin, lon_buf))(heads)
+        rl, rr = jax.vmap(lambda h: car_reach(veh, h))(heads)
+        road_hi = edge_left - (jnp.max(rl, 0) + margin) - config.edge_buffer
+        road_lo = edge_right + (jnp.max(rr, 0) + margin) + config.edge_buffer
+        return decide_corridor(jnp.min(lo, 0), jnp.max(hi, 0), jnp.any(hit, 0), road_lo, road_hi, l0, reach,
+                               l_pref, side, room_cap=config.room_cap, min_gap=config.min_gap)
 
     def qp_bounds(cor):
         """The QP's bounds on ``l`` from the corridor (the car's own offset at station 0)."""
@@ -323,27 +316,30 @@ def solve_path(ref, st, ds, boxes, blocking, edge_left, edge_right, l_pref, init
         return ~jnp.any(hit) & ~jnp.any(hit_m)
 
     car_dth = jnp.zeros((N,), f).at[0].set(dth0)
-    cor = bounds_at(car_dth, None)
-    qp = solve(cor, None)
-    xy, th, _ = pose(qp.l, qp.dl, qp.ddl)
-    fine0 = qp.ok & clear(xy, th, cor.valid)
 
     def body(state):
+        """Round ``r``: 0 at the car's heading (decisions made afresh, the QP from zero);
+        1 at the path's heading; later rounds at every heading seen since round 1, so that the
+        bounds hold at the heading of any path that stays inside that range. One body for all
+        rounds: the corridor and the QP are traced once."""
         r, cor, qp, _, d_lo, d_hi = state
         _, th, _ = pose(qp.l, qp.dl, qp.ddl)
-        dth = jnp.where(qp.ok, th - th_r, car_dth)
-        # round 2: at the path's heading; later rounds: every heading seen since round 2, so
-        # that the bounds hold at the heading of any path that stays inside that range
-        first = r == 1
+        dth = jnp.where(qp.ok & (r > 0), th - th_r, car_dth)
+        first = r <= 1
         d_lo = jnp.where(first, dth, jnp.minimum(d_lo, dth))
         d_hi = jnp.where(first, dth, jnp.maximum(d_hi, dth))
-        cor2 = jax.lax.cond(first, lambda: bounds_at(dth, cor.side), lambda: bounds_at(d_lo, cor.side, d_hi))
-        qp2 = solve(cor2, (qp.z, qp.y))
+        margin = jnp.where(first, 0.0, RANGE_MARGIN).astype(f)
+        cor2 = bounds_at(d_lo, d_hi, margin, jnp.where(r == 0, NONE, cor.side))
+        qp2 = solve(cor2, (qp.z, qp.y))  # round 0: the zeros of the initial state (a cold start)
         xy2, th2, _ = pose(qp2.l, qp2.dl, qp2.ddl)
         return r + 1, cor2, qp2, qp2.ok & clear(xy2, th2, cor2.valid), d_lo, d_hi
 
-    rounds, cor, qp, fine, _, _ = jax.lax.while_loop(lambda s: (s[0] < config.max_rounds) & ~s[3], body,
-                                                     (jnp.asarray(1, jnp.int32), cor, qp, fine0, car_dth, car_dth))
+    zero = lambda tree: jax.tree_util.tree_map(lambda x: jnp.zeros(x.shape, x.dtype), tree)
+    cor0 = zero(jax.eval_shape(lambda: bounds_at(car_dth, car_dth, jnp.zeros((), f), None)))
+    qp0 = zero(jax.eval_shape(lambda: solve(cor0, None)))
+    rounds, cor, qp, fine, _, _ = jax.lax.while_loop(
+        lambda s: (s[0] == 0) | ((s[0] < config.max_rounds) & ~s[3]), body,
+        (jnp.asarray(0, jnp.int32), cor0, qp0, jnp.asarray(False), car_dth, car_dth))
     l = jnp.where(qp.feasible, qp.l, l0)
     dl = jnp.where(qp.feasible, qp.dl, 0.0)
     ddl = jnp.where(qp.feasible, qp.ddl, 0.0)
