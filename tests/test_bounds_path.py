@@ -165,10 +165,11 @@ def test_path_qp_against_osqp_1000_frames():
     r = jax.tree_util.tree_map(np.asarray, fn(*(jnp.asarray(x, jnp.float32) for x in (lo, up, l_ref, init))))
     status = np.full(F, "infeasible (crossing bounds)", dtype=object)
     err, gap, kkt_fail = [], [], []
+    problems = jax.jit(jax.vmap(lambda lr, lo_, up_, i: state_problem(
+        0.8, lr, lo_, up_, dl[0], dl[1], ddl[0], ddl[1], cfg.jerk_max, i, PathWeights())))
+    problems = [np.asarray(x, np.float64) for x in problems(*(jnp.asarray(x, jnp.float32) for x in (l_ref, lo, up, init)))]
     for f in range(F):
-        P, q, A, l_, u_ = (np.asarray(x, np.float64) for x in state_problem(
-            0.8, jnp.asarray(l_ref[f]), jnp.asarray(lo[f]), jnp.asarray(up[f]), dl[0], dl[1], ddl[0], ddl[1],
-            cfg.jerk_max, jnp.asarray(init[f]), PathWeights()))
+        P, q, A, l_, u_ = (x[f] for x in problems)
         if r.ok[f]:  # OSQP's test, in float64, on the path and multipliers returned
             x, y = r.z[f].astype(np.float64), r.y[f].astype(np.float64)
             Ax, Px, Aty = A @ x, P @ x, A.T @ y
