@@ -1,6 +1,7 @@
 """Oriented boxes, path headings and the car's contour corners."""
 from __future__ import annotations
 
+import jax
 import jax.numpy as jnp
 from jax import lax
 
@@ -22,7 +23,13 @@ def box_corners(boxes):
     """
     if is_concrete(boxes):
         check_boxes(boxes)
-    boxes = jnp.asarray(boxes)
+    return _box_corners(jnp.asarray(boxes))
+
+
+@jax.jit
+def _box_corners(boxes):
+    """``box_corners`` without the input check; jitted, so that an eager call is one compiled
+    program per shape, not one per operation."""
     x, y, length, width, heading = (boxes[..., i] for i in range(5))
     c, s = jnp.cos(heading), jnp.sin(heading)
     signs = jnp.asarray(_CORNER_SIGNS, dtype=boxes.dtype)

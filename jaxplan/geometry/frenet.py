@@ -9,6 +9,7 @@ extended straight along its end headings.
 from __future__ import annotations
 
 import dataclasses
+import functools
 from typing import Any
 
 import jax
@@ -114,8 +115,10 @@ def _check_turns(a: np.ndarray) -> None:
                          f"(more than {np.degrees(np.arccos(MAX_TURN_COS)):.0f} degrees between segments)")
 
 
+@jax.jit
 def reference_line(xy) -> ReferenceLine:
-    """Jittable constructor from ``(N, 2)`` distinct points (see ``ReferenceLine.from_polyline``)."""
+    """Jittable constructor from ``(N, 2)`` distinct points (see ``ReferenceLine.from_polyline``).
+    Jitted: called eagerly it is one compiled program per shape, not one per operation."""
     xy = jnp.asarray(xy)
     d = xy[1:] - xy[:-1]
     seg = jnp.linalg.norm(d, axis=-1)
@@ -175,6 +178,7 @@ def _line_state(ref: ReferenceLine, s, right=None):
     return x, y, theta, kappa, i
 
 
+@functools.partial(jax.jit, static_argnames=("newton_steps",))
 def frenet_points(ref: ReferenceLine, px, py, newton_steps: int = 4):
     """``to_frenet`` of points ``(px, py)`` ``(...)`` given as components, with the line's
     heading and curvature there: ``(s, l, theta, kappa)`` ``(...)``.
