@@ -130,6 +130,7 @@ def reference_line(xy) -> ReferenceLine:
     return ReferenceLine(xy, s, theta, kappa)
 
 
+@jax.jit
 def ref_state(ref: ReferenceLine, s):
     """Position, heading, curvature and its derivative of the line at arc length ``s``.
 

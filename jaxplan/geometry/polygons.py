@@ -8,6 +8,7 @@ from __future__ import annotations
 
 from typing import NamedTuple
 
+import jax
 import jax.numpy as jnp
 
 from jaxplan.types import check_polygons, is_concrete
@@ -43,6 +44,7 @@ def _tol(*arrays):
     return 64.0 * jnp.finfo(dtype).eps * scale
 
 
+@jax.jit
 def polygon_edges(v, valid=None):
     """Edges of padded convex polygons.
 
