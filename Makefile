@@ -15,7 +15,7 @@ demo: $(BIN)/jaxplan
 	$(BIN)/jaxplan report results
 
 test: $(BIN)/jaxplan
-	$(BIN)/python -m pytest -n 2 --dist loadfile tests
+	$(BIN)/python -m pytest -n 2 --dist loadfile --no-loadscope-reorder tests
 
 bench: $(BIN)/jaxplan
 	$(BIN)/pip install -q -e ".[test,bench]"
