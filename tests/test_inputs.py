@@ -185,7 +185,8 @@ def test_item4_nan_inside_jit_is_never_a_valid_free_plan():
     st = PlanState.make(0.0, 0.0, 0.0, 8.0)
     obs = parse_scenario(_static_only_scene(), "static.json").obstacles  # shapes of item 1: no new compile
     nan_obs = Obstacles(obs.boxes.at[0, 0, 0].set(jnp.nan), obs.valid, obs.t, obs.static)
-    bad = [_plan_jit(st, ref, o, CFG, CostWeights())
+    # called as plan calls it (jit's cache tells explicit arguments from defaults)
+    bad = [_plan_jit(st, ref, o, CFG, CostWeights(), None, True)
            for ref, o in ((reference_line(jnp.asarray(_dup_xy())), obs), (REF, nan_obs))]
     for res in bad:
         assert int(res.mode) != FREE and np.asarray(res.collided).all()  # never a free plan
@@ -193,7 +194,7 @@ def test_item4_nan_inside_jit_is_never_a_valid_free_plan():
 
     for res in bad:
         assert not bool(res.ok) and int(res.mode) == INVALID and not np.asarray(res.finite).any()
-    good = _plan_jit(st, REF, obs, CFG, CostWeights())
+    good = _plan_jit(st, REF, obs, CFG, CostWeights(), None, True)
     assert bool(good.ok) and int(good.mode) == FREE and np.asarray(good.finite).all()
 
 
