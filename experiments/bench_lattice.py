@@ -30,9 +30,12 @@ trajectory arrays are not written out. The call that also returns every candidat
 
 Frenetix runs sequentially (``evaluate_all_current_functions``) and concurrently
 (``evaluate_all_current_functions_concurrent``, and the pycrcc checks in a thread pool
-of ``os.cpu_count()`` threads). Throughput in trajectories/s, best of ``--reps``; the
-ratios are from this one run; jaxplan's compile time is reported separately. The
-machine may be shared: the load average is recorded; compare ratios.
+of ``os.cpu_count()`` threads). Throughput in trajectories/s, best of ``--reps`` rounds, each
+round calling jaxplan (both forms), Frenetix sequential and Frenetix concurrent once in turn, so
+that every side is sampled over the same stretch of time (this machine's speed drifts by tens of
+per cent between minutes: timed one side after the other, two runs of the same code gave 14.0x
+and 6.9x at N = 1764); the ratios are from this one run; jaxplan's compile time is reported
+separately. The load average is recorded; compare ratios.
 
 Frenetix 0.4.0 needs Python < 3.13 and its own commonroad pins: run this with a venv that
 has ``frenetix==0.4.0``, ``commonroad-drivability-checker`` and jax (e.g.
@@ -54,7 +57,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxplan.cli_args import nonnegative_int, positive_int
-from jaxplan.eval.timing import best_time, write_figures
+from jaxplan.eval.timing import best_times_interleaved, write_figures
 from jaxplan.geometry import ReferenceLine
 from jaxplan.lattice import CostWeights, LatticeConfig, PlanState
 from jaxplan.lattice.plan import _plan_jit
@@ -103,8 +106,8 @@ def lattice_config(n, near_k=None):
                          near_k=NEAR_K if near_k is None else near_k)
 
 
-def jaxplan_rate(n, k, reps, near_k=None, keep_candidates=False):
-    """(trajectories/s, compile s, candidates, collided, feasible) of one plan call.
+def jaxplan_call(n, k, near_k=None, keep_candidates=False):
+    """``(call, compile s, candidates, collided, feasible)``: ``call()`` runs one plan and blocks.
 
     ``keep_candidates=False`` (the headline): the call returns the choice, the chosen trajectory and
     every candidate's features, costs and flags, as a planner uses it (``plan(...,
@@ -123,8 +126,7 @@ def jaxplan_rate(n, k, reps, near_k=None, keep_candidates=False):
     t0 = time.perf_counter()
     res = run()
     compile_s = time.perf_counter() - t0
-    return cfg.n_candidates / best_time(run, reps), compile_s, cfg.n_candidates, int(np.asarray(res.collided).sum()), \
-        int(np.asarray(res.feasible).sum())
+    return run, compile_s, cfg.n_candidates, int(np.asarray(res.collided).sum()), int(np.asarray(res.feasible).sum())
 
 
 def _pycrcc_obstacles(boxes):
@@ -155,9 +157,10 @@ def _pycrcc_check(cc, trajs):
     return out
 
 
-def frenetix_rates(n, k, reps, threads):
-    """(sequential traj/s, concurrent traj/s, trajectories, collided, share of the best sequential
-    call's time spent in the pycrcc check)."""
+def frenetix_calls(n, k, threads):
+    """``(sequential call, concurrent call, trajectories, collided, pycrcc share, close)``: each call
+    runs the whole Frenetix side once; ``pycrcc share()`` is the share of the best sequential call's
+    time spent in the pycrcc check; ``close()`` ends the thread pool."""
     import frenetix
     import frenetix.trajectory_functions as tf
     import frenetix.trajectory_functions.cost_functions as cf
@@ -214,19 +217,23 @@ def frenetix_rates(n, k, reps, threads):
         return flags
 
     flags = run(False)
+    run(True)
     seq_calls.clear()
-    seq = len(M) / best_time(lambda: run(False), reps)
-    con = len(M) / best_time(lambda: run(True), reps)
-    pool.shutdown()
-    total, check = min(seq_calls)  # the best sequential call: the share of its time spent in pycrcc
-    return seq, con, len(M), int(np.sum(flags)) if flags is not None else 0, check / total
+
+    def share():
+        total, check = min(seq_calls)  # the best sequential call: the share of its time spent in pycrcc
+        return check / total
+
+    return (lambda: run(False)), (lambda: run(True)), len(M), int(np.sum(flags)) if flags is not None else 0, share, \
+        pool.shutdown
 
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--sizes", type=positive_int, nargs="+", default=[1000, 5000])
     ap.add_argument("--obstacles", type=nonnegative_int, default=20)
-    ap.add_argument("--reps", type=positive_int, default=10, help="best of this many calls, on both sides")
+    ap.add_argument("--reps", type=positive_int, default=10,
+                    help="best of this many rounds; each round calls every side once, in turn")
     ap.add_argument("--near-k", type=nonnegative_int, default=NEAR_K,
                     help=f"jaxplan's collision broad phase: obstacles checked exactly per lateral group and step "
                          f"(default {NEAR_K}, the road planner's; 0: every obstacle)")
@@ -249,23 +256,29 @@ def main(argv=None):
               "(pip install frenetix==0.4.0 commonroad-drivability-checker)")
     for n in args.sizes:
         for k, tag in ((0, "kinematic"), (args.obstacles, f"obstacles{args.obstacles}")):
-            rate, comp, n_c, n_col, n_feas = jaxplan_rate(n, k, args.reps, args.near_k)
-            res[f"jaxplan_{tag}_N{n}_traj_per_s"] = rate
-            res[f"jaxplan_{tag}_N{n}_traj_per_s_all_trajectories_out"] = jaxplan_rate(n, k, args.reps, args.near_k,
-                                                                                      True)[0]
+            run, comp, n_c, n_col, n_feas = jaxplan_call(n, k, args.near_k)
+            calls = {"jaxplan": run, "jaxplan_all": jaxplan_call(n, k, args.near_k, True)[0]}
             res[f"jaxplan_{tag}_N{n}_compile_s"] = comp
             res[f"jaxplan_{tag}_N{n}_candidates"] = n_c
             res[f"jaxplan_{tag}_N{n}_feasible"] = n_feas
             if k:
                 res[f"jaxplan_{tag}_N{n}_collided"] = n_col
             if have_fx:
-                seq, con, n_f, fx_col, cc_share = frenetix_rates(n, k, args.reps, threads)
+                seq_call, con_call, n_f, fx_col, cc_share, close = frenetix_calls(n, k, threads)
+                calls.update(frenetix_seq=seq_call, frenetix_con=con_call)
+            best = best_times_interleaved(calls, args.reps)  # every side in each round
+            rate = n_c / best["jaxplan"]
+            res[f"jaxplan_{tag}_N{n}_traj_per_s"] = rate
+            res[f"jaxplan_{tag}_N{n}_traj_per_s_all_trajectories_out"] = n_c / best["jaxplan_all"]
+            if have_fx:
+                seq, con = n_f / best["frenetix_seq"], n_f / best["frenetix_con"]
+                close()
                 res[f"frenetix_{tag}_N{n}_sequential_traj_per_s"] = seq
                 res[f"frenetix_{tag}_N{n}_concurrent_traj_per_s"] = con
                 res[f"frenetix_{tag}_N{n}_trajectories"] = n_f
                 if k:
                     res[f"frenetix_{tag}_N{n}_collided_pycrcc"] = fx_col
-                    res[f"frenetix_{tag}_N{n}_pycrcc_share_of_time"] = cc_share
+                    res[f"frenetix_{tag}_N{n}_pycrcc_share_of_time"] = cc_share()
                 res[f"ratio_{tag}_N{n}_vs_sequential"] = rate / seq
                 res[f"ratio_{tag}_N{n}_vs_concurrent"] = rate / con
     res["load_average_1min_end"] = os.getloadavg()[0]

@@ -19,6 +19,19 @@ def best_time(fn: Callable[[], object], reps: int) -> float:
     return best
 
 
+def best_times_interleaved(fns: dict, reps: int) -> dict:
+    """Best wall time (s) of each of ``fns`` (name -> callable that blocks until done) over
+    ``reps`` rounds, each round calling every one once in turn: peers are sampled over the same
+    stretch of time, so a shared machine's drifting speed does not fall on one side only."""
+    best = {name: np.inf for name in fns}
+    for _ in range(max(1, reps)):
+        for name, fn in fns.items():
+            t = time.perf_counter()
+            fn()
+            best[name] = min(best[name], time.perf_counter() - t)
+    return best
+
+
 def timed(fn: Callable[[], object]) -> tuple[object, float]:
     """``(fn(), seconds)`` for one call, e.g. the first (compiling) call."""
     t = time.perf_counter()
