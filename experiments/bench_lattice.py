@@ -31,10 +31,12 @@ trajectory arrays are not written out. The call that also returns every candidat
 Frenetix runs sequentially (``evaluate_all_current_functions``) and concurrently
 (``evaluate_all_current_functions_concurrent``, and the pycrcc checks in a thread pool
 of ``os.cpu_count()`` threads). Throughput in trajectories/s, best of ``--reps`` rounds, each
-round calling jaxplan (both forms), Frenetix sequential and Frenetix concurrent once in turn, so
-that every side is sampled over the same stretch of time (this machine's speed drifts by tens of
-per cent between minutes: timed one side after the other, two runs of the same code gave 14.0x
-and 6.9x at N = 1764); the ratios are from this one run; jaxplan's compile time is reported
+round calling jaxplan (both forms), Frenetix sequential and Frenetix concurrent ``--inner``
+times each in turn, so that every side is sampled over the same stretch of time. (This
+machine's speed drifts by tens of per cent between minutes: timed one side after the other,
+two runs of the same code gave 14.0x and 6.9x at N = 1764. With one call per round, jaxplan's
+sub-millisecond call always ran just after Frenetix's and lost a third to a half of its
+speed.) The ratios are from this one run; jaxplan's compile time is reported
 separately. The load average is recorded; compare ratios.
 
 Frenetix 0.4.0 needs Python < 3.13 and its own commonroad pins: run this with a venv that
@@ -233,7 +235,9 @@ def main(argv=None):
     ap.add_argument("--sizes", type=positive_int, nargs="+", default=[1000, 5000])
     ap.add_argument("--obstacles", type=nonnegative_int, default=20)
     ap.add_argument("--reps", type=positive_int, default=10,
-                    help="best of this many rounds; each round calls every side once, in turn")
+                    help="best of this many rounds; each round calls every side --inner times, in turn")
+    ap.add_argument("--inner", type=positive_int, default=5,
+                    help="calls of each side per round (the first after the other side's work runs cold)")
     ap.add_argument("--near-k", type=nonnegative_int, default=NEAR_K,
                     help=f"jaxplan's collision broad phase: obstacles checked exactly per lateral group and step "
                          f"(default {NEAR_K}, the road planner's; 0: every obstacle)")
@@ -266,7 +270,7 @@ def main(argv=None):
             if have_fx:
                 seq_call, con_call, n_f, fx_col, cc_share, close = frenetix_calls(n, k, threads)
                 calls.update(frenetix_seq=seq_call, frenetix_con=con_call)
-            best = best_times_interleaved(calls, args.reps)  # every side in each round
+            best = best_times_interleaved(calls, args.reps, args.inner)  # every side in each round
             rate = n_c / best["jaxplan"]
             res[f"jaxplan_{tag}_N{n}_traj_per_s"] = rate
             res[f"jaxplan_{tag}_N{n}_traj_per_s_all_trajectories_out"] = n_c / best["jaxplan_all"]

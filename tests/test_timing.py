@@ -18,5 +18,9 @@ def test_interleaved_best_calls_every_side_once_per_round_and_keeps_the_best():
     assert order == ["a", "b"] * 3  # one call of each per round, in turn
     assert set(best) == {"a", "b"}
     assert 0.005 <= best["a"] < 0.02 and 0.02 <= best["b"] < 0.04  # the shortest call of each
+    order.clear()
+    waits = {"a": [0.01] * 4, "b": [0.01] * 4}
+    best_times_interleaved({"a": side("a"), "b": side("b")}, 2, inner=2)
+    assert order == ["a", "a", "b", "b"] * 2
     calls = []
     assert best_time(lambda: calls.append(1), 4) >= 0 and len(calls) == 4

@@ -19,16 +19,18 @@ def best_time(fn: Callable[[], object], reps: int) -> float:
     return best
 
 
-def best_times_interleaved(fns: dict, reps: int) -> dict:
+def best_times_interleaved(fns: dict, reps: int, inner: int = 1) -> dict:
     """Best wall time (s) of each of ``fns`` (name -> callable that blocks until done) over
-    ``reps`` rounds, each round calling every one once in turn: peers are sampled over the same
-    stretch of time, so a shared machine's drifting speed does not fall on one side only."""
+    ``reps`` rounds, each round calling every one ``inner`` times in turn: peers are sampled over
+    the same stretch of time, so a shared machine's drifting speed does not fall on one side only
+    (``inner > 1``: each side's later calls in a round run warm, after the other side's work)."""
     best = {name: np.inf for name in fns}
     for _ in range(max(1, reps)):
         for name, fn in fns.items():
-            t = time.perf_counter()
-            fn()
-            best[name] = min(best[name], time.perf_counter() - t)
+            for _ in range(max(1, inner)):
+                t = time.perf_counter()
+                fn()
+                best[name] = min(best[name], time.perf_counter() - t)
     return best
 
 
