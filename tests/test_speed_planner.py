@@ -77,8 +77,8 @@ def _blocked(batch, i):
 
 @functools.lru_cache(maxsize=None)
 def _plans():
-    """One jitted batched cycle (``speed_plan`` and the composed trajectory) at step 0 of the
-    drives' scenes and of the stopped-car scene made impassable."""
+    """One jitted cycle (``speed_plan`` and the composed trajectory) at step 0 of each of the
+    drives' scenes and of the stopped-car scene made impassable, stacked as a batch."""
     from jaxplan.speed.compose import compose_profile
 
     planner, batch, _, _ = _drives()
