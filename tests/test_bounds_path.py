@@ -162,12 +162,13 @@ def test_path_qp_against_osqp_1000_frames():
     l_ref = rng.uniform(-0.5, 0.5, (F, 1)) * np.ones((1, QP_T))
     init = np.stack([rng.uniform(-0.3, 0.3, F), rng.uniform(-0.2, 0.2, F), rng.uniform(-0.1, 0.1, F)], -1)
     cfg, dl, ddl, fn = _qp_jit()
-    r = jax.tree_util.tree_map(np.asarray, fn(*(jnp.asarray(x, jnp.float32) for x in (lo, up, l_ref, init))))
+    lo_j, up_j, l_ref_j, init_j = (jnp.asarray(x, jnp.float32) for x in (lo, up, l_ref, init))
+    r = jax.tree_util.tree_map(np.asarray, fn(lo_j, up_j, l_ref_j, init_j))
     status = np.full(F, "infeasible (crossing bounds)", dtype=object)
     err, gap, kkt_fail = [], [], []
     problems = jax.jit(jax.vmap(lambda lr, lo_, up_, i: state_problem(
         0.8, lr, lo_, up_, dl[0], dl[1], ddl[0], ddl[1], cfg.jerk_max, i, PathWeights())))
-    problems = [np.asarray(x, np.float64) for x in problems(*(jnp.asarray(x, jnp.float32) for x in (l_ref, lo, up, init)))]
+    problems = [np.asarray(x, np.float64) for x in problems(l_ref_j, lo_j, up_j, init_j)]
     for f in range(F):
         P, q, A, l_, u_ = (x[f] for x in problems)
         if r.ok[f]:  # OSQP's test, in float64, on the path and multipliers returned
