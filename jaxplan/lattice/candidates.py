@@ -466,6 +466,16 @@ def lattice_parts(state: PlanState, ref: ReferenceLine, config: LatticeConfig, t
                         targets.lane_centres.astype(dtype)[route_lane])
 
 
+def stations_finite(parts: LatticeParts):
+    """``(N,)`` (``generate``'s layout): the candidate's speed profile has finite points, headings
+    and curvatures on the reference line at every sample (its positions and heading are finite
+    where these and its lateral offsets are)."""
+    ok = jnp.ones(parts.profiles[0].shape[:1], bool)
+    for a in parts.ref_at:
+        ok &= jnp.all(jnp.isfinite(a).reshape(a.shape[0], -1), axis=-1)
+    return jnp.repeat(ok, parts.offsets.shape[0], total_repeat_length=ok.shape[0] * parts.offsets.shape[0])
+
+
 def _lateral_times(config: LatticeConfig) -> tuple:
     return config.lateral_times or (config.lateral_time,)
 
