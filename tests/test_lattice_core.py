@@ -183,18 +183,20 @@ def test_lattice_shape_order_and_start():
 def test_stations_finite_flags_every_candidate_of_a_bad_profile():
     """The plan's finiteness check leaves out x and y (finite where l and the profile's points on the
     line are): ``stations_finite`` must flag exactly the candidates of a profile with a bad point."""
-    from jaxplan.lattice.candidates import lattice_parts, stations_finite
+    from jaxplan.lattice.candidates import LatticeParts, stations_finite
 
-    parts = lattice_parts(PlanState.make(0.0, 0.0, 0.0, 12.0), straight_ref(), CFG)
-    G, P = parts.profiles[0].shape[0], parts.offsets.shape[0]
-    assert np.asarray(stations_finite(parts)).all()
-    for field in range(len(parts.ref_at)):  # a NaN in any of the line's quantities, at one profile's sample
-        bad = list(parts.ref_at)
-        bad[field] = bad[field].at[4, 7].set(jnp.nan)
-        ok = np.asarray(stations_finite(type(parts)(parts.profiles, tuple(bad), *(
-            getattr(parts, k) for k in ("S", "offsets", "lat_ok", "l0", "dl0", "ddl0", "s0", "t", "lon", "l_target")))))
-        assert ok.shape == (G * P,)
-        assert not ok[4 * P:5 * P].any() and ok[:4 * P].all() and ok[5 * P:].all()
+    G, P, T = 6, 4, 9
+    rows = lambda *shape: jnp.asarray(np.random.default_rng(0).normal(size=(G, T) + shape), jnp.float32)
+    ref_at = (rows(2), rows(), rows(), rows(), rows(), rows())  # pos, cos, sin, theta, kappa, dkappa
+    parts = lambda at: LatticeParts((rows(),) * 3, at, None, jnp.zeros((P,)), *([None] * 8))  # what it reads
+    assert np.asarray(stations_finite(parts(ref_at))).all()
+    for field in range(len(ref_at)):  # a NaN in any of the line's quantities, at one profile's sample
+        for bad_value in (jnp.nan, jnp.inf):
+            bad = list(ref_at)
+            bad[field] = bad[field].at[4, 7].set(bad_value)
+            ok = np.asarray(stations_finite(parts(tuple(bad))))
+            assert ok.shape == (G * P,)
+            assert not ok[4 * P:5 * P].any() and ok[:4 * P].all() and ok[5 * P:].all()
 
 
 # ---------------------------------------------------------------- collision risk
