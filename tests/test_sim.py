@@ -277,12 +277,21 @@ def test_lazy_policy_sees_a_conflict_on_the_installed_plan():
     assert not bool(plan_conflicts(cruise, 0, scene, 0, CAR, 0.2))  # standing still behind it
 
 
+IDM_STEPS = 120
+
+
+def _idm_records():
+    """A stopped car on a curve and a free road: the IDM drives of this module (one compiled rollout)."""
+    stop = _record(_road_dict(obstacles=[(110.0, 0.0, "static")], v0=12.0, kappa=1 / 120.0))
+    free = dataclasses_replace(_record(_road_dict(v0=15.0)), name="FREE")
+    return stop, free
+
+
 def test_drive_idm_stops_reaches_goals_writes_the_format_and_bicycle_tracks(tmp_path):
     from jaxplan.sim.drive import drive
 
-    stop = _record(_road_dict(obstacles=[(110.0, 0.0, "static")], v0=12.0, kappa=1 / 120.0))
-    free = dataclasses_replace(_record(_road_dict(v0=15.0)), name="FREE")
-    cfg = SimConfig(n_steps=120)
+    stop, free = _idm_records()
+    cfg = SimConfig(n_steps=IDM_STEPS)
     res = drive([stop, free], ["idm"], str(tmp_path), cfg, progress=False)
     r_stop, r_free = res.rows["idm"]
     assert not r_stop["overlap.collided"] and not r_stop["goal.reached"] and r_stop["end_time"] == pytest.approx(12.0)
@@ -352,35 +361,39 @@ def test_drive_cli_unknown_planner(tmp_path, capsys):
 
 SHARD_SCRIPT = """
 import sys, numpy as np, jax
-from jaxplan.scenarios import builtin
-from jaxplan.scenarios.loader import parse_scenario
-from jaxplan.scenarios.scene import build_scene, stack_scenes
+sys.path.insert(0, sys.argv[2])  # the tests' folder: the same scenes as the test process
+from test_sim import IDM_STEPS, _idm_records
+from jaxplan.baselines import IDMPlanner
+from jaxplan.scenarios.scene import stack_scenes
 from jaxplan.sim.drive import run_planner
 from jaxplan.sim.rollout import SimConfig
-from jaxplan.baselines import IDMPlanner
-rng = np.random.default_rng(3)
-scenes = [build_scene(parse_scenario(d, d["id"]))[0]
-          for d in (builtin.scene_dict(k, rng, 0) for k in ("slow_leader", "cut_in", "stopped_car"))]
-cfg = SimConfig(n_steps=40)
-log, m, _ = run_planner(IDMPlanner(), stack_scenes(scenes, min_steps=41), cfg)
+batch = stack_scenes([r.scene for r in _idm_records()], min_steps=IDM_STEPS + 1)
+log, m, _ = run_planner(IDMPlanner(), batch, SimConfig(n_steps=IDM_STEPS))
 np.savez(sys.argv[1], x=log.x, y=log.y, v=log.v, collided=m["overlap.collided"], devices=jax.device_count())
 """
 
 
 def test_sharded_drives_equal_single_device(tmp_path):
+    """The drives of ``_idm_records`` sharded over two (forced host) devices in a child process equal
+    this process's single-device drives (the rollout that ``drive`` compiles above: no new compile)."""
     import os
     import subprocess
     import sys
 
+    from jaxplan.sim.drive import run_planner
+
+    assert jax.device_count() == 1
+    batch = stack_scenes([r.scene for r in _idm_records()], min_steps=IDM_STEPS + 1)
+    log, m, _ = run_planner(IDMPlanner(), batch, SimConfig(n_steps=IDM_STEPS))
+    one = dict(x=log.x, y=log.y, v=log.v, collided=m["overlap.collided"])
     script = tmp_path / "shard.py"
     script.write_text(SHARD_SCRIPT)
-    out = {}
-    for n in (1, 3):
-        env = dict(os.environ, XLA_FLAGS=f"--xla_force_host_platform_device_count={n}", JAX_PLATFORMS="cpu")
-        r = subprocess.run([sys.executable, str(script), str(tmp_path / f"d{n}.npz")], env=env, capture_output=True,
-                           text=True, timeout=600)
-        assert r.returncode == 0, r.stderr[-2000:]
-        out[n] = np.load(tmp_path / f"d{n}.npz")
-    assert int(out[1]["devices"]) == 1 and int(out[3]["devices"]) == 3
+    env = dict(os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=2", JAX_PLATFORMS="cpu")
+    r = subprocess.run([sys.executable, str(script), str(tmp_path / "d2.npz"), os.path.dirname(__file__)], env=env,
+                       capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stderr[-2000:]
+    two = np.load(tmp_path / "d2.npz")
+    assert int(two["devices"]) == 2
+    assert np.asarray(one["collided"]).shape == (2,) and np.isfinite(one["x"]).any()
     for k in ("x", "y", "v", "collided"):
-        np.testing.assert_array_equal(out[1][k], out[3][k])
+        np.testing.assert_array_equal(one[k], two[k])
