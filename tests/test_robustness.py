@@ -62,6 +62,20 @@ def test_mutated_scenarios_fail_clearly_or_load(edits):
     _check(d)
 
 
+def test_every_field_set_beyond_float32_fails_clearly_or_loads():
+    """Every location set to a number that float64 holds and float32 does not (or nearly so): a clear
+    ``ScenarioError`` or a finite scene (the fuzzer above found obstacles[0].length = 1e300 loaded as
+    an inf box; found by chance, so checked here at every location)."""
+    for value in (1e300, -1e300, 1e39, 3e38):
+        for path in LOCATIONS:
+            d = copy.deepcopy(_minimal())
+            parent = d
+            for k in path[:-1]:
+                parent = parent[k]
+            parent[path[-1]] = value
+            _check(d)
+
+
 @given(st.one_of(st.none(), st.integers(), st.text(max_size=10), st.lists(st.integers(), max_size=3)))
 def test_wrong_top_level_values(d):
     _check(d)

@@ -126,6 +126,18 @@ def _number(obj, key, where, path) -> float:
     return float(v)
 
 
+# Bounds on fields that float32 arrays hold later (beyond them a scene would hold inf, or nonsense).
+MAX_DT = 10.0  # s: the time step
+MAX_ANGLE = 1e4  # rad: headings (unwrapped recordings turn a few times at most)
+
+
+def _angle(obj, key, where, path) -> float:
+    v = _number(obj, key, where, path)
+    if abs(v) > MAX_ANGLE:
+        raise ScenarioError(f"{path}: field {where}.{key} should be an angle within +-{MAX_ANGLE:g} rad, got {v!r}")
+    return v
+
+
 def _min_area_box(poly: np.ndarray) -> np.ndarray:
     """Smallest oriented box ``(5,)`` around a polygon (edge-aligned search)."""
     p = poly[:-1] if np.allclose(poly[0], poly[-1]) else poly
@@ -208,6 +220,9 @@ def _size(o, where, path) -> tuple[float, float]:
     length, width = _number(o, "length", where, path), _number(o, "width", where, path)
     if length <= 0 or width <= 0:
         raise ScenarioError(f"{path}: field {where}.length/width must be positive")
+    if max(length, width) > FLOAT32_MAX_COORD:
+        raise ScenarioError(f"{path}: field {where}.length/width must be at most {FLOAT32_MAX_COORD:g} m, "
+                            f"got {length!r} / {width!r}")
     return length, width
 
 
@@ -219,6 +234,8 @@ def _states(o, where, path) -> np.ndarray:
         st = None
     if st is None or st.ndim != 2 or st.shape[1] < 4 or not np.all(np.isfinite(st[:, :4])):
         raise ScenarioError(f"{path}: field {where}.states should be rows of finite [t, x, y, theta, ...]")
+    if np.abs(st[:, 3]).max() > MAX_ANGLE:
+        raise ScenarioError(f"{path}: field {where}.states has a heading (column 3) beyond +-{MAX_ANGLE:g} rad")
     return st
 
 
@@ -293,8 +310,8 @@ def parse_scenario(d: Any, path: str, horizon: float | None = None) -> Scenario:
     if not isinstance(d, dict):
         raise ScenarioError(f"{path}: top level should be an object")
     dt = _number(d, "dt", "scenario", path)
-    if dt <= 0:
-        raise ScenarioError(f"{path}: field scenario.dt must be positive")
+    if not 0 < dt <= MAX_DT:
+        raise ScenarioError(f"{path}: field scenario.dt must be positive and at most {MAX_DT:g} s, got {dt!r}")
     problems = _field(d, "planning_problems", "scenario", path, list)
     if not problems:
         raise ScenarioError(f"{path}: field scenario.planning_problems is empty")
@@ -306,7 +323,7 @@ def parse_scenario(d: Any, path: str, horizon: float | None = None) -> Scenario:
     v0 = _number(init, "velocity", w, path)
     if v0 < 0:
         raise ScenarioError(f"{path}: field {w}.velocity must be >= 0 (the car drives forward), got {v0:g}")
-    ego = EgoState(0.0, 0.0, _number(init, "orientation", w, path), v0, a0, 0.0)
+    ego = EgoState(0.0, 0.0, _angle(init, "orientation", w, path), v0, a0, 0.0)
 
     lanes = []
     for i, ln in enumerate(_field(d, "lanelets", "scenario", path, list)):
@@ -367,7 +384,7 @@ def parse_scenario(d: Any, path: str, horizon: float | None = None) -> Scenario:
         elif "center" in o:
             c = _points([o["center"]], f"{where}.center", path)[0] - origin
             length, width = _size(o, where, path)
-            b[:] = [c[0], c[1], length, width, _number(o, "orientation", where, path)]
+            b[:] = [c[0], c[1], length, width, _angle(o, "orientation", where, path)]
             ok[:] = True
         else:
             skipped.append(oid)
