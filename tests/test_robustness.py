@@ -30,6 +30,17 @@ def _paths(obj, prefix=()):
 LOCATIONS = _paths(_minimal())
 
 
+def _edit(d, path, value):
+    """Set the location ``path`` of the JSON object ``d`` to ``value`` (``"delete"``: remove it)."""
+    parent = d
+    for k in path[:-1]:
+        parent = parent[k]
+    if value == "delete":
+        del parent[path[-1]]
+    else:
+        parent[path[-1]] = value
+
+
 def _check(d):
     try:
         sc = parse_scenario(d, "fuzz.json")
@@ -49,14 +60,8 @@ def _check(d):
 def test_mutated_scenarios_fail_clearly_or_load(edits):
     d = copy.deepcopy(_minimal())
     for path, value in edits:
-        parent = d
         try:
-            for k in path[:-1]:
-                parent = parent[k]
-            if value == "delete":
-                del parent[path[-1]]
-            else:
-                parent[path[-1]] = value
+            _edit(d, path, value)
         except (KeyError, IndexError, TypeError):
             continue  # an earlier edit removed this location
     _check(d)
@@ -69,10 +74,7 @@ def test_every_field_set_beyond_float32_fails_clearly_or_loads():
     for value in (1e300, -1e300, 1e39, 3e38):
         for path in LOCATIONS:
             d = copy.deepcopy(_minimal())
-            parent = d
-            for k in path[:-1]:
-                parent = parent[k]
-            parent[path[-1]] = value
+            _edit(d, path, value)
             _check(d)
 
 
