@@ -473,7 +473,9 @@ def stations_finite(parts: LatticeParts):
     ok = jnp.ones(parts.profiles[0].shape[:1], bool)
     for a in parts.ref_at:
         ok &= jnp.all(jnp.isfinite(a).reshape(a.shape[0], -1), axis=-1)
-    return jnp.repeat(ok, parts.offsets.shape[0], total_repeat_length=ok.shape[0] * parts.offsets.shape[0])
+    # a broadcast, not ``jnp.repeat``: XLA fused the repeat's gather with these reductions and
+    # recomputed the profile's rows for every candidate (a quarter of a kinematic plan at N = 994)
+    return jnp.broadcast_to(ok[:, None], (ok.shape[0], parts.offsets.shape[0])).reshape(-1)
 
 
 def _lateral_times(config: LatticeConfig) -> tuple:
