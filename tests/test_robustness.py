@@ -27,7 +27,17 @@ def _paths(obj, prefix=()):
     return out
 
 
+def _with_goal_rectangle():
+    """The minimal scenario with a goal rectangle and intervals instead of a goal lanelet."""
+    d = _minimal()
+    d["planning_problems"][0]["goals"] = [{"rectangle": {"center": [80.0, 0.0], "length": 10.0, "width": 4.0,
+                                                         "orientation": 0.1},
+                                           "time": [0.0, 10.0], "velocity": [0.0, 20.0]}]
+    return d
+
+
 LOCATIONS = _paths(_minimal())
+GOAL_LOCATIONS = [p for p in _paths(_with_goal_rectangle()) if p[:3] == ("planning_problems", 0, "goals")]
 
 
 def _edit(d, path, value):
@@ -49,6 +59,8 @@ def _check(d):
         return
     assert isinstance(sc, Scenario)
     sc.obstacles.validate()
+    goal = json.dumps(sc.goal)  # every number of the goal is finite (json writes NaN / Infinity)
+    assert "NaN" not in goal and "Infinity" not in goal, goal
     assert np.isfinite([sc.ego.heading, sc.ego.v, sc.ego.a]).all()
     for ln in sc.lanes:
         assert np.isfinite(ln.center).all()
@@ -72,10 +84,26 @@ def test_every_field_set_beyond_float32_fails_clearly_or_loads():
     ``ScenarioError`` or a finite scene (the fuzzer above found obstacles[0].length = 1e300 loaded as
     an inf box; found by chance, so checked here at every location)."""
     for value in (1e300, -1e300, 1e39, 3e38):
-        for path in LOCATIONS:
-            d = copy.deepcopy(_minimal())
+        for base, locations in ((_minimal, LOCATIONS), (_with_goal_rectangle, GOAL_LOCATIONS)):
+            for path in locations:
+                d = base()
+                _edit(d, path, value)
+                _check(d)
+
+
+@settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(edits=st.lists(st.tuples(st.sampled_from(GOAL_LOCATIONS), st.one_of(st.just("delete"), JUNK)),
+                      min_size=1, max_size=3))
+def test_mutated_goal_rectangle_fails_clearly_or_loads(edits):
+    """The fuzzer's edits on a goal rectangle with time and speed intervals (its orientation was
+    read with ``float`` unchecked: a NaN loaded, a string raised ``ValueError``)."""
+    d = _with_goal_rectangle()
+    for path, value in edits:
+        try:
             _edit(d, path, value)
-            _check(d)
+        except (KeyError, IndexError, TypeError):
+            continue  # an earlier edit removed this location
+    _check(d)
 
 
 @given(st.one_of(st.none(), st.integers(), st.text(max_size=10), st.lists(st.integers(), max_size=3)))

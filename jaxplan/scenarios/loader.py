@@ -279,11 +279,10 @@ def _goal(problem: dict, origin: np.ndarray, path: str, t0: float = 0.0) -> dict
         r = _field(goal, "rectangle", where, path, dict)
         rw = f"{where}.rectangle"
         c = _points([_field(r, "center", rw, path)], f"{rw}.center", path)[0]
-        length, width = _number(r, "length", rw, path), _number(r, "width", rw, path)
-        if length <= 0 or width <= 0:
-            raise ScenarioError(f"{path}: field {rw}.length/width must be positive")
+        length, width = _size(r, rw, path)
+        orientation = _angle(r, "orientation", rw, path) if r.get("orientation") is not None else 0.0
         goal["rectangle"] = {"center": (c - origin).tolist(), "length": length, "width": width,
-                             "orientation": float(r.get("orientation", 0.0) or 0.0)}
+                             "orientation": orientation}
     if "polygon" in goal:
         goal["polygon"] = (_points(goal["polygon"], f"{where}.polygon", path, 3) - origin).tolist()
     if "circle" in goal:
