@@ -1,6 +1,5 @@
 """Property-based robustness of the scenario loader: any malformed input gets a clear
 ``ScenarioError`` or a correct, finite scenario; never another exception."""
-import copy
 import json
 
 import numpy as np
@@ -51,6 +50,16 @@ def _edit(d, path, value):
         parent[path[-1]] = value
 
 
+def _edited(d, edits):
+    """``d`` with the ``(path, value)`` edits applied in turn (a location an earlier edit removed is skipped)."""
+    for path, value in edits:
+        try:
+            _edit(d, path, value)
+        except (KeyError, IndexError, TypeError):
+            continue
+    return d
+
+
 def _check(d):
     try:
         sc = parse_scenario(d, "fuzz.json")
@@ -70,13 +79,7 @@ def _check(d):
 @given(edits=st.lists(st.tuples(st.sampled_from(LOCATIONS), st.one_of(st.just("delete"), JUNK)),
                       min_size=1, max_size=3))
 def test_mutated_scenarios_fail_clearly_or_load(edits):
-    d = copy.deepcopy(_minimal())
-    for path, value in edits:
-        try:
-            _edit(d, path, value)
-        except (KeyError, IndexError, TypeError):
-            continue  # an earlier edit removed this location
-    _check(d)
+    _check(_edited(_minimal(), edits))
 
 
 def test_every_field_set_beyond_float32_fails_clearly_or_loads():
@@ -97,13 +100,7 @@ def test_every_field_set_beyond_float32_fails_clearly_or_loads():
 def test_mutated_goal_rectangle_fails_clearly_or_loads(edits):
     """The fuzzer's edits on a goal rectangle with time and speed intervals (its orientation was
     read with ``float`` unchecked: a NaN loaded, a string raised ``ValueError``)."""
-    d = _with_goal_rectangle()
-    for path, value in edits:
-        try:
-            _edit(d, path, value)
-        except (KeyError, IndexError, TypeError):
-            continue  # an earlier edit removed this location
-    _check(d)
+    _check(_edited(_with_goal_rectangle(), edits))
 
 
 @given(st.one_of(st.none(), st.integers(), st.text(max_size=10), st.lists(st.integers(), max_size=3)))
