@@ -27,11 +27,11 @@ def _paths(obj, prefix=()):
 
 
 def _with_goal_rectangle():
-    """The minimal scenario with a goal rectangle and intervals instead of a goal lanelet."""
+    """The minimal scenario with a goal rectangle and time, speed and heading intervals instead of a goal lanelet."""
     d = _minimal()
     d["planning_problems"][0]["goals"] = [{"rectangle": {"center": [80.0, 0.0], "length": 10.0, "width": 4.0,
                                                          "orientation": 0.1},
-                                           "time": [0.0, 10.0], "velocity": [0.0, 20.0]}]
+                                           "time": [0.0, 10.0], "velocity": [0.0, 20.0], "orientation": [-0.2, 0.4]}]
     return d
 
 
@@ -70,6 +70,9 @@ def _check(d):
     sc.obstacles.validate()
     goal = json.dumps(sc.goal)  # every number of the goal is finite (json writes NaN / Infinity)
     assert "NaN" not in goal and "Infinity" not in goal, goal
+    # goal headings are compared in float32 (cos / sin of them): they must stay finite there
+    headings = [sc.goal["rectangle"]["orientation"]] if "rectangle" in sc.goal else []
+    assert np.isfinite(np.float32(headings + list(sc.goal.get("orientation", [])))).all(), sc.goal
     assert np.isfinite([sc.ego.heading, sc.ego.v, sc.ego.a]).all()
     for ln in sc.lanes:
         assert np.isfinite(ln.center).all()

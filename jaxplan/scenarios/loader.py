@@ -250,6 +250,9 @@ def _interval(goal: dict, key: str, where: str, path: str) -> list:
     if not ok or v[0] > v[1]:
         raise ScenarioError(f"{path}: field {where}.{key} should be an interval [low, high] of finite numbers, "
                             f"got {v!r}")
+    if key == "orientation" and max(abs(v[0]), abs(v[1])) > MAX_ANGLE:  # like every other angle
+        raise ScenarioError(f"{path}: field {where}.{key} should be an interval of angles within +-{MAX_ANGLE:g} rad, "
+                            f"got {v!r}")
     return [float(v[0]), float(v[1])]
 
 
