@@ -199,6 +199,27 @@ def test_stations_finite_flags_every_candidate_of_a_bad_profile():
             assert not ok[4 * P:5 * P].any() and ok[:4 * P].all() and ok[5 * P:].all()
 
 
+
+def test_generator_chunks_divide_the_profiles_and_do_not_change_the_candidates(monkeypatch):
+    """``candidates._chunk``: a divisor of the profile count below it (a loop, no remainder), the
+    largest that fits ``CHUNK_POINTS`` (brute force); the candidates are the same in any chunking."""
+    from jaxplan.lattice import candidates as C
+
+    for G in range(1, 41):
+        for points in (1, 100, 255, 2201, 5000):
+            c = C._chunk(G, points)
+            fits = [d for d in range(1, G) if G % d == 0 and d * points <= C.CHUNK_POINTS]
+            assert c == (max(fits) if fits else 1)
+            assert G % c == 0 and (c < G or G == 1)
+    st, ref = PlanState.make(0.5, -0.4, 0.03, 12.0, a=0.3, kappa=1 / 150), curved_ref()
+    G = CFG.n_profiles
+    assert 1 < C._chunk(G, CFG.n_lateral * T) < G  # this config is cut into several chunks
+    got = generate(st, ref, CFG)
+    monkeypatch.setattr(C, "_chunk", lambda G, points: 1)  # one profile per chunk
+    one = generate(st, ref, CFG)
+    for a, b in zip(jax.tree_util.tree_leaves(got), jax.tree_util.tree_leaves(one)):
+        np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-6, atol=1e-6)
+
 # ---------------------------------------------------------------- collision risk
 
 
