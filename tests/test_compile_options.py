@@ -2,6 +2,7 @@
 import jax
 import jax.numpy as jnp
 import numpy as np
+import pytest
 
 from jaxplan.compile_options import NO_YNN, _supported, jit
 
@@ -39,3 +40,19 @@ def test_inside_another_jit_and_grad():
     assert float(outer(x)) == float(_f(x, 2).sum())
     g = jax.grad(lambda y: fast(y, n=1).sum())(x)
     np.testing.assert_allclose(np.asarray(g), np.asarray(jax.grad(lambda y: _f(y, 1).sum())(x)))
+
+
+def test_vmap_and_the_function_s_own_errors_pass_through():
+    """Under a top-level vmap the options stay; a ValueError of the function itself reaches the
+    caller unchanged, at the top level and inside another jit (the fallback is for the refusal only)."""
+    fast = jit(_f, options=NO_YNN, static_argnames=("n",))
+    x = jnp.asarray(np.random.default_rng(1).normal(size=(4, 5, 31)), jnp.float32)
+    np.testing.assert_allclose(np.asarray(jax.vmap(lambda y: fast(y, n=3))(x)), np.asarray(_f(x, 3)), rtol=1e-6)
+
+    def bad(y):
+        raise ValueError("bad input y")
+
+    b = jit(bad, options=NO_YNN)
+    for call in (b, jax.jit(b)):
+        with pytest.raises(ValueError, match="bad input y"):
+            call(x)
