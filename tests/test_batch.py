@@ -42,8 +42,8 @@ SCRIPT = textwrap.dedent("""
 def _run(tmp_path, out, devices, fail_at=None):
     script = tmp_path / "job.py"
     script.write_text(SCRIPT)
-    env = dict(os.environ, XLA_FLAGS=f"--xla_force_host_platform_device_count={devices}",
-               JAX_PLATFORMS="cpu")
+    env = dict(os.environ, JAX_PLATFORMS="cpu",  # this process's XLA flags too (conftest's)
+               XLA_FLAGS=os.environ.get("XLA_FLAGS", "") + f" --xla_force_host_platform_device_count={devices}")
     if fail_at is not None:
         env["FAIL_AT"] = str(fail_at)
     return subprocess.run([sys.executable, str(script), str(out)], env=env, capture_output=True, text=True,
