@@ -4,8 +4,8 @@ import os
 # optimisations off the speed planner's cycle compiles in 22.5 s instead of 35.5 s (and runs in 155
 # instead of 82 ms), and the whole suite took 15 min instead of 20 on the 2-core CI machine. The same
 # programs, compiled with less optimisation (the last float digits may differ: child processes get these
-# flags too); tests that run one kernel for long compile it with the optimisations on (``compiler_options``).
-# Benchmarks and users keep XLA's default.
+# flags too, ``cpu_devices_env``); tests that run one kernel for long compile it with the optimisations on
+# (``jaxplan.compile_options.jit``'s ``options``). Benchmarks and users keep XLA's default.
 os.environ["XLA_FLAGS"] = "--xla_backend_optimization_level=0 " + os.environ.get("XLA_FLAGS", "")
 
 import numpy as np  # noqa: E402
@@ -37,6 +37,13 @@ SLOW_FIRST = (
 def pytest_collection_modifyitems(session, config, items):
     rank = {name: i for i, name in enumerate(SLOW_FIRST)}
     items.sort(key=lambda it: rank.get(os.path.basename(str(it.path)), len(rank)))  # stable: files stay whole
+
+
+def cpu_devices_env(devices: int) -> dict:
+    """The environment of a child process with ``devices`` host CPU devices and this process's XLA
+    flags (so that it compiles the same arithmetic)."""
+    flags = os.environ.get("XLA_FLAGS", "") + f" --xla_force_host_platform_device_count={devices}"
+    return dict(os.environ, JAX_PLATFORMS="cpu", XLA_FLAGS=flags)
 
 
 def shared_data_or_skip(sub="commonroad2018a"):

@@ -5,6 +5,7 @@ import sys
 import textwrap
 
 import numpy as np
+from conftest import cpu_devices_env
 
 SCRIPT = textwrap.dedent("""
     import os, sys, json
@@ -42,8 +43,7 @@ SCRIPT = textwrap.dedent("""
 def _run(tmp_path, out, devices, fail_at=None):
     script = tmp_path / "job.py"
     script.write_text(SCRIPT)
-    env = dict(os.environ, JAX_PLATFORMS="cpu",  # this process's XLA flags too (conftest's)
-               XLA_FLAGS=os.environ.get("XLA_FLAGS", "") + f" --xla_force_host_platform_device_count={devices}")
+    env = cpu_devices_env(devices)
     if fail_at is not None:
         env["FAIL_AT"] = str(fail_at)
     return subprocess.run([sys.executable, str(script), str(out)], env=env, capture_output=True, text=True,

@@ -381,6 +381,7 @@ def test_sharded_drives_equal_single_device(tmp_path):
     import subprocess
     import sys
 
+    from conftest import cpu_devices_env
     from jaxplan.sim.drive import run_planner
 
     n = jax.device_count() + 1
@@ -389,8 +390,7 @@ def test_sharded_drives_equal_single_device(tmp_path):
     here = dict(x=log.x, y=log.y, v=log.v, collided=m["overlap.collided"])
     script = tmp_path / "shard.py"
     script.write_text(SHARD_SCRIPT)
-    env = dict(os.environ, JAX_PLATFORMS="cpu",  # this process's XLA flags too (the same compiled arithmetic)
-               XLA_FLAGS=os.environ.get("XLA_FLAGS", "") + f" --xla_force_host_platform_device_count={n}")
+    env = cpu_devices_env(n)
     r = subprocess.run([sys.executable, str(script), str(tmp_path / "d.npz"), os.path.dirname(__file__)], env=env,
                        capture_output=True, text=True, timeout=600)
     assert r.returncode == 0, r.stderr[-2000:]
