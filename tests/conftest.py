@@ -1,4 +1,6 @@
 import os
+import shutil
+import tempfile
 
 # The suite is bound by XLA compiling the planners, not by running them. With LLVM's backend
 # optimisations off the speed planner's cycle compiles in 22.5 s instead of 35.5 s (and runs in 155
@@ -7,6 +9,16 @@ import os
 # flags too, ``cpu_devices_env``); tests that run one kernel for long compile it with the optimisations on
 # (``jaxplan.compile_options.jit``'s ``options``). Benchmarks and users keep XLA's default.
 os.environ["XLA_FLAGS"] = "--xla_backend_optimization_level=0 " + os.environ.get("XLA_FLAGS", "")
+
+# One persistent XLA cache for the run, shared by both xdist workers and the child processes they start
+# (the CLI, the sharded drives): a program compiled by one is loaded by the others. The first process
+# of the run (xdist's controller) makes a fresh temporary directory, its workers and their children
+# inherit it, and the controller removes it at the end: nothing carries over between runs. Programs
+# that compiled in under a second are not stored. A JAX_COMPILATION_CACHE_DIR set by the user is kept.
+_OWN_XLA_CACHE = None
+if "JAX_COMPILATION_CACHE_DIR" not in os.environ:
+    _OWN_XLA_CACHE = os.environ["JAX_COMPILATION_CACHE_DIR"] = tempfile.mkdtemp(prefix="jaxplan-tests-xla-")
+os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "1")
 
 import numpy as np  # noqa: E402
 import pytest
@@ -37,6 +49,11 @@ SLOW_FIRST = (
 def pytest_collection_modifyitems(session, config, items):
     rank = {name: i for i, name in enumerate(SLOW_FIRST)}
     items.sort(key=lambda it: rank.get(os.path.basename(str(it.path)), len(rank)))  # stable: files stay whole
+
+
+def pytest_sessionfinish(session, exitstatus):
+    if _OWN_XLA_CACHE:  # the process that made it: the controller, after its workers, or a run without xdist
+        shutil.rmtree(_OWN_XLA_CACHE, ignore_errors=True)
 
 
 def cpu_devices_env(devices: int) -> dict:
