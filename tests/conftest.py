@@ -37,12 +37,13 @@ def rng():
 # first. `make test` runs `--dist loadfile --no-loadscope-reorder`: the two workers take files in
 # this order, so the long ones start first and the workers finish close together (xdist's own
 # order, by the number of tests, started the longest file last). Files not named keep their order.
-# seconds per file in a full run, backend optimisations off: 197 187 129 116 107 104 97 95 90 73 70 51 48 39 38 37 33 29
+# seconds per file in a full run with ../shared, backend optimisations off (2026-12-04):
+# 126 118 83 79 66 59 59 57 42 42 36 28 24 23 18 18 17 16 15
 SLOW_FIRST = (
-    "test_bounds_path.py", "test_speed_planner.py", "test_sim.py", "test_speed_dp.py", "test_replan_sim.py",
-    "test_lattice_road.py", "test_lattice_core.py", "test_notebooks.py", "test_bounds_core.py", "test_parking_core.py",
-    "test_inputs.py", "test_geometry_core.py", "test_referee.py", "test_speed_boundaries.py", "test_tuning_lattice.py",
-    "test_parking_planner.py", "test_cli.py", "test_robustness_planners.py",
+    "test_bounds_path.py", "test_speed_planner.py", "test_sim.py", "test_speed_dp.py", "test_lattice_road.py",
+    "test_lattice_core.py", "test_notebooks.py", "test_bounds_core.py", "test_parking_core.py", "test_inputs.py",
+    "test_replan_sim.py", "test_referee.py", "test_geometry_core.py", "test_speed_boundaries.py", "test_cli.py",
+    "test_parking_planner.py", "test_robustness_planners.py", "test_replan_planner.py", "test_tuning_lattice.py",
 )
 
 
