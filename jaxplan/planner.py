@@ -10,6 +10,9 @@ A planner is a frozen, hashable config object (static under ``jax.jit``) with
   ``step * scene.dt``), so the planner reads obstacle predictions from that step on
   (``scene.obstacles.window(step, horizon_steps)``) and the goal's time window relative to now.
 
+A planner may also name ``compiler_options``: XLA options (a dict, ``jaxplan.compile_options``)
+that its kernels run faster with; the simulator compiles a drive with them (``planner_compiler_options``).
+
 ``PlanOutput.trajectory`` holds ``horizon_steps`` points at ``t = 0, dt, ...`` from now,
 starting at the ego state; ``ok`` is False when the planner knows its plan is not good
 (no feasible candidate, NaN); ``info`` is a small pytree of per-plan figures.
@@ -81,6 +84,12 @@ class Planner(Protocol):
     def horizon_steps(self) -> int: ...
 
     def plan(self, scene, ego: EgoState, step) -> PlanOutput: ...
+
+
+def planner_compiler_options(planner) -> dict:
+    """The XLA options a drive with ``planner`` is compiled with: its ``compiler_options``
+    (none when it names none)."""
+    return dict(getattr(planner, "compiler_options", None) or {})
 
 
 # name -> "module:attribute" of a factory (a class, or a function) taking keyword options

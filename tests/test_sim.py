@@ -3,6 +3,7 @@ import dataclasses
 import functools
 import json
 import math
+from typing import ClassVar
 
 import jax
 import jax.numpy as jnp
@@ -12,6 +13,7 @@ from shapely.geometry import Point, Polygon
 from shapely.ops import unary_union
 
 from jaxplan.baselines import BrakePlanner, IDMPlanner
+from jaxplan.compile_options import NO_YNN, _supported
 from jaxplan.planner import EgoState
 from jaxplan.scenarios import builtin
 from jaxplan.scenarios.loader import parse_scenario
@@ -262,6 +264,34 @@ def test_brake_rollout_is_analytic_and_batched_equals_single():
     np.testing.assert_allclose(np.asarray(lazy.x[0]), log.x[2], atol=1e-3)
     np.testing.assert_allclose(np.asarray(lazy.v[0]), log.v[2], atol=1e-4)
     assert int(one.replanned[0].sum()) == 40 and 1 <= int(lazy.replanned[0].sum()) <= 8
+
+
+@dataclasses.dataclass(frozen=True)
+class _BrakeWithOptions(BrakePlanner):
+    compiler_options: ClassVar[dict] = NO_YNN
+
+
+def test_the_drive_is_compiled_with_the_planners_xla_options():
+    """A planner's ``compiler_options`` reach the program its drive runs (and the one that times its
+    plan); a planner without them drives in the plain program. The options change no result."""
+    from jaxplan.sim.drive import _plan, time_plans
+    from jaxplan.sim.rollout import compiled_with
+
+    recs, _ = _brake_case()
+    cfg = SimConfig(n_steps=120, stop_at_goal=False)
+    batch = stack_scenes([r.scene for r in recs], min_steps=cfg.n_steps + 1)
+    one = jax.tree_util.tree_map(lambda a: a[2:3], batch)
+    key = tuple(sorted(NO_YNN.items()))
+    with_options = rollout(_BrakeWithOptions(decel=5.0), one, cfg)
+    program = compiled_with(key)
+    assert program._cache_size() == 1
+    assert program.applied == (NO_YNN if _supported(key) else {})
+    plain = rollout(BrakePlanner(decel=5.0), one, cfg)
+    assert compiled_with(()).applied == {} and compiled_with(())._cache_size() >= 1
+    for f in ("x", "y", "v"):
+        np.testing.assert_allclose(np.asarray(getattr(with_options, f)), np.asarray(getattr(plain, f)), atol=1e-5)
+    assert time_plans(_BrakeWithOptions(decel=5.0), one, 1)["plan_ms_median"] > 0
+    assert compiled_with(key, _plan, ("planner",))._cache_size() == 1
 
 
 def test_lazy_policy_sees_a_conflict_on_the_installed_plan():

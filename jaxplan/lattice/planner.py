@@ -22,10 +22,12 @@ from which the car slows gently (``CURVE_DECEL``) to the route's curvature limit
 from __future__ import annotations
 
 import dataclasses
+from typing import ClassVar
 
 import jax.numpy as jnp
 
 from jaxplan.baselines.brake import SIM_VEHICLE
+from jaxplan.compile_options import NO_YNN
 from jaxplan.lattice.candidates import LatticeConfig, PlanState
 from jaxplan.lattice.cost import INVALID, RISK, CostWeights
 from jaxplan.lattice.plan import LatticeResult, _plan
@@ -81,6 +83,9 @@ class LatticePlanner:
     horizon: float = 5.0
     weights: tuple | None = None
     options: tuple = ()
+    # the simulator compiles a drive with these (not a field: the same for every lattice planner);
+    # ``jaxplan.compile_options`` says what they gain in the plan, ``jaxplan.sim.rollout`` in a drive
+    compiler_options: ClassVar[dict] = NO_YNN
 
     @property
     def config(self) -> LatticeConfig:

@@ -21,7 +21,6 @@ With one planner the per-scenario folders are ``OUT/<scenario>/``; with several,
 from __future__ import annotations
 
 import dataclasses
-import functools
 import json
 import math
 import os
@@ -32,9 +31,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxplan.planner import make_planner
+from jaxplan.planner import make_planner, planner_compiler_options
 from jaxplan.sim.metrics.registry import evaluate_batch
-from jaxplan.sim.rollout import SimConfig, rollout
+from jaxplan.sim.rollout import SimConfig, compiled_with, rollout
 
 DEFAULT_MAX_STEPS = 200  # 20 s at dt 0.1
 
@@ -105,9 +104,14 @@ def time_plans(planner, batch, n: int) -> dict:
     return {"plan_ms_median": float(np.median(times)), "plan_ms_p90": float(np.percentile(times, 90))}
 
 
-@functools.partial(jax.jit, static_argnames=("planner",))
-def _plan_once(planner, scene, ego):
+def _plan(planner, scene, ego):
     return planner.plan(scene, ego, 0)
+
+
+def _plan_once(planner, scene, ego):
+    """One planning call at step 0, compiled as ``rollout`` compiles the drive (the planner's options)."""
+    options = tuple(sorted(planner_compiler_options(planner).items()))
+    return compiled_with(options, _plan, ("planner",))(planner, scene, ego)
 
 
 def run_planner(planner, batch, config: SimConfig, chunk: int | None = None) -> tuple[dict, dict, dict]:

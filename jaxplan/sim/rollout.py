@@ -10,7 +10,7 @@ not followed: the car brakes at ``a_fallback`` along its heading instead (counte
 A drive ends at the first step where the goal is reached (``stop_at_goal``), after the
 goal's time interval ends, or at ``n_steps``; its log is valid up to that step. One
 ``lax.scan`` over planning cycles (each plans once and tracks ``replan_every`` steps),
-``jax.vmap`` over scenes, jitted with the planner as a static argument.
+``jax.vmap`` over scenes, jitted with the planner as a static argument (and with its XLA options).
 """
 from __future__ import annotations
 
@@ -22,7 +22,8 @@ import jax
 import jax.numpy as jnp
 from jax import lax
 
-from jaxplan.planner import EgoState, Planner
+from jaxplan.compile_options import jit
+from jaxplan.planner import EgoState, Planner, planner_compiler_options
 from jaxplan.sim.metrics.goal import goal_reached
 from jaxplan.sim.tracking import TRACKERS
 from jaxplan.types import _pytree
@@ -218,9 +219,21 @@ def drive_one(planner: Planner, scene, config: SimConfig) -> DriveLog:
                     fallback, replanned, info)
 
 
-@functools.partial(jax.jit, static_argnames=("planner", "config"))
+def _rollout(planner: Planner, scenes, config: SimConfig) -> DriveLog:
+    return jax.vmap(lambda s: drive_one(planner, s, config))(scenes)
+
+
+@functools.cache
+def compiled_with(options: tuple, fun=_rollout, static=("planner", "config")):
+    """``fun`` (arguments ``static`` static) jitted with the XLA ``options`` (sorted ``(name,
+    value)`` pairs; ``jaxplan.compile_options.jit``): one program cache per options."""
+    return jit(fun, options=dict(options), static_argnames=static)
+
+
 def rollout(planner: Planner, scenes, config: SimConfig = SimConfig()) -> DriveLog:
-    """Drive every scene of a batch (leading axis) with ``planner``.
+    """Drive every scene of a batch (leading axis) with ``planner``; jitted (``planner`` and
+    ``config`` static) with the planner's XLA options (``planner_compiler_options``): the lattice
+    planner's drives run 1.15-1.47x faster with its options (``jaxplan.compile_options``).
 
     Args:
         planner: a ``Planner`` (hashable; static).
@@ -230,4 +243,5 @@ def rollout(planner: Planner, scenes, config: SimConfig = SimConfig()) -> DriveL
     Returns:
         ``DriveLog`` with a leading scene axis.
     """
-    return jax.vmap(lambda s: drive_one(planner, s, config))(scenes)
+    options = tuple(sorted(planner_compiler_options(planner).items()))
+    return compiled_with(options)(planner, scenes, config=config)
