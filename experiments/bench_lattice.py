@@ -62,7 +62,7 @@ from jaxplan.cli_args import nonnegative_int, positive_int
 from jaxplan.eval.timing import best_times_interleaved, write_figures
 from jaxplan.geometry import ReferenceLine
 from jaxplan.lattice import CostWeights, LatticeConfig, PlanState
-from jaxplan.lattice.plan import _plan_jit
+from jaxplan.lattice.plan import _plan_batch_jit, _plan_jit
 from jaxplan.types import Obstacles, VehicleParams
 
 HORIZON, DT, V0 = 3.0, 0.1, 15.0
@@ -108,8 +108,15 @@ def lattice_config(n, near_k=None):
                          near_k=NEAR_K if near_k is None else near_k)
 
 
-def jaxplan_call(n, k, near_k=None, keep_candidates=False):
-    """``(call, compile s, candidates, collided, feasible)``: ``call()`` runs one plan and blocks.
+def start_speeds(batch):
+    """The start speeds of a batch of ``batch`` plans (m/s): ``V0`` alone, or spread over ``V0 +- 2``."""
+    return np.array([V0]) if batch == 1 else V0 + np.linspace(-2.0, 2.0, batch)
+
+
+def jaxplan_call(n, k, near_k=None, keep_candidates=False, batch=1):
+    """``(call, compile s, candidates, collided, feasible)``: ``call()`` runs one plan and blocks
+    (``batch > 1``: one ``plan_batch`` call of ``batch`` plans from ``start_speeds(batch)``, on the
+    same road and obstacles; candidates, collided and feasible are then summed over the batch).
 
     ``keep_candidates=False`` (the headline): the call returns the choice, the chosen trajectory and
     every candidate's features, costs and flags, as a planner uses it (``plan(...,
@@ -119,16 +126,24 @@ def jaxplan_call(n, k, near_k=None, keep_candidates=False):
     cfg = lattice_config(n, near_k)
     ref_xy = reference()
     ref = ReferenceLine.from_polyline(ref_xy)
-    st = PlanState.make(0.0, 0.0, 0.0, V0, v_set=V0)
     t = np.arange(cfg.n_steps) * DT
     obs = Obstacles(jnp.asarray(_obstacles(k, t, ref_xy), jnp.float32), jnp.ones((k, len(t)), bool),
                     jnp.asarray(t, jnp.float32)) if k else Obstacles.empty(jnp.asarray(t, jnp.float32))
     w = jax.tree_util.tree_map(jnp.asarray, CostWeights())  # on the device once, as a caller's weights are
-    run = lambda: jax.block_until_ready(_plan_jit(st, ref, obs, cfg, w, None, keep_candidates))
+    if batch == 1:
+        st = PlanState.make(0.0, 0.0, 0.0, V0, v_set=V0)
+        run = lambda: jax.block_until_ready(_plan_jit(st, ref, obs, cfg, w, None, keep_candidates))
+    else:
+        v = start_speeds(batch)
+        st = PlanState.make(0 * v, 0 * v, 0 * v, v, a=0 * v, kappa=0 * v, v_set=0 * v + V0, d_crossroad=0 * v + np.inf)
+        many = lambda tree: jax.tree_util.tree_map(lambda a: jnp.broadcast_to(a, (batch,) + a.shape), tree)
+        ref, obs = many(ref), many(obs)
+        run = lambda: jax.block_until_ready(_plan_batch_jit(st, ref, obs, cfg, w, None, keep_candidates))
     t0 = time.perf_counter()
     res = run()
     compile_s = time.perf_counter() - t0
-    return run, compile_s, cfg.n_candidates, int(np.asarray(res.collided).sum()), int(np.asarray(res.feasible).sum())
+    return (run, compile_s, cfg.n_candidates * batch, int(np.asarray(res.collided).sum()),
+            int(np.asarray(res.feasible).sum()))
 
 
 def _pycrcc_obstacles(boxes):
@@ -159,10 +174,12 @@ def _pycrcc_check(cc, trajs):
     return out
 
 
-def frenetix_calls(n, k, threads):
+def frenetix_calls(n, k, threads, batch=1):
     """``(sequential call, concurrent call, trajectories, collided, pycrcc share, close)``: each call
-    runs the whole Frenetix side once; ``pycrcc share()`` is the share of the best sequential call's
-    time spent in the pycrcc check; ``close()`` ends the thread pool."""
+    runs the whole Frenetix side once (``batch > 1``: the ``batch`` plans of ``start_speeds(batch)``
+    one after the other; trajectories and collided summed over them); ``pycrcc share()`` is the
+    share of the best sequential call's time spent in the pycrcc check; ``close()`` ends the thread
+    pool."""
     import frenetix
     import frenetix.trajectory_functions as tf
     import frenetix.trajectory_functions.cost_functions as cf
@@ -189,13 +206,14 @@ def frenetix_calls(n, k, threads):
                                                                np.ascontiguousarray(boxes[:, 0, :2], float)))
         cc = _pycrcc_obstacles(boxes)
     V, L = _grid(n)
-    M = np.array(list(itertools.product([0.0], [HORIZON], [20.0], [V0], [0.0], V0 + np.linspace(-10, 10, V), [0.0],
-                                        [0.0], [0.0], [0.0], np.linspace(-3, 3, L), [0.0], [0.0])))
+    Ms = [np.array(list(itertools.product([0.0], [HORIZON], [20.0], [v0], [0.0], V0 + np.linspace(-10, 10, V), [0.0],
+                                          [0.0], [0.0], [0.0], np.linspace(-3, 3, L), [0.0], [0.0])))
+          for v0 in start_speeds(batch)]
     pool = concurrent.futures.ThreadPoolExecutor(threads)
     seq_calls = []  # (whole call, collision check) seconds of each sequential call
 
-    def run(concurrent_eval):
-        t_call = time.perf_counter()
+    def plan(M, concurrent_eval):
+        """One plan: ``(collision flags or None, seconds in pycrcc)``."""
         h.reset_Trajectories()
         h.generate_trajectories(M, False)
         if concurrent_eval:
@@ -203,9 +221,7 @@ def frenetix_calls(n, k, threads):
         else:
             h.evaluate_all_current_functions(True)
         if not k:
-            if not concurrent_eval:
-                seq_calls.append((time.perf_counter() - t_call, 0.0))
-            return None
+            return None, 0.0
         trajs = list(h.get_sorted_trajectories())
         t0 = time.perf_counter()
         if concurrent_eval:
@@ -213,10 +229,14 @@ def frenetix_calls(n, k, threads):
             flags = sum(pool.map(lambda p: _pycrcc_check(cc, p), parts), [])
         else:
             flags = _pycrcc_check(cc, trajs)
-        t1 = time.perf_counter()
+        return flags, time.perf_counter() - t0
+
+    def run(concurrent_eval):
+        t_call = time.perf_counter()
+        out = [plan(M, concurrent_eval) for M in Ms]
         if not concurrent_eval:
-            seq_calls.append((t1 - t_call, t1 - t0))
-        return flags
+            seq_calls.append((time.perf_counter() - t_call, sum(c for _, c in out)))
+        return None if not k else sum((f for f, _ in out), [])
 
     flags = run(False)
     run(True)
@@ -226,7 +246,7 @@ def frenetix_calls(n, k, threads):
         total, check = min(seq_calls)  # the best sequential call: the share of its time spent in pycrcc
         return check / total
 
-    return (lambda: run(False)), (lambda: run(True)), len(M), int(np.sum(flags)) if flags is not None else 0, share, \
+    return (lambda: run(False)), (lambda: run(True)), sum(map(len, Ms)), int(np.sum(flags)) if flags is not None else 0, share, \
         pool.shutdown
 
 
@@ -241,6 +261,9 @@ def main(argv=None):
     ap.add_argument("--near-k", type=nonnegative_int, default=NEAR_K,
                     help=f"jaxplan's collision broad phase: obstacles checked exactly per lateral group and step "
                          f"(default {NEAR_K}, the road planner's; 0: every obstacle)")
+    ap.add_argument("--batch", type=positive_int, default=1,
+                    help="also time batches of this many plans (start speeds spread over V0 +- 2 m/s): one "
+                         "plan_batch call against Frenetix planning them one after the other (rows *_batchB)")
     ap.add_argument("--out", default="results/bench_lattice.json")
     args = ap.parse_args(argv)
     threads = os.cpu_count() or 1
@@ -258,22 +281,26 @@ def main(argv=None):
         have_fx = False
         print("frenetix / commonroad-drivability-checker not installed: Frenetix skipped "
               "(pip install frenetix==0.4.0 commonroad-drivability-checker)")
-    for n in args.sizes:
-        for k, tag in ((0, "kinematic"), (args.obstacles, f"obstacles{args.obstacles}")):
-            run, comp, n_c, n_col, n_feas = jaxplan_call(n, k, args.near_k)
-            calls = {"jaxplan": run, "jaxplan_all": jaxplan_call(n, k, args.near_k, True)[0]}
+    for n, batch in itertools.product(args.sizes, sorted({1, args.batch})):
+        for k, kind in ((0, "kinematic"), (args.obstacles, f"obstacles{args.obstacles}")):
+            tag = kind if batch == 1 else f"{kind}_batch{batch}"
+            run, comp, n_c, n_col, n_feas = jaxplan_call(n, k, args.near_k, batch=batch)
+            calls = {"jaxplan": run}
+            if batch == 1:
+                calls["jaxplan_all"] = jaxplan_call(n, k, args.near_k, True)[0]
             res[f"jaxplan_{tag}_N{n}_compile_s"] = comp
             res[f"jaxplan_{tag}_N{n}_candidates"] = n_c
             res[f"jaxplan_{tag}_N{n}_feasible"] = n_feas
             if k:
                 res[f"jaxplan_{tag}_N{n}_collided"] = n_col
             if have_fx:
-                seq_call, con_call, n_f, fx_col, cc_share, close = frenetix_calls(n, k, threads)
+                seq_call, con_call, n_f, fx_col, cc_share, close = frenetix_calls(n, k, threads, batch)
                 calls.update(frenetix_seq=seq_call, frenetix_con=con_call)
             best = best_times_interleaved(calls, args.reps, args.inner)  # every side in each round
             rate = n_c / best["jaxplan"]
             res[f"jaxplan_{tag}_N{n}_traj_per_s"] = rate
-            res[f"jaxplan_{tag}_N{n}_traj_per_s_all_trajectories_out"] = n_c / best["jaxplan_all"]
+            if batch == 1:
+                res[f"jaxplan_{tag}_N{n}_traj_per_s_all_trajectories_out"] = n_c / best["jaxplan_all"]
             if have_fx:
                 seq, con = n_f / best["frenetix_seq"], n_f / best["frenetix_con"]
                 close()
