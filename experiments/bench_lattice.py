@@ -37,13 +37,15 @@ machine's speed drifts by tens of per cent between minutes: timed one side after
 two runs of the same code gave 14.0x and 6.9x at N = 1764. With one call per round, jaxplan's
 sub-millisecond call always ran just after Frenetix's and lost a third to a half of its
 speed.) The ratios are from this one run; jaxplan's compile time is reported
-separately. The load average is recorded; compare ratios.
+separately. The load average is recorded; compare ratios. ``--batch B`` adds rows ``*_batchB``: one
+``plan_batch`` call of B plans (start speeds spread over V0 +- 2 m/s, the same road and obstacles)
+against Frenetix planning the same B plans one after the other (sequential / concurrent evaluation).
 
 Frenetix 0.4.0 needs Python < 3.13 and its own commonroad pins: run this with a venv that
 has ``frenetix==0.4.0``, ``commonroad-drivability-checker`` and jax (e.g.
 ``/work/venvs/lattice-bench/bin/python``, with the repository on ``PYTHONPATH``)::
 
-    python experiments/bench_lattice.py [--sizes 1000 5000] [--obstacles 20] [--out results/bench_lattice.json]
+    python experiments/bench_lattice.py [--sizes 1000 5000] [--obstacles 20] [--batch 8] [--out results/bench_lattice.json]
 """
 from __future__ import annotations
 
