@@ -463,15 +463,17 @@ def _drives():
     return recs, surv, jax.tree_util.tree_map(np.asarray, log), m, planner
 
 
-def test_lattice_drive_runs_without_ynn_fusions():
+def test_lattice_drive_compiles_with_the_planners_xla_options():
     """The lattice planner names its XLA options (``NO_YNN``, measured faster for its plan and its
     drives); the drive above ran in the program compiled with them."""
-    from jaxplan.compile_options import NO_YNN
+    from jaxplan.compile_options import NO_YNN, _supported
     from jaxplan.sim.rollout import compiled_with
 
     planner = _drives()[-1]
     assert planner.compiler_options == NO_YNN
-    assert compiled_with(tuple(sorted(NO_YNN.items())))._cache_size() >= 1
+    key = tuple(sorted(NO_YNN.items()))
+    assert compiled_with(key)._cache_size() >= 1
+    assert compiled_with(key).applied == (NO_YNN if _supported(key) else {})
 
 
 def test_closed_loop_stops_passes_borrows_and_survives_the_cut_in():
