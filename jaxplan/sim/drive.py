@@ -31,9 +31,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxplan.planner import make_planner, planner_compiler_options
+from jaxplan.planner import make_planner
 from jaxplan.sim.metrics.registry import evaluate_batch
-from jaxplan.sim.rollout import SimConfig, compiled_with, rollout
+from jaxplan.sim.rollout import SimConfig, planner_program, rollout
 
 DEFAULT_MAX_STEPS = 200  # 20 s at dt 0.1
 
@@ -110,8 +110,7 @@ def _plan(planner, scene, ego):
 
 def _plan_once(planner, scene, ego):
     """One planning call at step 0, compiled as ``rollout`` compiles the drive (the planner's options)."""
-    options = tuple(sorted(planner_compiler_options(planner).items()))
-    return compiled_with(options, _plan, ("planner",))(planner, scene, ego)
+    return planner_program(planner, _plan, ("planner",))(planner, scene, ego)
 
 
 def run_planner(planner, batch, config: SimConfig, chunk: int | None = None) -> tuple[dict, dict, dict]:

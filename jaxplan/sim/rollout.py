@@ -223,11 +223,20 @@ def _rollout(planner: Planner, scenes, config: SimConfig) -> DriveLog:
     return jax.vmap(lambda s: drive_one(planner, s, config))(scenes)
 
 
-@functools.cache
 def compiled_with(options: tuple, fun=_rollout, static=("planner", "config")):
     """``fun`` (arguments ``static`` static) jitted with the XLA ``options`` (sorted ``(name,
     value)`` pairs; ``jaxplan.compile_options.jit``): one program cache per options."""
+    return _compiled(options, fun, static)  # one cache key however the defaults were passed
+
+
+@functools.cache
+def _compiled(options: tuple, fun, static: tuple):
     return jit(fun, options=dict(options), static_argnames=static)
+
+
+def planner_program(planner: Planner, fun=_rollout, static=("planner", "config")):
+    """``compiled_with`` the XLA options of ``planner`` (``planner_compiler_options``)."""
+    return compiled_with(tuple(sorted(planner_compiler_options(planner).items())), fun, static)
 
 
 def rollout(planner: Planner, scenes, config: SimConfig = SimConfig()) -> DriveLog:
@@ -243,5 +252,4 @@ def rollout(planner: Planner, scenes, config: SimConfig = SimConfig()) -> DriveL
     Returns:
         ``DriveLog`` with a leading scene axis.
     """
-    options = tuple(sorted(planner_compiler_options(planner).items()))
-    return compiled_with(options)(planner, scenes, config=config)
+    return planner_program(planner)(planner, scenes, config=config)
