@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import importlib
 import importlib.util
+from collections.abc import Mapping
 from typing import Any, Callable, Protocol
 
 import jax.numpy as jnp
@@ -89,7 +90,11 @@ class Planner(Protocol):
 def planner_compiler_options(planner) -> dict:
     """The XLA options a drive with ``planner`` is compiled with: its ``compiler_options``
     (none when it names none)."""
-    return dict(getattr(planner, "compiler_options", None) or {})
+    options = getattr(planner, "compiler_options", None) or {}
+    if not isinstance(options, Mapping):
+        raise TypeError(f"{type(planner).__name__}.compiler_options: needs a dict of XLA options "
+                        f"(name -> value), got {options!r}")
+    return dict(options)
 
 
 # name -> "module:attribute" of a factory (a class, or a function) taking keyword options

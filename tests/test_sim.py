@@ -292,6 +292,13 @@ def test_the_drive_is_compiled_with_the_planners_xla_options():
         np.testing.assert_allclose(np.asarray(getattr(with_options, f)), np.asarray(getattr(plain, f)), atol=1e-5)
     assert time_plans(_BrakeWithOptions(decel=5.0), one, 1)["plan_ms_median"] > 0
     assert compiled_with(key, _plan, ("planner",))._cache_size() == 1
+    with pytest.raises(TypeError, match="compiler_options: needs a dict"):
+        rollout(_BadOptions(), one, cfg)  # refused before anything compiles
+
+
+@dataclasses.dataclass(frozen=True)
+class _BadOptions(BrakePlanner):
+    compiler_options: ClassVar[str] = "xla_cpu_experimental_ynn_fusion_type="
 
 
 def test_lazy_policy_sees_a_conflict_on_the_installed_plan():
