@@ -27,6 +27,12 @@ NO_YNN = {"xla_cpu_experimental_ynn_fusion_type": ""}  # XLA CPU: no YNN fusions
 FULL_OPTIMISATION = {"xla_backend_optimization_level": 3}
 
 
+def options_key(options: dict) -> tuple:
+    """The hashable form of XLA ``options`` (sorted ``(name, value)`` pairs): one key per set of
+    options, whatever order its dict was written in (``_supported``'s and the simulator's caches)."""
+    return tuple(sorted(options.items()))
+
+
 @functools.cache
 def _supported(items: tuple) -> bool:
     """Whether this JAX and default backend compile a trivial function with these options."""
@@ -49,7 +55,7 @@ class _LazyJit:
     @property
     def jitted(self):
         if self._jitted is None:
-            opts = self._options if self._options and _supported(tuple(sorted(self._options.items()))) else {}
+            opts = self._options if self._options and _supported(options_key(self._options)) else {}
             kw = dict(self._kwargs, compiler_options=opts) if opts else self._kwargs
             self.applied = opts
             self._jitted = jax.jit(self._fun, **kw)

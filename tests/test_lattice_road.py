@@ -466,12 +466,12 @@ def _drives():
 def test_lattice_drive_compiles_with_the_planners_xla_options():
     """The lattice planner names its XLA options (``NO_YNN``, measured faster for its plan and its
     drives); the drive above ran in the program compiled with them."""
-    from jaxplan.compile_options import NO_YNN, _supported
+    from jaxplan.compile_options import NO_YNN, _supported, options_key
     from jaxplan.sim.rollout import compiled_with
 
     planner = _drives()[-1]
     assert planner.compiler_options == NO_YNN
-    key = tuple(sorted(NO_YNN.items()))
+    key = options_key(NO_YNN)
     assert compiled_with(key)._cache_size() >= 1
     assert compiled_with(key).applied == (NO_YNN if _supported(key) else {})
 

@@ -13,7 +13,7 @@ from shapely.geometry import Point, Polygon
 from shapely.ops import unary_union
 
 from jaxplan.baselines import BrakePlanner, IDMPlanner
-from jaxplan.compile_options import NO_YNN, _supported
+from jaxplan.compile_options import NO_YNN, _supported, options_key
 from jaxplan.planner import EgoState
 from jaxplan.scenarios import builtin
 from jaxplan.scenarios.loader import parse_scenario
@@ -281,7 +281,7 @@ def test_the_drive_is_compiled_with_the_planners_xla_options():
     cfg = SimConfig(n_steps=120, stop_at_goal=False)
     batch = stack_scenes([r.scene for r in recs], min_steps=cfg.n_steps + 1)
     one = jax.tree_util.tree_map(lambda a: a[2:3], batch)
-    key = tuple(sorted(NO_YNN.items()))
+    key = options_key(NO_YNN)
     with_options = rollout(_BrakeWithOptions(decel=5.0), one, cfg)
     program = compiled_with(key)
     assert program._cache_size() == 1

@@ -22,7 +22,7 @@ import jax
 import jax.numpy as jnp
 from jax import lax
 
-from jaxplan.compile_options import jit
+from jaxplan.compile_options import jit, options_key
 from jaxplan.planner import EgoState, Planner, planner_compiler_options
 from jaxplan.sim.metrics.goal import goal_reached
 from jaxplan.sim.tracking import TRACKERS
@@ -224,8 +224,8 @@ def _rollout(planner: Planner, scenes, config: SimConfig) -> DriveLog:
 
 
 def compiled_with(options: tuple, fun=_rollout, static=("planner", "config")):
-    """``fun`` (arguments ``static`` static) jitted with the XLA ``options`` (sorted ``(name,
-    value)`` pairs; ``jaxplan.compile_options.jit``): one program cache per options."""
+    """``fun`` (arguments ``static`` static) jitted with the XLA ``options`` (``compile_options.options_key``
+    of them; ``jaxplan.compile_options.jit``): one program cache per options."""
     return _compiled(options, fun, static)  # one cache key however the defaults were passed
 
 
@@ -236,7 +236,7 @@ def _compiled(options: tuple, fun, static: tuple):
 
 def planner_program(planner: Planner, fun=_rollout, static=("planner", "config")):
     """``compiled_with`` the XLA options of ``planner`` (``planner_compiler_options``)."""
-    return compiled_with(tuple(sorted(planner_compiler_options(planner).items())), fun, static)
+    return compiled_with(options_key(planner_compiler_options(planner)), fun, static)
 
 
 def rollout(planner: Planner, scenes, config: SimConfig = SimConfig()) -> DriveLog:
