@@ -116,6 +116,6 @@ def test_scenario_keys_are_unique_per_file(tmp_path):
             assert key.split("@")[0] == _json.load(f)["id"]
     (tmp_path / "notes.txt").write_text("x")
     for bad, message in (([str(tmp_path / "missing.json")], "no such file"), ([str(tmp_path / "notes.txt")],
-                         "not a scenario file"), ([str(tmp_path)], "holds no .json or .xml")):
+                         "not a scenario file"), ([str(tmp_path)], "holds no scenario files")):
         with pytest.raises(ValueError, match=message):
             expand_paths(bad)

@@ -10,7 +10,7 @@ import os
 
 import numpy as np
 
-from jaxplan.scenarios.loader import Scenario, ScenarioError, parse_scenario
+from jaxplan.scenarios.loader import Scenario, ScenarioError, parse_scenario, read_bytes
 
 
 def _require():
@@ -398,21 +398,32 @@ def write_commonroad(d: dict, path: str, name: str = "scenario", id_map: dict | 
     return path
 
 
-def load_commonroad(path: str, horizon: float | None = None) -> Scenario:
-    """Read a CommonRoad XML file into a ``Scenario`` (local frame at the ego start)."""
+def read_commonroad(path: str):
+    """commonroad-io's ``(Scenario, PlanningProblemSet)`` of a CommonRoad XML file (``.xml``, or
+    gzip-compressed ``.xml.gz``).
+
+    Raises:
+        ScenarioError: naming the file, when it is missing or commonroad-io cannot read it;
+        ImportError: without the ``commonroad`` extra.
+    """
     _require()
     import warnings
 
     from commonroad.common.file_reader import CommonRoadFileReader
+    from commonroad.common.util import FileFormat
 
+    raw = read_bytes(path)
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            sc, pps = CommonRoadFileReader(path).open()
-    except ScenarioError:
-        raise
+            return CommonRoadFileReader(raw, FileFormat.XML).open()
     except Exception as e:  # commonroad-io raises many kinds on malformed XML
         raise ScenarioError(f"{path}: not a readable CommonRoad XML file ({type(e).__name__}: {e})") from None
+
+
+def load_commonroad(path: str, horizon: float | None = None) -> Scenario:
+    """Read a CommonRoad XML file (``.xml`` or ``.xml.gz``) into a ``Scenario`` (local frame at the ego start)."""
+    sc, pps = read_commonroad(path)
     try:
         d = commonroad_to_dict(sc, pps)
     except ScenarioError as e:

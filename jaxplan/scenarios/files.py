@@ -1,4 +1,8 @@
-"""Scenario files on the command line: folders expanded, one unique key per file.
+"""Scenario files on the command line: folders expanded, one unique key per file, any format read.
+
+Formats: the shared JSON (``.json``) and CommonRoad 2020a XML (``.xml``), each also
+gzip-compressed (``.json.gz``, ``.xml.gz``: large collections are kept that way).
+``load_file`` reads any of them into a ``Scenario``.
 
 A drive is written to ``DIR/<key>/driven.json``. The key is the scenario's id (the JSON
 ``id``; for CommonRoad XML the id commonroad-io reads, as ``load_commonroad`` does). Two files
@@ -12,11 +16,44 @@ import glob
 import json
 import os
 
-SUFFIXES = (".json", ".xml")
+from jaxplan.scenarios.commonroad import load_commonroad, read_commonroad
+from jaxplan.scenarios.loader import load_scenario, read_bytes
+
+SUFFIXES = (".json", ".xml", ".json.gz", ".xml.gz")
+
+
+def scenario_format(path: str) -> str:
+    """``"json"`` or ``"xml"`` by the file name (a ``.gz`` suffix is looked through).
+
+    Raises:
+        ValueError: a name without one of ``SUFFIXES``.
+    """
+    low = path.lower()
+    if low.endswith((".json", ".json.gz")):
+        return "json"
+    if low.endswith((".xml", ".xml.gz")):
+        return "xml"
+    raise ValueError(f"{path}: not a scenario file (expected one of {', '.join(SUFFIXES)})")
+
+
+def load_file(path: str, horizon: float | None = None):
+    """A ``Scenario`` (``jaxplan.scenarios.loader``) from a file of any supported format.
+
+    Args:
+        path: ``.json``, ``.xml``, ``.json.gz`` or ``.xml.gz``.
+        horizon: keep obstacle predictions up to this time (s); default all.
+
+    Raises:
+        ScenarioError: naming the file and field; ImportError: XML without the ``commonroad`` extra.
+    """
+    if scenario_format(path) == "xml":
+        return load_commonroad(path, horizon)
+    return load_scenario(path, horizon)
 
 
 def expand_paths(paths) -> list[str]:
-    """Files (``.json`` shared format, ``.xml`` CommonRoad) and folders of them, in order.
+    """Files (``.json`` shared format, ``.xml`` CommonRoad, either gzip-compressed) and folders
+    of them, in order; a folder's files and its sub-folders' files (recursively), sorted by path.
 
     Raises:
         ValueError: a path that does not exist, a file of another kind, or a folder without any.
@@ -24,13 +61,13 @@ def expand_paths(paths) -> list[str]:
     out = []
     for p in paths:
         if os.path.isdir(p):
-            found = sorted(f for f in glob.glob(os.path.join(p, "*")) if f.endswith(SUFFIXES))
+            found = sorted(f for f in glob.glob(os.path.join(p, "**", "*"), recursive=True)
+                           if f.lower().endswith(SUFFIXES) and os.path.isfile(f))
             if not found:
-                raise ValueError(f"{p}: folder holds no .json or .xml scenario files")
+                raise ValueError(f"{p}: folder holds no scenario files ({', '.join(SUFFIXES)})")
             out += found
         elif os.path.isfile(p):
-            if not p.endswith(SUFFIXES):
-                raise ValueError(f"{p}: not a scenario file (.json shared format or .xml CommonRoad)")
+            scenario_format(p)
             out.append(p)
         else:
             raise ValueError(f"{p}: no such file or folder")
@@ -39,21 +76,13 @@ def expand_paths(paths) -> list[str]:
 
 def scenario_id(path: str) -> str:
     """The id a scenario file carries (read without building the scenario where possible)."""
-    if path.endswith(".json"):
+    if scenario_format(path) == "json":
         try:
-            with open(path) as f:
-                d = json.load(f)
-        except (OSError, ValueError) as e:
+            d = json.loads(read_bytes(path))
+        except ValueError as e:
             raise ValueError(f"{path}: not a readable scenario JSON file ({e})") from None
         return str(d.get("id", os.path.basename(path)[:-5])) if isinstance(d, dict) else os.path.basename(path)
-    import warnings
-
-    from commonroad.common.file_reader import CommonRoadFileReader
-
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        sc, _ = CommonRoadFileReader(path).open()
-    return str(sc.scenario_id)
+    return str(read_commonroad(path)[0].scenario_id)
 
 
 def scenario_keys(paths) -> dict[str, str]:
@@ -66,3 +95,44 @@ def scenario_keys(paths) -> dict[str, str]:
             raise ValueError(f"{f}: given twice")
         keys[key] = f
     return keys
+
+
+def location(path_or_name: str) -> str:
+    """The location a scenario comes from: the prefix of its id or file name before the first
+    ``-`` (``DEU_Flensburg-10_1_T-1`` -> ``DEU_Flensburg``; ``USA_US101-5_1_T-1`` -> ``USA_US101``)."""
+    base = os.path.basename(path_or_name)
+    return base.split("-", 1)[0].split(".", 1)[0]
+
+
+def sample_files(files: list, n: int, seed: int = 0) -> list:
+    """A seeded sample of ``n`` files, stratified by folder (each folder contributes in proportion
+    to its size, at least one file), returned in the input order.
+
+    Args:
+        files: file paths (``expand_paths``).
+        n: sample size; all files when ``n >= len(files)``.
+        seed: the sample's seed (the same seed and files give the same sample).
+    """
+    import numpy as np
+
+    files = list(files)
+    if n >= len(files):
+        return files
+    if n < 1:
+        raise ValueError(f"sample size must be >= 1, got {n}")
+    groups: dict = {}
+    for i, f in enumerate(files):
+        groups.setdefault(os.path.dirname(os.path.abspath(f)), []).append(i)
+    names = sorted(groups)
+    sizes = np.array([len(groups[g]) for g in names], float)
+    quota = np.maximum(1, np.floor(n * sizes / sizes.sum())).astype(int)
+    rest = n - quota.sum()
+    order = np.argsort(-(n * sizes / sizes.sum() - quota))  # largest remainders first
+    for j in order[:max(0, rest)]:
+        quota[j] += 1
+    rng = np.random.default_rng(seed)
+    keep = []
+    for g, q in zip(names, quota):
+        idx = groups[g]
+        keep += [idx[k] for k in rng.choice(len(idx), size=min(q, len(idx)), replace=False)]
+    return [files[i] for i in sorted(keep)[:n]]

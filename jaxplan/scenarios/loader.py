@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import dataclasses
 import glob
+import gzip
 import json
 import math
 import os
@@ -159,22 +160,38 @@ def _min_area_box(poly: np.ndarray) -> np.ndarray:
     return np.asarray(best[1])
 
 
-def load_scenario(path: str, horizon: float | None = None) -> Scenario:
-    """Read one scenario JSON file into the local frame.
+def read_bytes(path: str) -> bytes:
+    """The file's content, decompressed when its name ends in ``.gz``.
 
-    Args:
-        path: file path.
-        horizon: keep obstacle predictions up to this time (s); default all.
+    Raises:
+        ScenarioError: the file is missing, unreadable or not valid gzip.
     """
     try:
-        with open(path) as f:
-            d = json.load(f)
+        if path.lower().endswith(".gz"):
+            with gzip.open(path, "rb") as f:
+                return f.read()
+        with open(path, "rb") as f:
+            return f.read()
     except FileNotFoundError:
         raise ScenarioError(f"{path}: no such file") from None
     except IsADirectoryError:
         raise ScenarioError(f"{path}: is a folder, not a scenario file") from None
     except PermissionError:
         raise ScenarioError(f"{path}: not readable (permission denied)") from None
+    except (OSError, EOFError) as e:  # gzip.BadGzipFile is an OSError
+        raise ScenarioError(f"{path}: not a readable gzip file ({e})") from None
+
+
+def load_scenario(path: str, horizon: float | None = None) -> Scenario:
+    """Read one scenario JSON file (``.json``, or gzip-compressed ``.json.gz``) into the local frame.
+
+    Args:
+        path: file path.
+        horizon: keep obstacle predictions up to this time (s); default all.
+    """
+    raw = read_bytes(path)
+    try:
+        d = json.loads(raw)
     except json.JSONDecodeError as e:
         raise ScenarioError(f"{path}: not valid JSON ({e.msg} at line {e.lineno})") from None
     except UnicodeDecodeError:

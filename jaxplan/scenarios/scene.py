@@ -508,7 +508,8 @@ def index_scene(batch: Scene, i: int) -> Scene:
 # ----------------------------------------------------------------------------- loading
 
 def load_records(paths: list, config: SceneConfig = SceneConfig(), horizon: float | None = None) -> list:
-    """``SceneRecord``s from scenario files (``.json`` shared format, ``.xml`` CommonRoad).
+    """``SceneRecord``s from scenario files (``.json`` shared format, ``.xml`` CommonRoad, either
+    gzip-compressed: ``jaxplan.scenarios.files.load_file``).
 
     Names are the scenario ids; give several files to ``unique_names`` to make them unique.
 
@@ -516,16 +517,12 @@ def load_records(paths: list, config: SceneConfig = SceneConfig(), horizon: floa
         ValueError naming the file: unreadable files, scenarios without a planning problem,
         without lanelets, or with a goal region of an unknown kind.
     """
-    from jaxplan.scenarios.loader import ScenarioError, load_scenario
+    from jaxplan.scenarios.files import load_file
+    from jaxplan.scenarios.loader import ScenarioError
 
     recs = []
     for p in paths:
-        if p.lower().endswith(".xml"):
-            from jaxplan.scenarios.commonroad import load_commonroad
-
-            sc = load_commonroad(p, horizon)
-        else:
-            sc = load_scenario(p, horizon)
+        sc = load_file(p, horizon)
         try:
             scene, route = build_scene(sc, config)
         except RouteError as e:

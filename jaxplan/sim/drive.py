@@ -32,6 +32,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxplan.planner import make_planner
+from jaxplan.scenarios.files import scenario_format
 from jaxplan.sim.metrics.registry import evaluate_batch
 from jaxplan.sim.rollout import SimConfig, planner_program, rollout
 
@@ -178,7 +179,7 @@ def write_drive(folder: str, rec, planner_name: str, vehicle, log_i: dict, row: 
     plot_drive(os.path.join(folder, "drive.png"), rec.scene, row, log_i, vehicle, title)
     if animate:
         animate_drive(os.path.join(folder, "drive.gif"), rec.scene, log_i, vehicle, title)
-    if rec.path.lower().endswith(".xml"):
+    if rec.path and scenario_format(rec.path) == "xml":
         from jaxplan.scenarios.commonroad import write_solution
         from jaxplan.types import Trajectory
 
