@@ -39,16 +39,44 @@ Route: ``--routes FILE`` (``{"routes": {key: [[x, y], ...]}}``, world coordinate
 the goal lanelets that jaxplan's planners drive on, in world coordinates), so every planner follows
 the same route; ``ROUTE_BUILDER = None`` uses commonroad-route-planner's shortest reference path.
 
+Scenarios: ``--scenarios`` takes files and folders (searched recursively, as
+``jaxplan.scenarios.files.expand_paths`` does): shared JSON and CommonRoad 2020a XML, either
+gzip-compressed (``.json.gz``, ``.xml.gz``; the peers' workers decompress in memory).
+``--sample N --seed S`` drives ``jaxplan.scenarios.files.sample_files`` of the expanded list (seeded,
+stratified by folder). The chosen files go to ``sample.json`` (``files``, ``keys``) and
+``sample.txt`` (one a line), so jaxplan's planners can later drive exactly the same files:
+``jaxplan drive $(cat OUT/sample.txt) --planner NAME --out DIR --replan-every 3 --max-steps 300``,
+then ``--judge-only --drives NAME=DIR`` here (same ``--scenarios --sample --seed``).
+
+Resume: a scene whose ``<peer>/<key>/cycles.json`` exists (written last, when the drive is over,
+also when the peer found no plan or failed) is not driven again; ``--redo`` drives it again. The
+scenario facts and routes are kept in ``prep.json`` and reused while the file list is the same.
+An interrupted run is resumed by running the same command again.
+
+Settings: every run prints, and ``report.md`` holds, a table of the settings that differ between
+the planners (horizon, sampling, set speed rule, ...; jaxplan's road planners' horizon and car read
+from jaxplan) with the reason, and of those that are equal.
+
+A scene a peer cannot drive is never dropped: a setup failure (the scenario or its route cannot be
+built) is a ``not run: ...`` status, a peer that raises at setup a ``setup failed: ...`` status, a
+planning call that raises is recorded in ``cycles.json`` (the car goes on as when no plan is
+found); the report lists every such scene with its reason.
+
 Referee (``jaxplan.eval.referee``, commonroad-drivability-checker + commonroad-io's goal check)
 judges every folder in the same run: the peers' and, with ``--drives LABEL=DIR`` or
 ``--jaxplan NAME``, jaxplan's ``jaxplan drive`` output. It runs under ``--referee-python``, an
-environment with jaxplan's dependencies and ``jaxplan[referee]`` (commonroad-io < 2026).
+environment with jaxplan's dependencies and ``jaxplan[referee]`` (commonroad-io < 2026); default
+``/work/venvs/referee`` where it exists, else the interpreter running this script (jaxplan's venv
+with ``jaxplan[referee]`` serves). The referee opens scenario files by name; here it reads
+``.gz`` files too (decompressed in memory, the same scenario objects).
 
 Outputs in ``--out``: ``<peer>/<key>/driven.json`` (the format ``jaxplan drive`` writes) and
-``<peer>/<key>/cycles.json`` (wall and CPU time of each planning call), ``routes.json``,
-``scenarios.json`` (set speed, steps, setup notes), ``compare_peers.json`` (every verdict and the
-summary) and ``report.md`` (the table). ``<key>`` is the scenario id, made unique as
-``jaxplan.scenarios.files.scenario_keys`` does.
+``<peer>/<key>/cycles.json`` (status, wall and CPU time of each planning call, the drive's wall
+time), ``sample.json`` and ``sample.txt`` (the files driven), ``prep.json``, ``routes.json``,
+``scenarios.json`` (set speed, steps, setup notes), ``compare_peers.json`` (every verdict, the
+summary, counts per scenario folder, the settings table) and ``report.md`` (the tables).
+``<key>`` is the scenario id, made unique as ``jaxplan.scenarios.files.scenario_keys`` does.
+Success: a judged drive that reached the goal with no collision and without leaving the road.
 
 Setup (once)::
 
@@ -58,18 +86,27 @@ Setup (once)::
     python3 -m venv /work/venvs/referee && /work/venvs/referee/bin/pip install -e '.[referee]' \\
         'commonroad-io==2024.3'
 
+(or ``--referee-python .venv/bin/python`` where jaxplan's venv has ``jaxplan[referee]``).
+
 Run (from the repository root; both peers on all 50 shared scenarios)::
 
     .venv/bin/python experiments/compare_peers.py --out results/peers
 
 The final comparison with jaxplan's planners in the same run (``jaxplan drive`` runs first, under
-this interpreter, into ``results/peers/jaxplan-<name>``)::
+this interpreter, on the same files, the sample where ``--sample`` is given, into
+``results/peers/jaxplan-<name>``)::
 
     .venv/bin/python experiments/compare_peers.py --out results/peers --jaxplan lattice pathspeed
 
 Judge existing folders only (no driving)::
 
     .venv/bin/python experiments/compare_peers.py --out results/peers --judge-only --drives lattice=results/drive
+
+A seeded sample of the gzip-compressed dev set, peers only (long: run it in the background; the
+same command resumes)::
+
+    nice -n 10 .venv/bin/python experiments/compare_peers.py --scenarios ../shared/data/commonroad \\
+        --sample 200 --seed 0 --max-steps 300 --out results/peers200 --referee-python .venv/bin/python
 
 Timings are per planning call (wall and process CPU time, peers single-threaded); on a shared
 machine they are noisy.
@@ -123,14 +160,41 @@ def _write_json(path: str, obj) -> None:
         json.dump(obj, f)
 
 
-def _read_xml(xml: str):
+def _write_json_atomic(path: str, obj) -> None:
+    """``_write_json`` through a temporary file, so an interrupted run leaves no half-written file."""
+    tmp = path + ".part"
+    _write_json(tmp, obj)
+    os.replace(tmp, path)
+
+
+def _read_xml_set(xml: str):
+    """commonroad-io's ``(Scenario, PlanningProblemSet)`` of a CommonRoad XML file, ``.xml`` or
+    gzip-compressed ``.xml.gz`` (decompressed in memory; the peers' venvs have no jaxplan)."""
+    import gzip
     import warnings
 
     from commonroad.common.file_reader import CommonRoadFileReader
+    from commonroad.common.util import FileFormat
+
+    if xml.lower().endswith(".gz"):
+        try:
+            with gzip.open(xml, "rb") as f:
+                src = f.read()
+        except (OSError, EOFError) as e:
+            raise ValueError(f"{xml}: not a readable gzip file ({e})") from None
+    else:
+        src = xml
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        sc, pps = CommonRoadFileReader(xml).open()
-    return sc, next(iter(pps.planning_problem_dict.values()))
+        return CommonRoadFileReader(src, FileFormat.XML).open()
+
+
+def _read_xml(xml: str):
+    sc, pps = _read_xml_set(xml)
+    problems = list(pps.planning_problem_dict.values())
+    if not problems:
+        raise ValueError(f"{xml}: no planning problem")
+    return sc, problems[0]
 
 
 # ----------------------------------------------------------------------------- prep (referee env)
@@ -140,16 +204,16 @@ def prep_worker(paths: list, out: str) -> dict:
     _quiet()
     sys.path.insert(0, ROOT)
     from jaxplan.scenarios.commonroad import _speed_limits, write_commonroad
-    from jaxplan.scenarios.files import scenario_keys
+    from jaxplan.scenarios.files import scenario_format, scenario_keys
+    from jaxplan.scenarios.loader import read_bytes
 
     keys = scenario_keys(paths)
     info = {}
     for key, path in keys.items():
         row = {"path": os.path.abspath(path)}
         try:
-            if path.endswith(".json"):
-                with open(path) as f:
-                    d = json.load(f)
+            if scenario_format(path) == "json":
+                d = json.loads(read_bytes(path))
                 row["xml"] = write_commonroad(d, os.path.join(out, "_xml", key + ".xml"), path)
             else:
                 row["xml"] = os.path.abspath(path)
@@ -583,9 +647,33 @@ def frenetix_worker(job: dict) -> dict:
 def judge_worker(job: dict) -> dict:
     _quiet()
     sys.path.insert(0, ROOT)
-    from jaxplan.eval.referee import judge_folders
+    from jaxplan.eval import referee
 
-    return judge_folders(job["folders"], job["scenarios"])
+    opened = referee._open
+    if not getattr(opened, "reads_gz", False):
+        # the referee opens scenario files by name (.json / .xml); a gzip-compressed one is decompressed
+        # in memory here, the same scenario object the referee builds from the plain file
+        def open_any(path: str):
+            if not path.lower().endswith(".gz"):
+                return opened(path)
+            from jaxplan.scenarios.files import scenario_format
+            from jaxplan.scenarios.loader import read_bytes
+
+            if scenario_format(path) == "json":
+                from jaxplan.scenarios.commonroad import dict_to_commonroad
+
+                id_map: dict = {}
+                sc, pps = dict_to_commonroad(json.loads(read_bytes(path)), path, id_map)
+            else:
+                (sc, pps), id_map = _read_xml_set(path), {}
+            problems = list(pps.planning_problem_dict.values())
+            if not problems:
+                raise ValueError(f"{path}: no planning problem")
+            return sc, problems[0], id_map
+
+        open_any.reads_gz = True
+        referee._open = open_any
+    return referee.judge_folders(job["folders"], job["scenarios"])
 
 
 # ----------------------------------------------------------------------------- orchestration
@@ -629,6 +717,213 @@ def _stats(cycles: list) -> dict:
             "plan_ms_p90": float(np.percentile(w, 90)), "cpu_ms_median": float(np.median(cpu)), **extra}
 
 
+def select_files(paths: list, sample: int | None, seed: int) -> list:
+    """The scenario files to drive: ``paths`` expanded (folders recursively, sorted), then, with
+    ``sample``, ``jaxplan.scenarios.files.sample_files`` of them (seeded, stratified by folder)."""
+    sys.path.insert(0, ROOT)
+    from jaxplan.scenarios.files import expand_paths, sample_files
+
+    try:
+        files = [os.path.abspath(f) for f in expand_paths(paths)]
+    except ValueError as e:
+        sys.exit(f"--scenarios: {e}")
+    if sample is not None:
+        files = sample_files(files, sample, seed)
+    return files
+
+
+def _prep_cached(referee_py: str, files: list, out: str, tmp: str) -> dict:
+    """``prep_worker`` over ``files``, kept in ``<out>/prep.json`` and reused while the file list is
+    the same (a resumed run does not read every scenario again)."""
+    cache = os.path.join(out, "prep.json")
+    if os.path.exists(cache):
+        try:
+            with open(cache) as f:
+                c = json.load(f)
+            if c.get("files") == files and c.get("route_builder") == ROUTE_BUILDER:
+                return c["info"]
+        except (OSError, ValueError):
+            pass
+    info = child(referee_py, "prep", {"paths": files, "out": out}, tmp)
+    _write_json_atomic(cache, {"files": files, "route_builder": ROUTE_BUILDER, "info": info})
+    return info
+
+
+def _finished(out: str, peer: str, key: str) -> dict | None:
+    """The timing row of a drive already finished in ``out`` (its ``cycles.json``), else None."""
+    f = os.path.join(out, peer, key, "cycles.json")
+    try:
+        with open(f) as fh:
+            c = json.load(fh)
+    except (OSError, ValueError):
+        return None
+    return {"status": c["status"], "braked_steps": c.get("braked_steps", 0), **_stats(c["cycles"]),
+            **({"drive_wall_s": c["drive_wall_s"]} if "drive_wall_s" in c else {})}
+
+
+def _folder_of(scen_row: dict) -> str:
+    return os.path.basename(os.path.dirname(scen_row["path"]))
+
+
+def _by_folder(verdicts: dict, scen: dict) -> dict:
+    """Each planner's counts per scenario folder (``hand-crafted``, ``sumo``, ...)."""
+    out: dict = {}
+    for label, rows in verdicts["drives"].items():
+        groups: dict = {}
+        for r in rows:
+            groups.setdefault(_folder_of(scen[r["scenario"]]), []).append(r)
+        out[label] = {g: _counts(rs) for g, rs in sorted(groups.items())}
+    return out
+
+
+def _counts(rows: list) -> dict:
+    """Counts as ``jaxplan.eval.referee.summarize`` gives them, plus ``success``: a judged drive
+    that reached the goal with no collision and without leaving the road."""
+    judged = [r for r in rows if "goal_reached" in r]
+    c = lambda k: sum(bool(r[k]) for r in judged)  # noqa: E731
+    ok = sum(r["goal_reached"] and not r["collided"] and not r["off_road"] for r in judged)
+    return {"scenarios": len(rows), "judged": len(judged), "success": ok, "goal_reached": c("goal_reached"),
+            "collided": c("collided"), "off_road": c("off_road"), "success_share": ok / len(rows) if rows else None}
+
+
+def _jaxplan_planner_facts(names) -> dict:
+    """``{name: {"horizon": s, "vehicle": "L x W, wheelbase"}}`` read from jaxplan's planners
+    (their defaults as ``jaxplan drive`` builds them); an entry says why where they cannot be read."""
+    out = {}
+    try:
+        sys.path.insert(0, ROOT)
+        from jaxplan.planner import get_factory
+    except Exception as e:  # noqa: BLE001 - the table then says so
+        return {n: {"error": f"{type(e).__name__}: {e}"} for n in names}
+    for n in names:
+        try:
+            p = get_factory(n)()
+            v = p.vehicle
+            out[n] = {"horizon": f"{float(p.horizon):g} s",
+                      "vehicle": f"{float(v.length):g} m x {float(v.width):g} m, wheelbase {float(v.wheelbase):g} m"}
+        except Exception as e:  # noqa: BLE001
+            out[n] = {"error": f"{type(e).__name__}: {str(e)[:80]}"}
+    return out
+
+
+def settings_table(args, labels: list) -> dict:
+    """The settings of every planner in the comparison: ``{"differ": [...], "equal": [...]}``, rows
+    ``{"setting", <planner>: value, ..., "why"}``. jaxplan's road planners are listed too (their horizon
+    and car read from jaxplan), so that a later ``jaxplan drive`` on ``sample.json``'s files is judged
+    against the same table."""
+    peers = [p for p in PEERS if p in labels]
+    jp = ["lattice", "pathspeed"]
+    extra = [lab for lab in labels if lab not in PEERS and lab.replace("jaxplan-", "") not in jp]
+    facts = _jaxplan_planner_facts(jp)
+    try:
+        import importlib.util
+
+        has_lights = importlib.util.find_spec("jaxplan.scenarios.lights") is not None
+    except (ImportError, ValueError):
+        has_lights = False
+    lights = "read from the scene (jaxplan.scenarios.lights)" if has_lights else "not obeyed"
+    cols = peers + [f"jaxplan {n}" for n in jp]
+    hz = args.reactive_horizon_steps * 0.1
+
+    def row(setting, values: dict, why: str):
+        r = {"setting": setting}
+        for c in cols:
+            r[c] = values.get(c, values.get("*", "-"))
+        r["why"] = why
+        return r
+
+    def jf(n, k):
+        f = facts[n]
+        return f.get(k, f"not read ({f.get('error', '?')})")
+
+    differ = [
+        row("planning horizon", {"reactive": f"{hz:g} s ({args.reactive_horizon_steps} steps)", "frenetix": "3 s",
+                                 **{f"jaxplan {n}": jf(n, "horizon") for n in jp}},
+            "each planner's shipped configuration (the reactive planner's scenario configurations use 2 s, "
+            "Frenetix's 3 s); the horizon is part of how a planner plans, not of the harness"),
+        row("sampling", {"reactive": f"its sampling levels 1..4 (first level with a feasible collision-free "
+                                     f"candidate), end times {args.reactive_t_min:g}..{hz:g} s, offsets -3..3 m, "
+                                     "velocity keeping",
+                         "frenetix": "level 2: end times 1.1..3 s, 5 end speeds in [v - 0.5 a_max T, v + a_max T / 7] "
+                                     "(and the current one), 5 offsets -3..3 m (and the current one)",
+                         "jaxplan lattice": "jaxplan's lattice (LatticeConfig.road)",
+                         "jaxplan pathspeed": "path then speed optimisation (no sampling)"},
+            "each planner's own method and shipped settings"),
+        row("set speed rule", {"reactive": "fixed per scenario (rule below), set with set_desired_velocity each cycle",
+                               "frenetix": "fixed per scenario (rule below), velocity-offset cost",
+                               "jaxplan lattice": "its own: speed limit ahead, bent to the goal's time and speed window, "
+                                                  "capped for curves",
+                               "jaxplan pathspeed": "its own: lowest speed limit ahead, lowered or raised to meet "
+                                                    "the goal's time window"},
+            "the peers take one desired speed from outside, jaxplan's planners compute theirs from the map in "
+            "every cycle; the peers' fixed speed: the middle of the goal's speed interval (capped at the "
+            "start lanelet's limit), else that limit, else route distance to the goal centre over the middle "
+            "of the goal's time interval (2..36 m/s), else the start speed"),
+        row("route start", {"reactive": "route extended 10 m straight backwards", "frenetix": "route extended 10 m "
+                            "straight backwards", "*": "route as given"},
+            "the peers plan from the rear axle, which can lie behind the route's first point"),
+        row("collision check inside the planner",
+            {"reactive": "its own (commonroad-drivability-checker: obstacles' recorded futures, road boundary)",
+             "frenetix": "commonroad-drivability-checker on the ranked candidates (obstacles, road boundary); "
+                         "collision-probability cost on the recorded futures",
+             "jaxplan lattice": "jaxplan's own geometry", "jaxplan pathspeed": "jaxplan's own geometry"},
+            "each planner's method"),
+        row("cost function", {"reactive": "its shipped cost function", "frenetix": "its shipped weights (jerk, "
+                              "velocity offset, distance to the reference path, collision probability)",
+                              "jaxplan lattice": "jaxplan's", "jaxplan pathspeed": "jaxplan's"},
+            "each planner's method"),
+        row("no trajectory found", {"reactive": "go on along the previous plan, then brake at 8 m/s^2",
+                                    "frenetix": "Frenetix's stopping choice among the feasible candidates; none "
+                                                "feasible: previous plan, then brake at 8 m/s^2",
+                                    "jaxplan lattice": "the planner's own fallback; a plan that is not finite: "
+                                                       "brake at 8 m/s^2",
+                                    "jaxplan pathspeed": "the planner's own fallback; a plan that is not finite: "
+                                                         "brake at 8 m/s^2"},
+            "Frenetix ships an emergency mode, the reactive planner none; the harness's brake is the same"),
+    ]
+    equal = [
+        row("re-plan period", {"*": f"every {args.replan} steps of 0.1 s"}, "the harness"),
+        row("tracking", {"*": "perfect (the car follows the chosen plan exactly)"}, "the harness"),
+        row("step cap", {"*": f"end of the goal's time interval, at most --max-steps {args.max_steps}; ends at the goal"},
+            "the harness"),
+        row("time step", {"*": "0.1 s (the scenarios')"}, "the scenarios"),
+        row("route", {"*": f"{ROUTE_BUILDER or 'commonroad-route-planner'} (routes.json)"},
+            "one route per scenario for every planner"),
+        row("vehicle", {"reactive": f"{CAR_LENGTH:g} m x {CAR_WIDTH:g} m, wheelbase 2.578 m",
+                        "frenetix": f"{CAR_LENGTH:g} m x {CAR_WIDTH:g} m, wheelbase 2.578 m",
+                        **{f"jaxplan {n}": jf(n, "vehicle") for n in jp}},
+            "the BMW 320i (CommonRoad vehicle type 2), the peers' default car; the referee judges this box"),
+        row("obstacles seen", {"*": "every obstacle's recorded future (static ones at every time)"},
+            "as CommonRoad benchmarks give them"),
+        row("traffic lights", {"reactive": "not obeyed", "frenetix": "not obeyed",
+                               **{f"jaxplan {n}": lights for n in jp}},
+            "neither peer reads traffic lights; the referee does not judge them (NGSIM Lankershim and SUMO maps "
+            "have some)"),
+        row("goal rule", {"*": "CommonRoad's goal check on the car's centre"}, "the referee's"),
+    ]
+    moved = [r for r in equal if len({str(r[c]) for c in cols}) > 1]  # a value read from jaxplan that differs
+    differ += moved
+    equal = [{"setting": r["setting"], "value": r[cols[0]], "why": r["why"]} for r in equal if r not in moved]
+    return {"columns": cols, "differ": differ, "equal": equal, "other_folders": extra}
+
+
+def render_settings(table: dict) -> str:
+    cols = table["columns"]
+    esc = lambda v: str(v).replace("|", "/")  # noqa: E731
+    lines = ["### Settings that differ between the planners", "", "| setting | " + " | ".join(cols) + " | why |",
+             "| --- | " + " | ".join("---" for _ in cols) + " | --- |"]
+    lines += [f"| {r['setting']} | " + " | ".join(esc(r[c]) for c in cols) + f" | {esc(r['why'])} |"
+              for r in table["differ"]]
+    lines += ["", f"### Settings that are equal ({', '.join(cols)})", "", "| setting | value | why |",
+              "| --- | --- | --- |"]
+    lines += [f"| {r['setting']} | {esc(r['value'])} | {esc(r['why'])} |" for r in table["equal"]]
+    if table.get("other_folders"):
+        lines += ["", f"Also judged: {', '.join(table['other_folders'])} (drives of other planners: their settings "
+                  "are their planners'; the harness rows hold where they were driven by `jaxplan drive` with the same "
+                  "re-plan period and step cap)."]
+    return "\n".join(lines) + "\n"
+
+
 def _python_ok(p: str, what: str) -> str:
     if not os.path.exists(p):
         sys.exit(f"{p} not found: the {what} runs there; see the setup in this script's docstring")
@@ -637,12 +932,20 @@ def _python_ok(p: str, what: str) -> str:
 
 def main(argv=None) -> dict:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--scenarios", nargs="+", default=DEFAULT_SCENARIOS, help="scenario files or folders")
+    ap.add_argument("--scenarios", nargs="+", default=DEFAULT_SCENARIOS,
+                    help="scenario files (.json, .xml, either .gz) or folders of them (searched recursively)")
+    ap.add_argument("--sample", type=int, metavar="N",
+                    help="drive a seeded sample of N of the files, stratified by folder (written to sample.json)")
+    ap.add_argument("--seed", type=int, default=0, help="seed of --sample (default 0)")
+    ap.add_argument("--redo", action="store_true",
+                    help="drive again the scenes a peer has already finished in --out (default: skip them)")
     ap.add_argument("--out", default="results/peers")
     ap.add_argument("--peers", nargs="*", default=list(PEERS), choices=PEERS)
     ap.add_argument("--reactive-python", default=VENVS["reactive"])
     ap.add_argument("--frenetix-python", default=VENVS["frenetix"])
-    ap.add_argument("--referee-python", default=VENVS["referee"])
+    ap.add_argument("--referee-python", default=None,
+                    help=f"interpreter with jaxplan and jaxplan[referee] (default {VENVS['referee']} where it exists, "
+                         "else this interpreter)")
     ap.add_argument("--routes", help="routes JSON {routes: {key: [[x, y], ...]}} (default: build them)")
     ap.add_argument("--drives", nargs="*", default=[], metavar="LABEL=DIR", help="more drive folders to judge")
     ap.add_argument("--jaxplan", nargs="*", default=[], metavar="PLANNER",
@@ -668,15 +971,34 @@ def main(argv=None) -> dict:
         if not os.path.isdir(folder):
             sys.exit(f"--drives {d}: {folder} is not a folder")
         drives[label] = folder
+    if args.sample is not None and args.sample < 1:
+        sys.exit(f"--sample {args.sample}: expected a sample size >= 1")
     out = os.path.abspath(args.out)
     os.makedirs(out, exist_ok=True)
     tmp = tempfile.mkdtemp(prefix="compare_peers_")
+    if args.referee_python is None:
+        args.referee_python = VENVS["referee"] if os.path.exists(VENVS["referee"]) else sys.executable
     referee_py = _python_ok(args.referee_python, "referee (jaxplan + jaxplan[referee])")
 
     t_start = time.time()
-    info = child(referee_py, "prep", {"paths": [os.path.abspath(p) for p in args.scenarios], "out": out}, tmp)
+    files = select_files(args.scenarios, args.sample, args.seed)
+    info = _prep_cached(referee_py, files, out, tmp)
+    if args.only:
+        unknown = sorted(set(args.only) - set(info))
+        if unknown:
+            sys.exit(f"--only: no scenario {', '.join(unknown)} among the {len(info)} selected")
     keys = [k for k in info if not args.only or k in args.only]
-    print(f"{len(keys)} scenarios", flush=True)
+    _write_json(os.path.join(out, "sample.json"), {
+        "scenarios": [os.path.abspath(p) for p in args.scenarios], "sample": args.sample,
+        "seed": args.seed if args.sample is not None else None, "n_files": len(files),
+        "files": files, "keys": {k: info[k]["path"] for k in info},
+        "drive_with": f"jaxplan drive $(cat {out}/sample.txt) --planner NAME --out DIR "
+                      f"--replan-every {args.replan} --max-steps {args.max_steps}"})
+    with open(os.path.join(out, "sample.txt"), "w") as f:
+        f.write("".join(p + "\n" for p in files))
+    print(f"{len(keys)} scenarios (file list: {out}/sample.json, sample.txt)", flush=True)
+    folders0 = list(args.peers) + list(drives) + [f"jaxplan-{n}" for n in args.jaxplan]
+    print(render_settings(settings_table(args, folders0)), flush=True)
 
     if args.routes:
         with open(args.routes) as f:
@@ -714,10 +1036,16 @@ def main(argv=None) -> dict:
         for peer in args.peers:
             py = _python_ok(pythons[peer], peer)
             timing[peer] = {}
+            done = 0
             for k in keys:
                 s = scen[k]
                 if s["notes"]:
                     timing[peer][k] = {"status": "not run: " + "; ".join(s["notes"])}
+                    continue
+                prev = _finished(out, peer, k)
+                if prev is not None and not args.redo:  # resume: this scene is driven already
+                    timing[peer][k] = prev
+                    done += 1
                     continue
                 job = {"xml": s["xml"], "route": routes[k]["route"], "v_set": s["v_set"], "steps": s["steps"], "v0": s["v0"],
                        "replan": args.replan, "horizon_steps": args.reactive_horizon_steps,
@@ -727,22 +1055,31 @@ def main(argv=None) -> dict:
                     res = child(py, peer, job, tmp, args.timeout)
                 except RuntimeError as e:
                     res = {"status": f"peer process failed: {e}", "cycles": [], "rows": []}
+                driven = os.path.join(out, peer, k, "driven.json")
                 if res["rows"]:
-                    _write_json(os.path.join(out, peer, k, "driven.json"), {
+                    _write_json_atomic(driven, {
                         "scenario": k, "planner": peer, "dt": info[k]["dt"],
                         "vehicle": {"length": CAR_LENGTH, "width": CAR_WIDTH}, "states": res["rows"]})
+                elif os.path.exists(driven):  # --redo: no stale drive from an earlier run
+                    os.remove(driven)
                 braked = int(res.get("braked_steps", 0))
-                _write_json(os.path.join(out, peer, k, "cycles.json"), {"status": res["status"], "cycles": res["cycles"],
-                                                                        "braked_steps": braked})
-                timing[peer][k] = {"status": res["status"], "braked_steps": braked, **_stats(res["cycles"])}
+                # written last: a scene with cycles.json is finished (resume skips it)
+                _write_json_atomic(os.path.join(out, peer, k, "cycles.json"), {
+                    "status": res["status"], "cycles": res["cycles"], "braked_steps": braked,
+                    "drive_wall_s": round(time.time() - t0, 3)})
+                timing[peer][k] = {"status": res["status"], "braked_steps": braked, **_stats(res["cycles"]),
+                                   "drive_wall_s": round(time.time() - t0, 3)}
                 print(f"{peer:9s} {k:40s} {res['status'][:60]:60s} {len(res['rows']):4d} rows "
                       f"{timing[peer][k].get('plan_ms_median', float('nan')):8.1f} ms/cycle ({time.time() - t0:.0f} s)",
                       flush=True)
+            if done:
+                print(f"{peer}: {done} scenes already driven in {out}/{peer} (kept; --redo drives them again)",
+                      flush=True)
         for name in args.jaxplan:
             folder = os.path.join(out, f"jaxplan-{name}")
-            cmd = [sys.executable, "-m", "jaxplan", "drive", *args.scenarios, "--planner", name, "--out", folder,
+            cmd = [sys.executable, "-m", "jaxplan", "drive", *files, "--planner", name, "--out", folder,
                    "--replan-every", str(args.replan), "--max-steps", str(args.max_steps)]
-            print("running", " ".join(cmd), flush=True)
+            print("running", " ".join(cmd[:4]), f"({len(files)} files)", " ".join(cmd[4 + len(files):]), flush=True)
             r = subprocess.run(cmd, cwd=ROOT)
             if r.returncode != 0:
                 sys.exit(f"jaxplan drive --planner {name} exited {r.returncode}")
@@ -750,12 +1087,13 @@ def main(argv=None) -> dict:
     else:
         for peer in args.peers:
             for k in keys:
-                f = os.path.join(out, peer, k, "cycles.json")
-                if os.path.exists(f):
-                    with open(f) as fh:
-                        c = json.load(fh)
-                    timing.setdefault(peer, {})[k] = {"status": c["status"], "braked_steps": c.get("braked_steps", 0),
-                                                      **_stats(c["cycles"])}
+                prev = _finished(out, peer, k)
+                if scen[k]["notes"]:
+                    timing.setdefault(peer, {})[k] = {"status": "not run: " + "; ".join(scen[k]["notes"])}
+                elif prev is not None:
+                    timing.setdefault(peer, {})[k] = prev
+                else:
+                    timing.setdefault(peer, {})[k] = {"status": "not driven yet (no cycles.json in the output)"}
     folders = {p: os.path.join(out, p) for p in args.peers}
     folders.update(drives)
     verdicts = child(referee_py, "judge", {"folders": folders,
@@ -763,8 +1101,11 @@ def main(argv=None) -> dict:
     for label, folder in drives.items():  # jaxplan's own plan time per cycle, where its metrics say it
         timing[label] = _jaxplan_timing(folder, label)
     result = {"scenarios": scen, "route_source": source, "verdicts": verdicts["drives"],
-              "summary": _summary(verdicts, timing, scen), "timing": timing, "args": vars(args),
-              "cpu_count": os.cpu_count(), "wall_s": time.time() - t_start}
+              "summary": _summary(verdicts, timing, scen), "by_folder": _by_folder(verdicts, scen),
+              "settings": settings_table(args, list(folders)), "timing": timing, "args": vars(args),
+              "cpu_count": os.cpu_count(), "wall_s": time.time() - t_start,
+              "drive_wall_s": {p: round(sum(r.get("drive_wall_s", 0.0) for r in timing.get(p, {}).values()
+                                            if isinstance(r, dict)), 1) for p in args.peers}}
     _write_json(os.path.join(out, "compare_peers.json"), result)
     try:
         plots = plot_drives(result, folders, out)
@@ -877,9 +1218,10 @@ def _summary(verdicts: dict, timing: dict, scen: dict) -> dict:
         else:
             ms, cpu = _median_over_cycles(t), _median_over_cycles(t, "cpu_ms_median")
         rows = verdicts["drives"][label]
-        failed = {r["scenario"]: timing.get(label, {}).get(r["scenario"], {}).get("status", r.get("error", "no drive"))
+        failed = {r["scenario"]: r.get("error") or timing.get(label, {}).get(r["scenario"], {}).get("status", "no drive")
                   for r in rows if "goal_reached" not in r}
-        out[label] = {**s, "plan_ms_median": ms, "cpu_ms_median": cpu, "not_judged": failed}
+        out[label] = {**s, "success": _counts(rows)["success"], "plan_ms_median": ms, "cpu_ms_median": cpu,
+                      "not_judged": failed}
     return out
 
 
@@ -895,13 +1237,23 @@ def render_report(res: dict) -> str:
              f"{len(res['scenarios'])} scenarios, re-plan every {res['args']['replan']} steps of 0.1 s, perfect tracking, "
              f"route: {res['route_source']}. Referee: commonroad-drivability-checker (collision with every obstacle, "
              "the box inside the lanelets) and commonroad-io's goal check, on every driven state.", "",
-             "| planner | goal share (CommonRoad rule) | goals | collisions | off road | judged drives | "
+             "| planner | success | goal share (CommonRoad rule) | goals | collisions | off road | judged drives | "
              "plan time per cycle, median (ms) | CPU per cycle, median (ms) |",
-             "| --- | --- | --- | --- | --- | --- | --- | --- |"]
+             "| --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
     for label, s in res["summary"].items():
-        lines.append(f"| {label} | {fmt(s['goal_share'], '.1%')} | {s['goal_reached']}/{s['scenarios']} | "
+        lines.append(f"| {label} | {s.get('success', '-')}/{s['scenarios']} | {fmt(s['goal_share'], '.1%')} | "
+                     f"{s['goal_reached']}/{s['scenarios']} | "
                      f"{s['collided']} | {s['off_road']} | {s['judged']} | {fmt(s['plan_ms_median'], '.1f')} | "
                      f"{fmt(s['cpu_ms_median'], '.1f')} |")
+    if res.get("by_folder"):
+        lines += ["", "## Per folder", "", "Success: a judged drive that reached the goal without a collision and "
+                  "without leaving the road (count over the folder's scenarios).", "",
+                  "| planner | folder | scenarios | success | goals | collisions | off road | judged |",
+                  "| --- | --- | --- | --- | --- | --- | --- | --- |"]
+        for label, groups in res["by_folder"].items():
+            for g, c in groups.items():
+                lines.append(f"| {label} | {g} | {c['scenarios']} | {c['success']} ({fmt(c['success_share'], '.1%')}) | "
+                             f"{c['goal_reached']} | {c['collided']} | {c['off_road']} | {c['judged']} |")
     lines += ["", "Goal share: drives whose state reached the goal (position, time, orientation, speed) at some step, "
               "over all scenarios (no drive = not reached). Collisions, off road: judged drives with a collision / "
               "with the car's box not inside the union of the lanelets (buffered 5 cm: map seams are road). "
@@ -909,7 +1261,8 @@ def render_report(res: dict) -> str:
               "median wall time of one planning call (CPU: process time); shared 2-core machine, rough.", ""]
     for label, s in res["summary"].items():
         if s["not_judged"]:
-            lines.append(f"Not judged ({label}): " + "; ".join(f"{k}: {v}" for k, v in s["not_judged"].items()))
+            lines += ["", f"Not judged ({label}, {len(s['not_judged'])}):", ""]
+            lines += [f"- {k}: {v}" for k, v in s["not_judged"].items()]
     for label, t in res["timing"].items():
         bad = {k: r for k, r in t.items() if isinstance(r, dict) and (r.get("status") not in (None, "goal", "ok")
                                                                         or r.get("braked_steps"))}
@@ -918,6 +1271,8 @@ def render_report(res: dict) -> str:
             lines += [f"- {k}: {r['status']}, {r.get('braked_steps', 0)} steps braking, "
                       f"{r.get('cycles_without_plan', 0)} of {r.get('cycles', 0)} planning calls without a plan"
                       + (f" (first error: {r['first_error']})" if r.get("first_error") else "") for k, r in bad.items()]
+    if res.get("settings"):
+        lines += ["", "## Settings", "", render_settings(res["settings"])]
     lines += ["", "## Per scenario", "", "| scenario | v_set (m/s) | " + " | ".join(res["summary"]) + " |",
               "| --- | --- | " + " | ".join("---" for _ in res["summary"]) + " |"]
     by = {label: {r["scenario"]: r for r in rows} for label, rows in res["verdicts"].items()}

@@ -9,7 +9,16 @@ quantities every road planner needs, so that no planner recomputes them its own 
   at the car; the set speed (the lowest speed limit over the distance ahead the car covers
   in ``SPEED_LOOKAHEAD`` seconds, at least 30 m: a car slows before a lower limit);
 - the goal in route coordinates with its time window relative to now;
-- the leader: the nearest obstacle ahead whose box overlaps the car's lane corridor now.
+- the leader: the nearest obstacle ahead whose box overlaps the car's lane corridor now;
+- traffic lights as stop targets (``light_targets``): every stop line on the route (``Scene.lights``)
+  whose light forbids crossing becomes a virtual stopped obstacle, appended after the scene's
+  obstacles (so every planner that reads the context stops for it the way it stops behind a
+  stopped car): a ``LIGHT_DEPTH`` m deep box from the stop line on, across the whole road
+  (``road_right .. road_left`` at the line, ``LIGHT_SIDE`` m beyond each edge), valid at the
+  future steps where the light shows red or red-yellow, and at yellow steps while the car can
+  still stop before the line at ``YELLOW_DECEL`` (a yellow it cannot stop for is driven through);
+  never once the car's front is past the line (a red it has already entered is cleared). Green
+  and inactive lights let the car through.
 """
 from __future__ import annotations
 
@@ -17,12 +26,16 @@ from typing import Any
 
 import jax.numpy as jnp
 
-from jaxplan.geometry.frenet import to_frenet
+from jaxplan.geometry.frenet import ref_state, to_frenet
 from jaxplan.planner import EgoState
+from jaxplan.scenarios.lights import YELLOW, colors_at, must_stop
 from jaxplan.types import Obstacles, VehicleParams, _pytree
 
 SPEED_LOOKAHEAD = 3.0  # s
 NO_LEADER = 1e4  # gap (m) reported when nothing is ahead
+YELLOW_DECEL = 4.0  # m/s^2: a yellow light is a stop target while the car can stop before the line at this
+LIGHT_DEPTH = 1.0  # m: depth of a stop line's virtual box, from the line on
+LIGHT_SIDE = 0.5  # m: the box reaches this far beyond the road's edges
 
 
 def curve_speed(scene, s, reach, a_lat, decel, n: int = 32):
@@ -88,8 +101,53 @@ class RoadContext:
     ego: Any = None
 
 
+def front_offset(vehicle: VehicleParams, dtype):
+    """``()`` metres from the car's reference point to its front bumper."""
+    return jnp.asarray(vehicle.length - vehicle.rear_overhang if vehicle.reference == "rear_axle"
+                       else 0.5 * vehicle.length, dtype)
+
+
+def light_targets(scene, s_front, v, step, horizon_steps: int):
+    """The stop lines' virtual obstacles of one scene (see the module docstring; ``NL`` lines).
+
+    Args:
+        scene: ``Scene`` (one) with ``lights``.
+        s_front: ``()`` the arc length of the car's front on the route now; v: ``()`` its speed.
+        step: ``()`` int, the simulation step now.
+        horizon_steps: ``H`` (static).
+
+    Returns:
+        ``Obstacles`` ``(NL, H, 5)`` (valid where the line is a stop target), and their Frenet
+        ``s, l`` ``(NL, H)``.
+    """
+    lights = scene.lights
+    ref = scene.route
+    f = ref.xy.dtype
+    H = horizon_steps
+    color = colors_at(lights, jnp.asarray(step) + jnp.arange(H)).T  # (NL, H)
+    d = jnp.asarray(lights.s, f) - s_front  # (NL,) front to line
+    can_stop = d >= jnp.square(jnp.maximum(v, 0.0)) / (2.0 * YELLOW_DECEL)
+    stop = must_stop(color) | ((color == YELLOW) & can_stop[:, None])
+    stop = stop & (jnp.asarray(lights.valid) & (d >= 0.0))[:, None]
+    s_c = jnp.asarray(lights.s, f) + 0.5 * LIGHT_DEPTH
+    left = route_sample(scene, scene.road_left, lights.s) + LIGHT_SIDE
+    right = route_sample(scene, scene.road_right, lights.s) - LIGHT_SIDE
+    l_c = 0.5 * (left + right)
+    xy, th, _, _ = ref_state(ref, s_c)
+    c = xy + l_c[:, None] * jnp.stack([-jnp.sin(th), jnp.cos(th)], -1)
+    box = jnp.stack([c[:, 0], c[:, 1], jnp.full_like(th, LIGHT_DEPTH), left - right, th], -1)  # (NL, 5)
+    NL = box.shape[0]
+    boxes = jnp.broadcast_to(box[:, None, :], (NL, H, 5)).astype(f)
+    t = jnp.arange(H, dtype=f) * scene.dt
+    obs = Obstacles(boxes, stop, t, jnp.zeros((NL,), bool))
+    return obs, jnp.broadcast_to(s_c[:, None], (NL, H)), jnp.broadcast_to(l_c[:, None], (NL, H))
+
+
 def road_context(scene, ego: EgoState, step, horizon_steps: int, vehicle: VehicleParams) -> RoadContext:
-    """The ``RoadContext`` of one scene at simulation step ``step`` (see the module docstring)."""
+    """The ``RoadContext`` of one scene at simulation step ``step`` (see the module docstring).
+
+    Its obstacles are the scene's ``K`` followed by one virtual obstacle per stop line
+    (``light_targets``) when the scene has any."""
     obs: Obstacles = scene.obstacles.window(step, horizon_steps)
     dt = scene.dt
     ref = scene.route
@@ -97,6 +155,13 @@ def road_context(scene, ego: EgoState, step, horizon_steps: int, vehicle: Vehicl
     s, l = to_frenet(ref, jnp.stack([ego.x, ego.y]).astype(f))
     sl = scene.obstacles.window_of(scene.obstacle_sl, step, horizon_steps)
     os_, ol = sl[..., 0], sl[..., 1]
+    lights = getattr(scene, "lights", None)
+    if lights is not None and lights.s.shape[-1]:  # static: scenes without stop lines keep K obstacles
+        lo, ls, ll = light_targets(scene, s + front_offset(vehicle, f), jnp.asarray(ego.v, f), step, horizon_steps)
+        obs = Obstacles(jnp.concatenate([obs.boxes, lo.boxes.astype(obs.boxes.dtype)]),
+                        jnp.concatenate([obs.valid, lo.valid]), obs.t,
+                        jnp.concatenate([jnp.asarray(obs.static, bool), lo.static]))
+        os_, ol = jnp.concatenate([os_, ls.astype(os_.dtype)]), jnp.concatenate([ol, ll.astype(ol.dtype)])
     ahead = jnp.maximum(30.0, ego.v * SPEED_LOOKAHEAD)
     probe = s + jnp.linspace(0.0, 1.0, 16, dtype=f) * ahead
     v_set = jnp.min(route_sample(scene, scene.speed_limit, probe))
@@ -134,6 +199,4 @@ def road_context(scene, ego: EgoState, step, horizon_steps: int, vehicle: Vehicl
 
 
 def _heading_at(ref, s):
-    from jaxplan.geometry.frenet import ref_state
-
     return ref_state(ref, s)[1]

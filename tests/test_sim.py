@@ -164,6 +164,52 @@ def test_overlap_matches_shapely_and_fault_rule(rng):
         assert bool(m["collided"]) and bool(m["at_fault"]) == fault and int(m["obstacle"]) == 0
 
 
+def _beside(box, along, across, heading_offset=0.0):
+    """Car poses ``(n, 2)``, headings ``(n,)`` placed ``along`` / ``across`` (n,) metres from obstacle boxes ``(n, 5)``."""
+    h = box[:, 4]
+    u = np.stack([np.cos(h), np.sin(h)], -1)
+    nrm = np.stack([-np.sin(h), np.cos(h)], -1)
+    return box[:, :2] + along[:, None] * u + across[:, None] * nrm, h + heading_offset
+
+
+def test_fault_is_judged_at_every_obstacles_first_contact():
+    """Only a moving obstacle hitting the car squarely from behind excuses it, whichever contact of
+    the drive it is: a car that slides sideways into a neighbour whose centre is 0.5 m behind its own is
+    at fault (the rule that looked only at whose centre was ahead excused it); a car rear-ended by a
+    faster one is not; a drive hit from behind first and then driving into a parked car is at fault."""
+    t = np.arange(60)
+    nb = _record(_road_dict(obstacles=[(60.0 + 1.0 * t, np.full(60, 3.5))], n_lanes=2))
+    scene = jax.tree_util.tree_map(jnp.asarray, nb.scene)
+    box = np.asarray(nb.scene.obstacles.boxes[0, :60])
+    # slide sideways from the own lane (3.5 m across) into the neighbour, 0.5 m ahead of it
+    xy, h = _beside(box, np.full(60, 0.5), np.linspace(-3.5, -0.5, 60))
+    m = overlap(_log(xy, h, np.full(60, 10.0)), scene, CAR)
+    assert bool(m["collided"]) and bool(m["at_fault"]) and int(m["obstacles_at_fault"]) == 1
+    # the same slide 3 m ahead of it: the neighbour's centre is behind the car's rear bumper, but beside it
+    # (not squarely behind): at fault
+    xy, h = _beside(box, np.full(60, 3.0), np.linspace(-3.5, -0.5, 60))
+    m = overlap(_log(xy, h, np.full(60, 10.0)), scene, CAR)
+    assert bool(m["collided"]) and bool(m["at_fault"])
+    # rear-ended: the car stands in the lane and a car (10 m/s) closes in from squarely behind
+    fast = _record(_road_dict(obstacles=[(30.0 + 1.0 * t, np.zeros(60))]))
+    fscene = jax.tree_util.tree_map(jnp.asarray, fast.scene)
+    fb = np.asarray(fast.scene.obstacles.boxes[0, :60])
+    stand = fb[40, :2] + (CAR.length / 2 + 4.6 / 2 - 0.3) * np.array([np.cos(fb[40, 4]), np.sin(fb[40, 4])])
+    xy = np.repeat(stand[None], 60, 0)
+    m = overlap(_log(xy, np.full(60, fb[0, 4]), np.zeros(60)), fscene, CAR)
+    assert bool(m["collided"]) and not bool(m["at_fault"]) and int(m["first_step"]) <= 40
+    # hit from behind, then pushed on into a parked car ahead: the second contact is the car's fault
+    both = _record(_road_dict(obstacles=[(30.0 + 1.0 * t, np.zeros(60)), (0.0, 0.0, "static")]))
+    bscene = jax.tree_util.tree_map(jnp.asarray, both.scene)
+    parked = np.asarray(both.scene.obstacles.boxes[1, 0])
+    xy2 = xy.copy()
+    u = np.array([np.cos(fb[0, 4]), np.sin(fb[0, 4])])
+    xy2[45:] = parked[:2] - (CAR.length / 2 + 4.6 / 2 - 0.2) * u  # against the parked car from step 45
+    m = overlap(_log(xy2, np.full(60, fb[0, 4]), np.zeros(60)), bscene, CAR)
+    assert bool(m["collided"]) and int(m["obstacle"]) == 0 and bool(m["at_fault"])
+    assert int(m["fault_obstacle"]) == 1 and int(m["fault_step"]) == 45 and int(m["obstacles_hit"]) == 2
+
+
 def test_offroad_matches_shapely(rng):
     d = _road_dict(n_lanes=2, kappa=1 / 80.0)
     rec = _record(d)
@@ -344,7 +390,8 @@ def test_drive_idm_stops_reaches_goals_writes_the_format_and_bicycle_tracks(tmp_
     assert st[-1, 4] > 1.0 and json.loads((tmp_path / "TEST" / "driven.json").read_text())["states"][-1][4] < 0.5
     metrics = json.loads((tmp_path / "metrics.json").read_text())
     assert metrics["drive.idm.goal_share"] == 0.5 and len(metrics["rows"]) == 2
-    assert "\n| idm | 2 | 50% |" in (tmp_path / "report.md").read_text()  # the headline row
+    head = f"\n| idm | 2 | {metrics['drive.idm.success_share']:.1%} | 50.0% |"
+    assert head in (tmp_path / "report.md").read_text()  # the headline row: success, then goal
     # the results folder's report opens with the closed-loop headline of a drive in a sub-folder
     from jaxplan.eval.report import write_report
 
@@ -353,7 +400,7 @@ def test_drive_idm_stops_reaches_goals_writes_the_format_and_bicycle_tracks(tmp_
     (top / "metrics.json").write_text(json.dumps({"tiny.n": 1}))
     (top / "drive" / "metrics.json").write_text((tmp_path / "metrics.json").read_text())
     text = open(write_report(str(top))).read()
-    assert text.index("## Closed loop: `drive/` (2 scenes") < text.index("## tiny") and "\n| idm | 2 | 50% |" in text
+    assert text.index("## Closed loop: `drive/` (2 scenes") < text.index("## tiny") and head in text
     # the same drives through the bicycle tracker stay within 0.5 m of the exact ones
     batch = stack_scenes([stop.scene, free.scene], min_steps=cfg.n_steps + 1)
     exact = rollout(IDMPlanner(), batch, cfg)

@@ -2,8 +2,8 @@
 
 Along the route at the car's lateral offset, the speed follows IDM towards the set speed
 (the speed limit ahead) behind the nearest predicted obstacle in the car's corridor at
-each future step, and stops before the end of the mapped road. The same IDM law
-(``idm_accel``) is the imitation baseline of the tuning suite.
+each future step, and stops before the end of the mapped road. The IDM law is the library's
+one (``jaxplan.models.idm``) with this planner's parameters (``IDMParams``).
 """
 from __future__ import annotations
 
@@ -16,6 +16,7 @@ from jax import lax
 from jaxplan.baselines.brake import SIM_VEHICLE
 from jaxplan.baselines.route_follow import follow_route
 from jaxplan.geometry.frenet import ref_state
+from jaxplan.models.idm import idm_accel as idm_model
 from jaxplan.plan_context import NO_LEADER, road_context
 from jaxplan.planner import EgoState, PlanOutput
 from jaxplan.types import VehicleParams
@@ -35,12 +36,12 @@ class IDMParams:
 
 
 def idm_accel(v, v_set, gap, dv, p: IDMParams = IDMParams()):
-    """IDM acceleration ``(...)`` for speed ``v``, desired speed ``v_set``, bumper gap ``gap``
-    (m, > 0 or large without a leader) and approach rate ``dv = v - v_leader``; clipped to
-    ``[-b_max, a_max]``. Finite gradients (the gap is floored at 0.1 m)."""
-    s_star = p.min_gap + jnp.maximum(0.0, v * p.time_gap + v * dv / (2.0 * jnp.sqrt(p.a_max * p.b_comf)))
-    free = 1.0 - (jnp.maximum(v, 0.0) / jnp.maximum(v_set, 0.1)) ** p.delta
-    a = p.a_max * (free - (s_star / jnp.maximum(gap, 0.1)) ** 2)
+    """IDM acceleration ``(...)`` (``jaxplan.models.idm.idm_accel`` with this planner's parameters)
+    for speed ``v``, desired speed ``v_set``, bumper gap ``gap`` (m, > 0 or large without a leader)
+    and approach rate ``dv = v - v_leader``; clipped to ``[-b_max, a_max]``. Finite gradients (the
+    gap is floored at 0.1 m)."""
+    a = idm_model(v, v_set, gap, dv, a_max=p.a_max, b_comf=p.b_comf, time_gap=p.time_gap, min_gap=p.min_gap,
+                  delta=p.delta)
     return jnp.clip(a, -p.b_max, p.a_max)
 
 

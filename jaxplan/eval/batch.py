@@ -33,7 +33,10 @@ from typing import Any, Callable
 
 import jax
 import numpy as np
-from jax.sharding import Mesh, NamedSharding, PartitionSpec
+
+from jax.sharding import Mesh
+
+from jaxplan.sim.devices import scene_mesh, sharded_map  # noqa: F401  (re-exported: the batch runner uses them)
 
 
 def maybe_init_distributed() -> None:
@@ -43,43 +46,6 @@ def maybe_init_distributed() -> None:
         jax.distributed.initialize(coordinator_address=addr,
                                    num_processes=int(os.environ["JAXPLAN_NUM_PROCESSES"]),
                                    process_id=int(os.environ["JAXPLAN_PROCESS_ID"]))
-
-
-def scene_mesh(devices=None) -> Mesh:
-    """A 1-D mesh over the local devices with axis name ``"scenes"``."""
-    devices = jax.local_devices() if devices is None else devices
-    return Mesh(np.asarray(devices), ("scenes",))
-
-
-def sharded_map(fn: Callable, batch, mesh: Mesh | None = None, pad_to: int | None = None):
-    """Apply a jitted batched ``fn`` to ``batch`` split over the mesh's devices.
-
-    Args:
-        fn: jitted function of a pytree whose leaves have a leading scene axis.
-        batch: pytree of arrays ``(B, ...)``.
-        pad_to: pad the scene axis to at least this size (one compiled shape for
-            every chunk, the last one included).
-
-    Returns:
-        ``fn(batch)`` as numpy arrays ``(B, ...)``; the leading axis is padded to
-        a multiple of the device count (repeating the last scene) and cut back.
-    """
-    mesh = mesh or scene_mesh()
-    n_dev = mesh.devices.size
-    leaves = jax.tree_util.tree_leaves(batch)
-    B = leaves[0].shape[0]
-    size = max(B, pad_to or 0)
-    pad = size - B + (-size) % n_dev
-
-    def place(x):
-        x = np.asarray(x)
-        if pad:
-            x = np.concatenate([x, np.repeat(x[-1:], pad, axis=0)], axis=0)
-        spec = PartitionSpec("scenes", *([None] * (x.ndim - 1)))
-        return jax.device_put(x, NamedSharding(mesh, spec))
-
-    out = fn(jax.tree_util.tree_map(place, batch))
-    return jax.tree_util.tree_map(lambda y: np.asarray(y)[:B], out)
 
 
 def _chunk_path(out_dir: str, i: int) -> str:

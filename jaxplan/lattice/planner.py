@@ -29,7 +29,7 @@ import jax.numpy as jnp
 from jaxplan.baselines.brake import SIM_VEHICLE
 from jaxplan.compile_options import NO_YNN
 from jaxplan.lattice.candidates import LatticeConfig, PlanState
-from jaxplan.lattice.cost import INVALID, RISK, CostWeights
+from jaxplan.lattice.cost import INVALID, MODE_NAMES, RISK, CostWeights
 from jaxplan.lattice.plan import LatticeResult, _plan
 from jaxplan.lattice.targets import RoadTargets
 from jaxplan.plan_context import curve_speed, road_context, route_sample
@@ -132,6 +132,12 @@ class LatticePlanner:
                               jnp.stack([scene.road_left, scene.road_right], -1))
         w = CostWeights() if self.weights is None else CostWeights(**dict(self.weights))
         return _plan(state, scene.route, ctx.obstacles, cfg, w, targets)
+
+    def describe(self, info: dict) -> str:
+        """Words for the ``info`` of a few consecutive plans (numpy ``(C,)`` each): their modes."""
+        names = [MODE_NAMES[int(m)] if 0 <= int(m) < len(MODE_NAMES) else str(int(m)) for m in info["mode"]]
+        counts = {n: names.count(n) for n in dict.fromkeys(names)}
+        return f"modes of the last {len(names)} plans: " + ", ".join(f"{n} x{c}" for n, c in counts.items())
 
     def plan(self, scene, ego: EgoState, step) -> PlanOutput:
         res = self.plan_result(scene, ego, step)

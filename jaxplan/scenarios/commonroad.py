@@ -3,14 +3,27 @@
 Optional: ``pip install jaxplan[commonroad]``. A CommonRoad scenario is converted to
 the shared JSON object and parsed by ``loader.parse_scenario``, so both formats end in
 the same ``Scenario`` (local frame, same checks, same errors).
+
+What a file holds is read or refused out loud:
+
+- traffic lights (cycle, offset, direction, active) and the lanelets' references to them and
+  stop lines (``loader`` module docstring: the optional fields);
+- every obstacle keeps its own shape as the smallest oriented box covering it (``cover_box``:
+  rectangles exactly, circles as the square of their diameter, polygons and shape groups by their
+  smallest covering box), turned to lie along the obstacle's heading;
+- dynamic obstacles with a trajectory become recorded states; those with a set-based prediction
+  become one box per occupied time step (``occupancies``; occupancies sharing a step are covered
+  by one box); a shape that cannot be covered is refused with a line naming the obstacle;
+- environment and phantom obstacles (commonroad-io 2022 and later) are not read: named on stderr.
 """
 from __future__ import annotations
 
+import math
 import os
 
 import numpy as np
 
-from jaxplan.scenarios.loader import Scenario, ScenarioError, parse_scenario, read_bytes
+from jaxplan.scenarios.loader import Scenario, ScenarioError, _min_area_box, parse_scenario, read_bytes
 
 
 def _require():
@@ -50,6 +63,146 @@ def _shape_fields(shape) -> dict:
     if hasattr(shape, "vertices"):
         return {"polygon": np.asarray(shape.vertices, float).tolist()}
     raise ScenarioError(f"unsupported CommonRoad shape {type(shape).__name__}")
+
+
+CIRCLE_SIDES = 16  # a circle inside a shape group is covered through its circumscribed 16-gon
+
+
+def _outline(shape) -> np.ndarray:
+    """``(N, 2)`` points whose covering box covers ``shape`` (a rectangle, circle, polygon or group)."""
+    group = getattr(shape, "shapes", None) or getattr(shape, "occupancies", None)
+    if group:
+        return np.concatenate([_outline(s) for s in group])
+    if hasattr(shape, "length") and hasattr(shape, "width"):
+        c = getattr(shape, "rect_center", None)
+        c = _point(getattr(shape, "center", None) if c is None else c)
+        th = float(getattr(shape, "orientation", 0.0) or 0.0)
+        u, w = np.array([math.cos(th), math.sin(th)]), np.array([-math.sin(th), math.cos(th)])
+        hl, hw = 0.5 * float(shape.length), 0.5 * float(shape.width)
+        return np.array([c + a * hl * u + b * hw * w for a, b in ((1, 1), (-1, 1), (-1, -1), (1, -1))])
+    if hasattr(shape, "radius"):
+        a = np.arange(CIRCLE_SIDES) * 2 * np.pi / CIRCLE_SIDES
+        r = float(shape.radius) / math.cos(np.pi / CIRCLE_SIDES)
+        return _point(getattr(shape, "center", None)) + r * np.column_stack([np.cos(a), np.sin(a)])
+    if hasattr(shape, "vertices"):
+        return np.asarray(shape.vertices, float).reshape(-1, 2)
+    raise ScenarioError(f"unsupported CommonRoad shape {type(shape).__name__}")
+
+
+def _toward(box: np.ndarray, heading: float) -> np.ndarray:
+    """The same box ``[x, y, length, width, theta]`` with ``theta`` the one of its four equivalent
+    orientations (quarter turns, length and width swapped on odd ones) nearest ``heading``."""
+    best = None
+    for k in range(4):
+        th = box[4] + k * np.pi / 2
+        d = math.remainder(th - heading, 2 * np.pi)
+        if best is None or abs(d) < abs(best[0]) - 1e-12:
+            L, W = (box[2], box[3]) if k % 2 == 0 else (box[3], box[2])
+            best = (d, np.array([box[0], box[1], L, W, heading + d]))
+    return best[1]
+
+
+def cover_box(shape, heading: float = 0.0) -> np.ndarray:
+    """The smallest oriented box ``(5,)`` ``[x, y, length, width, theta]`` covering a CommonRoad shape:
+    a rectangle itself, a circle the square of its diameter (at ``heading``), a polygon or a shape
+    group the smallest box around their outlines (``loader._min_area_box``); ``theta`` within 45 degrees
+    of ``heading`` (length along it).
+
+    Raises:
+        ScenarioError: a shape kind commonroad-io has that is none of these, or a degenerate polygon.
+    """
+    group = getattr(shape, "shapes", None) or getattr(shape, "occupancies", None)
+    if group and len(group) == 1:
+        shape, group = group[0], None
+    if not group and hasattr(shape, "radius") and not hasattr(shape, "length"):
+        c, d = _point(getattr(shape, "center", None)), 2 * float(shape.radius)
+        return np.array([c[0], c[1], d, d, heading])
+    if not group and hasattr(shape, "length") and hasattr(shape, "width"):
+        f = _shape_fields(shape)
+        box = np.array([*f["center"], f["length"], f["width"], f["orientation"]])
+    else:
+        pts = _outline(shape)
+        try:
+            box = _min_area_box(pts)
+        except ValueError:
+            raise ScenarioError(f"degenerate {type(shape).__name__} (its points lie on a line)") from None
+        if box[2] <= 1e-9 or box[3] <= 1e-9:
+            raise ScenarioError(f"degenerate {type(shape).__name__} (its points lie on a line)")
+    return _toward(box, heading)
+
+
+def _placed(box: np.ndarray, x: float, y: float, theta: float) -> np.ndarray:
+    """A box given in an obstacle's own frame, placed by its state ``(x, y, theta)``."""
+    c, s = math.cos(theta), math.sin(theta)
+    return np.array([x + c * box[0] - s * box[1], y + s * box[0] + c * box[1], box[2], box[3], box[4] + theta])
+
+
+def _occupancy_rows(o, dt: float) -> list:
+    """``[t, x, y, length, width, theta]`` per occupied time step of a set-based obstacle (its initial
+    state's box first); occupancies that share a step are covered by one box."""
+    init = o.initial_state
+    hint = float(init.orientation)
+    by_step: dict = {}
+    by_step.setdefault(int(init.time_step), []).append(
+        _placed(cover_box(o.obstacle_shape), float(init.position[0]), float(init.position[1]), hint))
+    for occ in o.prediction.occupancy_set:
+        ts = occ.time_step
+        steps = range(int(ts.start), int(ts.end) + 1) if hasattr(ts, "start") else [int(ts)]
+        try:
+            box = cover_box(occ.shape, hint)
+        except ScenarioError as e:
+            raise ScenarioError(f"dynamic obstacle {o.obstacle_id}: occupancy at time step {ts}: {e}") from None
+        for k in steps:
+            by_step.setdefault(k, []).append(box)
+    rows = []
+    for k in sorted(by_step):
+        boxes = by_step[k]
+        if len(boxes) > 1:
+            corners = np.concatenate([_outline(_BoxShape(b)) for b in boxes])
+            b = _toward(_min_area_box(corners), hint)
+        else:
+            b = boxes[0]
+        rows.append([k * dt, float(b[0]), float(b[1]), float(b[2]), float(b[3]), float(b[4])])
+    return rows
+
+
+class _BoxShape:
+    """A box ``[x, y, length, width, theta]`` seen as a rectangle shape (for ``_outline``)."""
+
+    def __init__(self, b):
+        self.center, self.length, self.width, self.orientation = np.asarray(b[:2]), b[2], b[3], b[4]
+
+
+def _traffic_lights(net, dt: float) -> list:
+    """The lanelet network's traffic lights as shared-format objects (times in seconds)."""
+    out = []
+    for tl in getattr(net, "traffic_lights", None) or ():
+        cyc = getattr(tl, "traffic_light_cycle", None)
+        elements = list(getattr(cyc, "cycle_elements", None) or ())
+        active = tl.active is not False and getattr(cyc, "active", True) is not False and bool(elements)
+        d = {"id": int(tl.traffic_light_id), "direction": tl.direction.value, "active": active,
+             "time_offset": float(getattr(cyc, "time_offset", 0) or 0) * dt,
+             "cycle": [{"color": e.state.value, "duration": float(e.duration) * dt} for e in elements]}
+        pos = getattr(tl, "position", None)
+        if pos is not None:
+            d["position"] = [float(v) for v in np.asarray(pos, float).reshape(-1)[:2]]
+        out.append(d)
+    return out
+
+
+def _lanelet_lights(ln, d: dict) -> None:
+    """A lanelet's traffic light references and stop line, into its shared-format object ``d``."""
+    refs = sorted(int(i) for i in (getattr(ln, "traffic_lights", None) or ()))
+    if refs:
+        d["traffic_lights"] = refs
+    sl = getattr(ln, "stop_line", None)
+    if sl is None:
+        return
+    line = {"traffic_lights": sorted(int(i) for i in (getattr(sl, "traffic_light_ref", None) or ()))}
+    if getattr(sl, "start", None) is not None and getattr(sl, "end", None) is not None:
+        line["start"] = [float(v) for v in np.asarray(sl.start, float)[:2]]
+        line["end"] = [float(v) for v in np.asarray(sl.end, float)[:2]]
+    d["stop_line"] = line
 
 
 def _goal(goal, dt: float, index: int = 0) -> dict:
@@ -96,13 +249,18 @@ def _speed_limits(scenario) -> dict:
     return out
 
 
-def commonroad_to_dict(scenario, planning_problems, id_map: dict | None = None) -> dict:
-    """A commonroad-io ``Scenario`` + ``PlanningProblemSet`` as the shared JSON object.
+def commonroad_to_dict(scenario, planning_problems, id_map: dict | None = None, notes: list | None = None) -> dict:
+    """A commonroad-io ``Scenario`` + ``PlanningProblemSet`` as the shared JSON object (see the module
+    docstring for what becomes of lights and obstacle shapes).
 
     A lanelet's ``speed_limit`` is the smallest MAX_SPEED traffic sign it references.
 
     Args:
         id_map: CommonRoad obstacle id -> id to report (as filled by ``dict_to_commonroad``); default none.
+        notes: if given, a line is appended for what is not read (environment and phantom obstacles).
+
+    Raises:
+        ScenarioError: naming the obstacle whose shape cannot be covered by a box.
     """
     id_map = id_map or {}
     dt = float(scenario.dt)
@@ -118,29 +276,50 @@ def commonroad_to_dict(scenario, planning_problems, id_map: dict | None = None) 
                 d[side] = {"ref": int(ref), "drivingDir": "same" if same else "opposite"}
         if int(ln.lanelet_id) in limits:
             d["speed_limit"] = limits[int(ln.lanelet_id)]
+        _lanelet_lights(ln, d)
         lanelets.append(d)
     obstacles = []
     for o in scenario.dynamic_obstacles:
-        f = _shape_fields(o.obstacle_shape)
-        if "polygon" in f:
-            raise ScenarioError(f"dynamic obstacle {o.obstacle_id}: polygon shapes are not supported")
-        states = [o.initial_state] + list(getattr(getattr(o.prediction, "trajectory", None), "state_list", []))
-        rows = [[float(s.time_step) * dt, float(s.position[0]), float(s.position[1]), float(s.orientation),
-                 float(getattr(s, "velocity", 0.0) or 0.0), float(getattr(s, "acceleration", 0.0) or 0.0)]
-                for s in states]
-        obstacles.append({"id": int(id_map.get(o.obstacle_id, o.obstacle_id)), "role": "dynamic",
-                          "type": o.obstacle_type.value,
-                          "length": f["length"], "width": f["width"], "states": rows})
+        oid = int(id_map.get(o.obstacle_id, o.obstacle_id))
+        pred = o.prediction
+        out = {"id": oid, "role": "dynamic", "type": o.obstacle_type.value}
+        try:
+            if pred is not None and getattr(pred, "trajectory", None) is None \
+                    and getattr(pred, "occupancy_set", None) is not None:  # a set-based prediction
+                obstacles.append({**out, "occupancies": _occupancy_rows(o, dt)})
+                continue
+            box = cover_box(o.obstacle_shape)  # in the obstacle's frame, along its heading
+        except ScenarioError as e:
+            raise ScenarioError(f"dynamic obstacle {o.obstacle_id}: {e}") from None
+        states = [o.initial_state] + list(getattr(getattr(pred, "trajectory", None), "state_list", []))
+        rows = []
+        for s in states:
+            x, y, th = float(s.position[0]), float(s.position[1]), float(s.orientation)
+            if np.any(np.abs(box[[0, 1, 4]]) > 1e-12):  # a shape off the state's point or turned: its box's pose
+                x, y, _, _, th = _placed(box, x, y, th)
+            rows.append([float(s.time_step) * dt, float(x), float(y), float(th),
+                         float(getattr(s, "velocity", 0.0) or 0.0), float(getattr(s, "acceleration", 0.0) or 0.0)])
+        obstacles.append({**out, "length": float(box[2]), "width": float(box[3]), "states": rows})
     for o in scenario.static_obstacles:
-        f = _shape_fields(o.obstacle_shape)
-        if "center" in f:  # the shape is given around the origin, placed by the initial state
-            st = o.initial_state
+        st = o.initial_state
+        shape = o.obstacle_shape
+        if hasattr(shape, "vertices") and not hasattr(shape, "radius"):  # a polygon: its own outline, placed
             c, s = np.cos(st.orientation), np.sin(st.orientation)
-            cx, cy = f["center"]
-            f["center"] = [float(st.position[0] + c * cx - s * cy), float(st.position[1] + s * cx + c * cy)]
-            f["orientation"] = float(f["orientation"] + st.orientation)
+            v = np.asarray(shape.vertices, float).reshape(-1, 2)
+            f = {"polygon": (np.asarray(st.position, float)[:2] + v @ np.array([[c, s], [-s, c]])).tolist()}
+        else:  # the shape is given around the origin, placed by the initial state
+            try:
+                b = _placed(cover_box(shape), float(st.position[0]), float(st.position[1]), float(st.orientation))
+            except ScenarioError as e:
+                raise ScenarioError(f"static obstacle {o.obstacle_id}: {e}") from None
+            f = {"length": float(b[2]), "width": float(b[3]), "center": [float(b[0]), float(b[1])],
+                 "orientation": float(b[4])}
         obstacles.append({"id": int(id_map.get(o.obstacle_id, o.obstacle_id)), "role": "static",
                           "type": o.obstacle_type.value, **f})
+    for kind, attr in (("environment", "environment_obstacle"), ("phantom", "phantom_obstacle")):
+        left_out = list(getattr(scenario, attr, None) or ())
+        if left_out and notes is not None:
+            notes.append(f"{kind} obstacles {', '.join(str(x.obstacle_id) for x in left_out)} not read")
     problems = []
     for pp in planning_problems.planning_problem_dict.values():
         st = pp.initial_state
@@ -150,8 +329,12 @@ def commonroad_to_dict(scenario, planning_problems, id_map: dict | None = None) 
                                            "orientation": float(st.orientation), "velocity": float(st.velocity),
                                            "acceleration": float(getattr(st, "acceleration", 0.0) or 0.0)},
                          "goals": [_goal(pp.goal, dt, i) for i in range(max(1, len(pp.goal.state_list or ())))]})
-    return {"id": str(scenario.scenario_id), "source": "commonroad-xml", "tags": [t.value for t in (scenario.tags or [])],
-            "dt": dt, "lanelets": lanelets, "obstacles": obstacles, "planning_problems": problems}
+    out = {"id": str(scenario.scenario_id), "source": "commonroad-xml", "tags": [t.value for t in (scenario.tags or [])],
+           "dt": dt, "lanelets": lanelets, "obstacles": obstacles, "planning_problems": problems}
+    lights = _traffic_lights(scenario.lanelet_network, dt)
+    if lights:
+        out["traffic_lights"] = lights
+    return out
 
 
 class _Shapes:
@@ -212,10 +395,14 @@ def dict_to_commonroad(d: dict, path: str = "scenario", id_map: dict | None = No
     """The shared JSON object as a commonroad-io ``(Scenario, PlanningProblemSet)``: the inverse of
     ``commonroad_to_dict``.
 
-    Lanelets keep their bounds, predecessors, successors and adjacency (with driving direction);
-    a lanelet's ``speed_limit`` becomes a virtual MAX_SPEED traffic sign it references. Dynamic
+    Lanelets keep their bounds, predecessors, successors and adjacency (with driving direction),
+    their traffic light references and stop line; traffic lights keep their cycle, offset (time
+    steps ``round(t / dt)``), direction and activity (CommonRoad needs a position: without one, the
+    right end of the first lanelet naming the light); a lanelet's ``speed_limit`` becomes a virtual
+    MAX_SPEED traffic sign it references. Dynamic
     obstacles keep their recorded trajectory (time step ``round(t / dt)``; an obstacle exists only
-    while its recording lasts: one state means it is there at that step only); static ones
+    while its recording lasts: one state means it is there at that step only), or their
+    ``occupancies`` as a ``SetBasedPrediction`` of rectangles (the first row is the initial state); static ones
     (role ``static``: a ``center`` box, a ``polygon``, or their first recorded state) become
     ``StaticObstacle``s. Every goal of a planning problem becomes one goal state (rectangle or goal
     lanelets, time interval, orientation and velocity intervals where given). Obstacles without
@@ -241,8 +428,11 @@ def dict_to_commonroad(d: dict, path: str = "scenario", id_map: dict | None = No
     from commonroad.common.util import AngleInterval, Interval
     from commonroad.planning.goal import GoalRegion
     from commonroad.planning.planning_problem import PlanningProblem, PlanningProblemSet
-    from commonroad.prediction.prediction import TrajectoryPrediction
+    from commonroad.common.common_lanelet import LineMarking, StopLine
+    from commonroad.prediction.prediction import Occupancy, SetBasedPrediction, TrajectoryPrediction
     from commonroad.scenario.lanelet import Lanelet, LaneletNetwork
+    from commonroad.scenario.traffic_light import (TrafficLight, TrafficLightCycle, TrafficLightCycleElement,
+                                                   TrafficLightDirection, TrafficLightState)
     from commonroad.scenario.obstacle import DynamicObstacle, ObstacleType, StaticObstacle
     from commonroad.scenario.scenario import Scenario as CRScenario
     from commonroad.scenario.scenario import ScenarioID, Tag
@@ -252,7 +442,7 @@ def dict_to_commonroad(d: dict, path: str = "scenario", id_map: dict | None = No
 
     from jaxplan.scenarios.loader import DEFAULT_SIZE
 
-    parse_scenario(d, path)  # every field check, with its message, before building anything
+    parse_scenario(d, path, quiet=True)  # every field check, with its message, before building anything
     shapes = _Shapes()
     dt = float(d["dt"])
     step = lambda t: int(round(float(t) / dt))  # noqa: E731
@@ -268,6 +458,7 @@ def dict_to_commonroad(d: dict, path: str = "scenario", id_map: dict | None = No
     sc = CRScenario(dt, sid, tags=tags or None)
 
     used = {int(ln["id"]) for ln in d["lanelets"]} | {int(p.get("id", 0)) for p in d["planning_problems"]}
+    used |= {int(tl["id"]) for tl in d.get("traffic_lights") or []}
     fresh = iter(range(max(used | {int(o["id"]) for o in d["obstacles"]} | {0}) + 1, 1 << 62))
     signs = _country_signs(sid)
     lanelets, limits = [], []
@@ -284,12 +475,31 @@ def dict_to_commonroad(d: dict, path: str = "scenario", id_map: dict | None = No
             used.add(sign_id)
             limits.append(TrafficSign(sign_id, [TrafficSignElement(signs.MAX_SPEED, [str(float(ln["speed_limit"]))])],
                                       {lid}, right[0].copy(), virtual=True))
+        sl = ln.get("stop_line")
+        if sl is not None:
+            ends = [np.asarray(sl[k], float) if sl.get(k) is not None else None for k in ("start", "end")]
+            kw["stop_line"] = StopLine(ends[0], ends[1], LineMarking.SOLID,
+                                       traffic_light_ref=set(int(i) for i in sl.get("traffic_lights") or []) or None)
+        if ln.get("traffic_lights"):
+            kw["traffic_lights"] = set(int(i) for i in ln["traffic_lights"])
         lanelets.append(Lanelet(left, 0.5 * (left + right), right, lid,
                                 predecessor=[int(i) for i in ln.get("predecessors") or []],
                                 successor=[int(i) for i in ln.get("successors") or []], **kw))
     net = LaneletNetwork.create_from_lanelet_list(lanelets, cleanup_ids=False)
     for sign in limits:
         net.add_traffic_sign(sign, set(sign.first_occurrence))
+    where_lit = {}  # a light without a position stands at the right end of the first lanelet naming it
+    for ln in d["lanelets"]:
+        for i in list(ln.get("traffic_lights") or []) + list((ln.get("stop_line") or {}).get("traffic_lights") or []):
+            where_lit.setdefault(int(i), np.asarray(ln["right"][-1], float))
+    for tl in d.get("traffic_lights") or []:
+        cycle = TrafficLightCycle([TrafficLightCycleElement(TrafficLightState(ph["color"]), step(ph["duration"]))
+                                   for ph in tl.get("cycle") or []], step(tl.get("time_offset") or 0.0),
+                                  bool(tl.get("active", True)))
+        pos = np.asarray(tl["position"], float) if tl.get("position") is not None \
+            else where_lit.get(int(tl["id"]), np.zeros(2))
+        net.add_traffic_light(TrafficLight(int(tl["id"]), pos, cycle, active=bool(tl.get("active", True)),
+                                           direction=TrafficLightDirection(tl.get("direction", "all"))), set())
     sc.add_objects(net)
 
     def unique(i: int) -> int:
@@ -308,6 +518,17 @@ def dict_to_commonroad(d: dict, path: str = "scenario", id_map: dict | None = No
         if kind not in types:
             raise ScenarioError(f"{path}: field {where}.type {kind!r} is not a CommonRoad obstacle type")
         otype = types[kind]
+        if o.get("occupancies"):  # a set-based prediction: one rectangle per step
+            rows = sorted(o["occupancies"], key=lambda r: r[0])
+            k = [step(r[0]) for r in rows]
+            x0, y0, len0, wid0, th0 = map(float, rows[0][1:6])
+            init = InitialState(time_step=k[0], position=np.array([x0, y0]), orientation=th0, velocity=0.0,
+                                acceleration=0.0, yaw_rate=0.0, slip_angle=0.0)
+            occ = [Occupancy(k[j], shapes.region_rect(float(r[3]), float(r[4]), r[1:3], float(r[5])))
+                   for j, r in enumerate(rows) if j > 0]
+            pred = SetBasedPrediction(k[1], occ) if occ else None
+            sc.add_objects(DynamicObstacle(unique(int(o["id"])), otype, shapes.obstacle_rect(len0, wid0), init, pred))
+            continue
         st = [r for r in (o.get("states") or [])]
         length, width = ((float(o["length"]), float(o["width"])) if "length" in o
                          else DEFAULT_SIZE.get(kind, (None, None)))
@@ -424,11 +645,12 @@ def read_commonroad(path: str):
 def load_commonroad(path: str, horizon: float | None = None) -> Scenario:
     """Read a CommonRoad XML file (``.xml`` or ``.xml.gz``) into a ``Scenario`` (local frame at the ego start)."""
     sc, pps = read_commonroad(path)
+    notes: list = []
     try:
-        d = commonroad_to_dict(sc, pps)
+        d = commonroad_to_dict(sc, pps, notes=notes)
     except ScenarioError as e:
         raise ScenarioError(f"{path}: {e}") from None
-    return parse_scenario(d, path, horizon)
+    return parse_scenario(d, path, horizon, notes=notes)
 
 
 def write_solution(scenario: Scenario, trajectory, path: str, planning_problem_id: int | None = None,

@@ -3,6 +3,23 @@
 Host side (numpy). A scenario is moved into a local frame: every coordinate is
 shifted so that the ego start (the first planning problem's initial position)
 is the origin. Malformed files raise ``ScenarioError`` naming the file and field.
+
+Beyond the fields the shared format's README lists, the loader reads (all optional):
+
+- ``traffic_lights``: ``[{"id", "direction", "active", "time_offset", "cycle", "position"}]``,
+  CommonRoad's traffic lights: ``cycle`` is a list of phases ``{"color", "duration"}`` (colors
+  ``LIGHT_COLORS``, durations in seconds, each at least one ``dt``) repeated from ``time_offset``
+  (seconds on the scenario's clock) on, and before it; ``direction`` one of ``LIGHT_DIRECTIONS``
+  (default ``all``); ``active`` (default true; an inactive light is ``inactive`` at every step).
+- a lanelet's ``traffic_lights`` (ids of the lights it references) and ``stop_line``
+  (``{"start", "end", "traffic_lights"}``; without points the line lies across the lanelet's end).
+  A lanelet that references lights without a stop line stops at its end.
+- an obstacle's ``occupancies`` instead of ``states``: rows ``[t, x, y, length, width, heading]``,
+  one box per time step (CommonRoad's set-based predictions, each occupancy's covering box).
+
+Obstacle types that ``jaxplan.scenarios.scene.OBSTACLE_TYPES`` does not name are read as
+``unknown``; those types, and obstacles left out for want of a shape or a trajectory, are named
+in one line on stderr per file.
 """
 from __future__ import annotations
 
@@ -24,6 +41,12 @@ from jaxplan.types import FLOAT32_MAX_COORD, Obstacles
 
 # Sizes (length, width) for road users the files give without one.
 DEFAULT_SIZE = {"pedestrian": (0.6, 0.6), "bicycle": (1.8, 0.6)}
+
+# CommonRoad's traffic light colors and directions (the values its XML and commonroad-io use).
+LIGHT_COLORS = ("green", "yellow", "red", "redYellow", "inactive")
+LIGHT_DIRECTIONS = {"right": ("right",), "straight": ("straight",), "left": ("left",),
+                    "leftStraight": ("left", "straight"), "straightRight": ("straight", "right"),
+                    "leftRight": ("left", "right"), "all": ("left", "straight", "right")}
 
 
 class ScenarioError(ValueError):
@@ -49,6 +72,8 @@ class Lane:
     speed_limit: float | None
     opposite_left: int | None = None  # the neighbour on the left driven the other way
     opposite_right: int | None = None
+    traffic_lights: tuple = ()  # ids of the lights governing the lanelet (its own and its stop line's)
+    stop_line: np.ndarray | None = None  # (2, 2) where they govern: the stop line, else the lanelet's end
 
 
 @dataclasses.dataclass(frozen=True)
@@ -59,6 +84,48 @@ class EgoState:
     v: float
     a: float = 0.0
     t: float = 0.0
+
+
+@dataclasses.dataclass(frozen=True)
+class TrafficLight:
+    """A traffic light on the scene's clock (step 0 = the ego's start).
+
+    Attributes:
+        id: its id.
+        direction: one of ``LIGHT_DIRECTIONS`` (the movements it governs).
+        active: False: ``inactive`` at every step.
+        colors: the colors of the cycle's phases (``LIGHT_COLORS``).
+        durations: each phase's length in steps (>= 1).
+        offset: the step at which a cycle begins (the cycle repeats before and after it).
+        position: ``(2,)`` where the light stands (local frame), or None.
+    """
+
+    id: int
+    direction: str
+    active: bool
+    colors: tuple
+    durations: tuple
+    offset: int
+    position: np.ndarray | None = None
+
+    @property
+    def period(self) -> int:
+        """Steps of one cycle."""
+        return int(sum(self.durations))
+
+    def color_codes(self, steps) -> np.ndarray:
+        """``(...)`` indices into ``LIGHT_COLORS`` of the light's color at integer scene ``steps (...)``
+        (commonroad-io's ``TrafficLightCycle.get_state_at_time_step`` on the scene's clock)."""
+        steps = np.asarray(steps, np.int64)
+        if not self.active or not self.colors:
+            return np.full(steps.shape, LIGHT_COLORS.index("inactive"), np.int32)
+        ends = np.cumsum(self.durations)
+        phase = np.searchsorted(ends, np.mod(steps - self.offset, self.period), side="right")
+        return np.array([LIGHT_COLORS.index(c) for c in self.colors], np.int32)[phase]
+
+    def color_at(self, step: int) -> str:
+        """The light's color at scene step ``step``."""
+        return LIGHT_COLORS[int(self.color_codes(step))]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -75,6 +142,7 @@ class Scenario:
         goal: the first goal of the planning problem, coordinates shifted.
         skipped: ids of obstacles without a usable shape or trajectory.
         problem_id: id of the planning problem whose start is the ego.
+        traffic_lights: ``TrafficLight``s of the map (lanelets name the ones governing them).
     """
 
     id: str
@@ -90,6 +158,7 @@ class Scenario:
     origin: np.ndarray
     skipped: tuple = ()
     problem_id: int = 0
+    traffic_lights: tuple = ()
 
     def lane(self, lane_id: int) -> Lane:
         for ln in self.lanes:
@@ -256,6 +325,102 @@ def _states(o, where, path) -> np.ndarray:
     return st
 
 
+def _occupancies(o, where, path) -> np.ndarray:
+    """``(N, 6)`` rows ``[t, x, y, length, width, heading]`` of an obstacle's ``occupancies``."""
+    rows = o["occupancies"]
+    try:
+        a = np.asarray(rows, dtype=np.float64)
+    except (TypeError, ValueError):
+        a = None
+    if a is None or a.ndim != 2 or a.shape[1] != 6 or not len(a) or not np.all(np.isfinite(a)):
+        raise ScenarioError(f"{path}: field {where}.occupancies should be rows of finite "
+                            f"[t, x, y, length, width, heading]")
+    if np.any(a[:, 3:5] <= 0) or a[:, 3:5].max() > FLOAT32_MAX_COORD:
+        raise ScenarioError(f"{path}: field {where}.occupancies has a length or width that is not positive "
+                            f"or above {FLOAT32_MAX_COORD:g} m")
+    if np.abs(a[:, 5]).max() > MAX_ANGLE:
+        raise ScenarioError(f"{path}: field {where}.occupancies has a heading (column 5) beyond +-{MAX_ANGLE:g} rad")
+    return a
+
+
+def _traffic_lights(d: dict, dt: float, t0: float, origin: np.ndarray, path: str) -> tuple:
+    """The scenario's ``TrafficLight``s (optional field ``traffic_lights``), on the scene's clock."""
+    raw = d.get("traffic_lights")
+    if raw is None:
+        return ()
+    if not isinstance(raw, list):
+        raise ScenarioError(f"{path}: field scenario.traffic_lights should be a list of objects")
+    out, seen = [], set()
+    for i, tl in enumerate(raw):
+        where = f"traffic_lights[{i}]"
+        if not isinstance(tl, dict):
+            raise ScenarioError(f"{path}: field {where} should be an object")
+        lid = _int(tl, "id", where, path)
+        if lid in seen:
+            raise ScenarioError(f"{path}: field {where}.id {lid} is used by another traffic light")
+        seen.add(lid)
+        direction = tl.get("direction", "all")
+        if direction not in LIGHT_DIRECTIONS:
+            raise ScenarioError(f"{path}: field {where}.direction should be one of {', '.join(LIGHT_DIRECTIONS)}, "
+                                f"got {direction!r}")
+        active = tl.get("active", True)
+        if not isinstance(active, bool):
+            raise ScenarioError(f"{path}: field {where}.active should be true or false, got {active!r}")
+        offset = _number(tl, "time_offset", where, path) if tl.get("time_offset") is not None else 0.0
+        cycle = tl.get("cycle") or []
+        if not isinstance(cycle, list):
+            raise ScenarioError(f"{path}: field {where}.cycle should be a list of {{color, duration}} phases")
+        if active and not cycle:
+            raise ScenarioError(f"{path}: field {where}.cycle is empty (an active light needs its phases)")
+        colors, durations = [], []
+        for j, ph in enumerate(cycle):
+            w = f"{where}.cycle[{j}]"
+            if not isinstance(ph, dict):
+                raise ScenarioError(f"{path}: field {w} should be an object {{color, duration}}")
+            color = ph.get("color")
+            if color not in LIGHT_COLORS:
+                raise ScenarioError(f"{path}: field {w}.color should be one of {', '.join(LIGHT_COLORS)}, "
+                                    f"got {color!r}")
+            dur = _number(ph, "duration", w, path)
+            steps = int(round(dur / dt))
+            if dur <= 0 or steps < 1 or steps > 1e7:
+                raise ScenarioError(f"{path}: field {w}.duration should be at least one time step ({dt:g} s) "
+                                    f"and finite, got {dur!r}")
+            colors.append(color)
+            durations.append(steps)
+        pos = None
+        if tl.get("position") is not None:
+            pos = _points([tl["position"]], f"{where}.position", path)[0] - origin
+        out.append(TrafficLight(lid, direction, active, tuple(colors), tuple(durations),
+                                int(round((offset - t0) / dt)), pos))
+    return tuple(out)
+
+
+def _lane_lights(ln: dict, where: str, path: str, left: np.ndarray, right: np.ndarray, origin: np.ndarray,
+                 known: set) -> tuple:
+    """``(light ids, stop line (2, 2) or None)`` of a lanelet (optional ``traffic_lights`` and ``stop_line``)."""
+    ids = set(_ids(ln, "traffic_lights", where, path))
+    sl = ln.get("stop_line")
+    line = None
+    if sl is not None:
+        w = f"{where}.stop_line"
+        if not isinstance(sl, dict):
+            raise ScenarioError(f"{path}: field {w} should be an object {{start, end, traffic_lights}}")
+        ids |= set(_ids(sl, "traffic_lights", w, path))
+        has = [sl.get(k) is not None for k in ("start", "end")]
+        if any(has) and not all(has):
+            raise ScenarioError(f"{path}: field {w} gives only one of start and end")
+        if all(has):
+            line = np.stack([_points([sl["start"]], f"{w}.start", path)[0],
+                             _points([sl["end"]], f"{w}.end", path)[0]]) - origin
+    missing = sorted(ids - known)
+    if missing:
+        raise ScenarioError(f"{path}: field {where}.traffic_lights names traffic lights that do not exist: {missing}")
+    if line is None and (sl is not None or ids):  # the line lies across the lanelet's end
+        line = np.stack([left[-1], right[-1]])
+    return tuple(sorted(ids)), line
+
+
 GOAL_POSITIONS = ("rectangle", "polygon", "circle", "lanelets")  # goal regions the loaders understand
 GOAL_INTERVALS = ("time", "velocity", "orientation")
 
@@ -319,12 +484,18 @@ def _goal(problem: dict, origin: np.ndarray, path: str, t0: float = 0.0) -> dict
     return goal
 
 
-def parse_scenario(d: Any, path: str, horizon: float | None = None) -> Scenario:
+def parse_scenario(d: Any, path: str, horizon: float | None = None, notes: list | None = None,
+                   quiet: bool = False) -> Scenario:
     """Build a ``Scenario`` from an already parsed scenario object (see ``load_scenario``).
 
     Args:
-        d: the scenario object of the shared JSON format.
+        d: the scenario object of the shared JSON format (with the optional fields of the module
+            docstring: traffic lights, stop lines, occupancies).
         path: name used in error messages.
+        horizon: keep obstacle predictions up to this time (s); default all.
+        notes: what a converter already left out or changed (``commonroad_to_dict``); printed with
+            this function's own (obstacles skipped, types read as ``unknown``) in one line on stderr.
+        quiet: print nothing (a check of an object that is not being loaded).
     """
     if not isinstance(d, dict):
         raise ScenarioError(f"{path}: top level should be an object")
@@ -343,6 +514,8 @@ def parse_scenario(d: Any, path: str, horizon: float | None = None) -> Scenario:
     if v0 < 0:
         raise ScenarioError(f"{path}: field {w}.velocity must be >= 0 (the car drives forward), got {v0:g}")
     ego = EgoState(0.0, 0.0, _angle(init, "orientation", w, path), v0, a0, 0.0)
+    lights = _traffic_lights(d, dt, t0, origin, path)
+    light_ids = {tl.id for tl in lights}
 
     lanes = []
     for i, ln in enumerate(_field(d, "lanelets", "scenario", path, list)):
@@ -354,22 +527,33 @@ def parse_scenario(d: Any, path: str, horizon: float | None = None) -> Scenario:
         limit = ln.get("speed_limit")
         if limit is not None:
             limit = _number(ln, "speed_limit", where, path)
+        refs, stop_line = _lane_lights(ln, where, path, left, right, origin, light_ids)
         lanes.append(Lane(_int(ln, "id", where, path), left, right, 0.5 * (left + right),
                           _ids(ln, "successors", where, path), _ids(ln, "predecessors", where, path),
                           _adjacent(ln, "adjacentLeft", where, path), _adjacent(ln, "adjacentRight", where, path),
                           limit, _adjacent(ln, "adjacentLeft", where, path, same=False),
-                          _adjacent(ln, "adjacentRight", where, path, same=False)))
+                          _adjacent(ln, "adjacentRight", where, path, same=False), refs, stop_line))
 
     obstacles = _field(d, "obstacles", "scenario", path, list)
     for i, o in enumerate(obstacles):
         if not isinstance(o, dict):
             raise ScenarioError(f"{path}: field obstacles[{i}] should be an object")
+    occupied = {}
+    for i, o in enumerate(obstacles):
+        if o.get("occupancies") is not None:
+            if o.get("states"):
+                raise ScenarioError(f"{path}: field obstacles[{i}] gives both states and occupancies (one of them)")
+            occupied[i] = _occupancies(o, f"obstacles[{i}]", path)
     states = {i: _states(o, f"obstacles[{i}]", path) for i, o in enumerate(obstacles) if o.get("states")}
-    n_steps = max([1] + [len(st) for st in states.values()])
+    n_steps = max([1] + [len(st) for st in states.values()]
+                  + [int(np.rint((oc[:, 0].max() - t0) / dt)) + 1 for oc in occupied.values()])
     if horizon is not None:
         n_steps = min(n_steps, int(round(horizon / dt)) + 1)
     t = np.arange(n_steps) * dt
     boxes, valids, statics, ids, types, skipped = [], [], [], [], [], []
+    from jaxplan.scenarios.scene import OBSTACLE_TYPES as known_types
+
+    unknown_types = set()
     for i, o in enumerate(obstacles):
         where = f"obstacles[{i}]"
         oid = _int(o, "id", where, path)
@@ -378,8 +562,18 @@ def parse_scenario(d: Any, path: str, horizon: float | None = None) -> Scenario:
             raise ScenarioError(f"{path}: field {where}.role should be 'dynamic' or 'static', got {role!r}")
         b = np.zeros((n_steps, 5))
         ok = np.zeros(n_steps, bool)
-        static = role == "static" or i not in states  # polygon / centre shapes have no motion
-        if i in states and static:  # a static obstacle: its first recorded pose, held at every time
+        static = role == "static" or (i not in states and i not in occupied)  # polygon / centre: no motion
+        if i in occupied:  # one box per step (set-based predictions)
+            if role == "static":
+                raise ScenarioError(f"{path}: field {where}.occupancies belong to a dynamic obstacle, not a static one")
+            oc = occupied[i]
+            k = np.rint((oc[:, 0] - t0) / dt).astype(int)
+            if len(np.unique(k)) != len(k):
+                raise ScenarioError(f"{path}: field {where}.occupancies has two rows for one time step")
+            keep = (k >= 0) & (k < n_steps)
+            b[k[keep]] = np.column_stack([oc[keep, 1] - origin[0], oc[keep, 2] - origin[1], oc[keep, 3:6]])
+            ok[k[keep]] = True
+        elif i in states and static:  # a static obstacle: its first recorded pose, held at every time
             length, width = _size(o, where, path)
             st = states[i]
             b[:] = [st[0, 1] - origin[0], st[0, 2] - origin[1], length, width, st[0, 3]]
@@ -414,7 +608,20 @@ def parse_scenario(d: Any, path: str, horizon: float | None = None) -> Scenario:
         valids.append(ok)
         statics.append(static)
         ids.append(oid)
-        types.append(str(o.get("type", "unknown")))
+        kind = str(o.get("type", "unknown"))
+        if kind not in known_types:
+            unknown_types.add(kind)
+            kind = "unknown"
+        types.append(kind)
+    notes = list(notes or [])
+    if unknown_types:
+        notes.append(f"obstacle types {', '.join(sorted(unknown_types))} read as 'unknown'")
+    if skipped:
+        notes.append(f"obstacles {', '.join(map(str, skipped))} left out (no shape and no trajectory)")
+    if notes and not quiet:
+        import sys
+
+        print(f"jaxplan: {path}: {'; '.join(notes)}", file=sys.stderr)
     K = len(boxes)
     obs = Obstacles(jnp.asarray(np.array(boxes).reshape(K, n_steps, 5), jnp.float32),
                     jnp.asarray(np.array(valids, bool).reshape(K, n_steps)), jnp.asarray(t, jnp.float32),
@@ -424,7 +631,7 @@ def parse_scenario(d: Any, path: str, horizon: float | None = None) -> Scenario:
                     tuple(map(str, tags)) if isinstance(tags, list) else (), dt, tuple(lanes), obs,
                     np.asarray(ids), tuple(types), ego, _goal(problems[0], origin, path, t0), origin,
                     tuple(skipped), _int(problems[0], "id", "planning_problems[0]", path)
-                    if "id" in problems[0] else 0)
+                    if "id" in problems[0] else 0, lights)
 
 
 def scenario_files(directory: str, pattern: str = "*.json") -> list[str]:

@@ -148,21 +148,27 @@ def neighbour_map(scenario) -> dict:
                 out[(ln.id, side)] = (same, True)
             elif opp is not None and opp in by_id:
                 out[(ln.id, side)] = (opp, False)
-    mids = {ln.id: (_midpoint(ln.left), _midpoint(ln.right)) for ln in scenario.lanes}
-    for ln in scenario.lanes:
+    lanes = list(scenario.lanes)
+    # every lanelet's bounding box (both bounds), for a cheap reject before comparing bounds
+    lo = np.array([np.minimum(ln.left.min(0), ln.right.min(0)) for ln in lanes]).reshape(-1, 2)
+    hi = np.array([np.maximum(ln.left.max(0), ln.right.max(0)) for ln in lanes]).reshape(-1, 2)
+    reach = 5.0 + SHARED_BOUND
+    for i, ln in enumerate(lanes):
         for side in ("left", "right"):
             if (ln.id, side) in out:
                 continue
             mine = ln.left if side == "left" else ln.right
-            m = mids[ln.id][0 if side == "left" else 1]
-            for other in scenario.lanes:
+            m = _midpoint(mine)
+            near = np.nonzero(np.all((lo - reach <= m) & (m <= hi + reach), axis=1))[0]
+            for j in near:
+                other = lanes[j]
                 if other.id == ln.id:
                     continue
                 # same direction: my left bound is its right bound (and my right its left);
                 # opposite direction: my left bound is its left bound reversed (my right, its right)
                 for bound, same in (((other.right, True), (other.left, False)) if side == "left" else
                                     ((other.left, True), (other.right, False))):
-                    if np.min(np.linalg.norm(bound - m, axis=1)) > 5.0 + SHARED_BOUND:  # cheap reject
+                    if np.min(np.linalg.norm(bound - m, axis=1)) > reach:  # cheap reject
                         continue
                     if _bounds_shared(mine, bound if same else bound[::-1]):
                         out[(ln.id, side)] = (other.id, same)

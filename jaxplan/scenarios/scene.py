@@ -29,6 +29,15 @@ vertices, ``K`` obstacles over ``T`` steps, ``G`` goal polygons of ``W`` vertice
 - ``goal``: ``Goal`` (region polygons, time / speed / heading intervals, and the region's
   arc-length and lateral ranges on the route, for planners' targets).
 - ``dt ()``: the step (s).
+- ``lights``: ``TrafficLights`` (``jaxplan.scenarios.lights``, ``NL`` stop lines the route crosses,
+  ``P`` steps of colors): ``line (NL, 2, 2)`` the stop line, ``s (NL,)`` its arc length on the
+  route, ``color (NL, P)`` int the governing light's color (``LIGHT_COLORS`` index) at scene steps
+  ``0 .. period - 1`` (repeating), ``period (NL,)``, ``lanelet (NL,)`` and ``valid (NL,)`` (padding invalid).
+- ``lane_paths (LP, Q, 2)`` with ``lane_path_valid (LP, Q)``: where a road user on a lanelet drives
+  next (``jaxplan.scenarios.lane_paths``): one path per lanelet (and per 50 m of a long one), its
+  centre line followed by the straightest chain of successors, up to 150 m, ``Q`` points evenly
+  spaced in arc length (a valid path's points are all valid; padding paths none). The simulator's
+  constant-velocity predictions follow them.
 """
 from __future__ import annotations
 
@@ -41,6 +50,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxplan.geometry.frenet import ReferenceLine, to_frenet
+from jaxplan.scenarios.lane_paths import lane_paths
+from jaxplan.scenarios.lights import no_lights, pad_lights, route_lights
 from jaxplan.scenarios.polylines import arc_length, nearest_on_polyline, resample_polyline, smooth_polyline
 from jaxplan.scenarios.route import Route, RouteError, neighbour_map, plan_route
 from jaxplan.types import Obstacles, _pytree, check_coordinates, check_finite
@@ -108,7 +119,8 @@ class Goal:
 
 @_pytree(data_fields=("start", "route", "route_start_s", "route_end_s", "lane_offset", "lane_width", "lane_valid",
                       "lane_same_dir", "road_left", "road_right", "speed_limit", "drivable", "drivable_valid",
-                      "obstacles", "obstacle_sl", "obstacle_type", "goal", "dt"))
+                      "obstacles", "obstacle_sl", "obstacle_type", "goal", "dt", "lights",
+                      "lane_paths", "lane_path_valid"))
 class Scene:
     """One road scene (see the module docstring for every field's shape). Add a leading
     axis to every leaf for a batch (``stack_scenes``)."""
@@ -131,6 +143,9 @@ class Scene:
     obstacle_type: Any
     goal: Any
     dt: Any
+    lights: Any = None  # TrafficLights; None: no stop lines
+    lane_paths: Any = None  # (LP, Q, 2); None: none (constant-velocity predictions then go straight)
+    lane_path_valid: Any = None  # (LP, Q)
 
     @property
     def n_lanes(self) -> int:
@@ -180,6 +195,13 @@ class Scene:
             if a.shape[-1:] != (2,) or np.any(np.isnan(a)) or np.any(a[..., 0] > a[..., 1]):
                 raise ValueError(f"Scene.goal.{name}: expected an interval (..., 2) with low <= high, got {a}")
         check_finite("Scene.goal.region", g.region)
+        if self.lights is not None:
+            self.lights.validate()
+        if self.lane_paths is not None:
+            lp = check_finite("Scene.lane_paths", self.lane_paths)
+            if lp.ndim < 3 or lp.shape[-1] != 2 or np.asarray(self.lane_path_valid).shape != lp.shape[:-1]:
+                raise ValueError(f"Scene.lane_paths: expected (..., LP, Q, 2) with a (..., LP, Q) mask, got "
+                                 f"{lp.shape} and {np.asarray(self.lane_path_valid).shape}")
         d = check_finite("Scene.dt", self.dt)
         if np.any(d <= 0):
             raise ValueError("Scene.dt must be positive")
@@ -245,26 +267,51 @@ def _frenet(xy: np.ndarray, s: np.ndarray, p: np.ndarray) -> tuple[float, float]
     return float(s[j] + along), float(t[0] * r[1] - t[1] * r[0])
 
 
-def _lane_at(by_id, lid, p, t):
+class _LaneProjector:
+    """Every route point's projection onto lanelet centre lines, computed once per lanelet for all
+    points (vectorised ``nearest_on_polyline``): ``at(lid, i)`` is what ``_lane_at`` reads."""
+
+    def __init__(self, by_id, xy: np.ndarray):
+        self.by_id, self.xy, self.cache = by_id, xy, {}
+
+    def at(self, lid, i):
+        """``(j, u, centre point (2,), width)`` of route point ``i`` on lanelet ``lid``'s centre line."""
+        if lid not in self.cache:
+            ln = self.by_id[lid]
+            poly, p = ln.center, self.xy
+            seg = poly[1:] - poly[:-1]  # (P-1, 2)
+            L2 = np.maximum(np.sum(seg * seg, 1), 1e-12)
+            rel = p[:, None, :] - poly[None, :-1]  # (R, P-1, 2)
+            u = np.clip(np.sum(rel * seg, 2) / L2, 0, 1)
+            d = np.linalg.norm(poly[None, :-1] + u[..., None] * seg - p[:, None, :], axis=2)
+            j = np.argmin(d, axis=1)
+            uj = u[np.arange(len(p)), j]
+            # the formulas of nearest_on_polyline and the previous per-point code, vectorised
+            along = uj * np.sqrt(L2[j])
+            uu = along / np.maximum(np.linalg.norm(seg[j], axis=1), 1e-12)
+            c = poly[j] + uu[:, None] * seg[j]
+            lw = ln.left[j] + uu[:, None] * (ln.left[j + 1] - ln.left[j])
+            rw = ln.right[j] + uu[:, None] * (ln.right[j + 1] - ln.right[j])
+            self.cache[lid] = (j, c, np.linalg.norm(lw - rw, axis=1), seg[j])
+        j, c, w, sg = self.cache[lid]
+        return c[i], float(w[i]), sg[i]
+
+
+def _lane_at(proj: _LaneProjector, lid, i, t):
     """Offset, width, along-track error of lanelet ``lid`` (or its successor / predecessor,
-    whichever covers ``p`` best) at the route point ``p`` with unit tangent ``t``."""
+    whichever covers the route point best) at route point ``i`` with unit tangent ``t``."""
     best = None
+    by_id = proj.by_id
+    p = proj.xy[i]
     ln0 = by_id[lid]
     for cand in (lid, *ln0.successors, *ln0.predecessors):
         if cand not in by_id:
             continue
-        ln = by_id[cand]
-        j, along, _ = nearest_on_polyline(ln.center, p)
-        seg = ln.center[j + 1] - ln.center[j]
-        u = along / max(np.linalg.norm(seg), 1e-12)
-        c = ln.center[j] + u * seg
+        c, width, seg = proj.at(cand, i)
         r = c - p
         err = abs(float(np.dot(r, t)))
         if best is None or err < best[2]:
-            lw = ln.left[j] + u * (ln.left[j + 1] - ln.left[j])
-            rw = ln.right[j] + u * (ln.right[j + 1] - ln.right[j])
-            best = (float(t[0] * r[1] - t[1] * r[0]), float(np.linalg.norm(lw - rw)), err, cand,
-                    float(np.dot(seg, t)) > 0)
+            best = (float(t[0] * r[1] - t[1] * r[0]), width, err, cand, float(np.dot(seg, t)) > 0)
     return best
 
 
@@ -346,6 +393,7 @@ def build_scene(scenario, config: SceneConfig = SceneConfig(), route: Route | No
     limit = np.full(R, config.default_speed_limit)
     tang = np.gradient(xy, axis=0)
     tang /= np.maximum(np.linalg.norm(tang, axis=1, keepdims=True), 1e-12)
+    proj = _LaneProjector(by_id, xy)
     for i in range(R):
         if not len(known):
             break
@@ -355,11 +403,11 @@ def build_scene(scenario, config: SceneConfig = SceneConfig(), route: Route | No
             limit[i] = by_id[o].speed_limit
         if not inside:  # beyond the map (route extensions): no lanes
             continue
-        base = _lane_at(by_id, o, xy[i], tang[i])
+        base = _lane_at(proj, o, i, tang[i])
         off[n, i], width[n, i], valid[n, i] = base[0], base[1], True
         for sign, side in ((1, "left"), (-1, "right")):
             for k, (lid, is_same) in enumerate(_walk(adjacency, base[3], side)[:n]):
-                lo, lw, err, _, _ = _lane_at(by_id, lid, xy[i], tang[i])
+                lo, lw, err, _, _ = _lane_at(proj, lid, i, tang[i])
                 if err < 1.0:
                     off[n + sign * (k + 1), i], width[n + sign * (k + 1), i] = lo, lw
                     valid[n + sign * (k + 1), i] = True
@@ -395,7 +443,9 @@ def build_scene(scenario, config: SceneConfig = SceneConfig(), route: Route | No
                   np.asarray(route.end_s), off, width, valid, same, edge_l, edge_r, limit, drv, drv_ok,
                   Obstacles(boxes, np.asarray(obs.valid, bool), np.asarray(obs.t, float),
                             np.asarray(obs.static, bool)), frenet_of(ref, boxes[..., :2]), types, goal,
-                  np.asarray(scenario.dt, float))
+                  np.asarray(scenario.dt, float), lights=route_lights(scenario, route, ref.xy, ref.s))
+    paths, paths_ok = lane_paths(scenario.lanes)
+    scene = dataclasses.replace(scene, lane_paths=paths, lane_path_valid=paths_ok)
     return scene, route
 
 
@@ -404,8 +454,12 @@ def frenet_of(ref: ReferenceLine, xy: np.ndarray) -> np.ndarray:
     ``to_frenet``, jitted, as numpy)."""
     if xy.size == 0:
         return np.zeros(xy.shape)
-    s, l = _to_frenet_jit(jax.tree_util.tree_map(jnp.asarray, ref), jnp.asarray(xy))
-    return np.stack([np.asarray(s, float), np.asarray(l, float)], -1)
+    flat = np.asarray(xy, float).reshape(-1, 2)
+    n = len(flat)
+    size = 1 << max(8, (n - 1).bit_length())  # a few padded sizes: one compiled program each
+    pts = np.concatenate([flat, np.repeat(flat[-1:], size - n, axis=0)])
+    s, l = _to_frenet_jit(jax.tree_util.tree_map(jnp.asarray, ref), jnp.asarray(pts))
+    return np.stack([np.asarray(s, float)[:n], np.asarray(l, float)[:n]], -1).reshape(xy.shape)
 
 
 _to_frenet_jit = jax.jit(to_frenet)
@@ -450,9 +504,15 @@ def _pad_axis(a: np.ndarray, axis: int, size: int, fill) -> np.ndarray:
     return np.pad(a, pad, constant_values=fill)
 
 
-def pad_scene(scene: Scene, K: int, T: int, M: int, V: int, G: int, W: int) -> Scene:
+def pad_scene(scene: Scene, K: int, T: int, M: int, V: int, G: int, W: int, NL: int = 0, P: int = 1,
+              LP: int | None = None) -> Scene:
     """Pad one (numpy) scene to ``K`` obstacles over ``T`` steps, ``M x V`` drivable and
-    ``G x W`` goal polygons. Padding is invalid (obstacles) or repeats the last vertex (polygons)."""
+    ``G x W`` goal polygons, ``NL`` stop lines with ``P`` steps of colors. Padding is invalid
+    (obstacles, stop lines) or repeats the last vertex (polygons). ``LP``: pad the lane paths to
+    ``LP`` (invalid paths) when given."""
+    if LP is not None and scene.lane_paths is not None:
+        scene = dataclasses.replace(scene, lane_paths=_pad_axis(scene.lane_paths, 0, LP, 0.0),
+                                    lane_path_valid=_pad_axis(scene.lane_path_valid, 0, LP, False))
     o = scene.obstacles
     b = _pad_axis(_pad_axis(o.boxes, 1, T, "edge"), 0, K, 0.0)
     if K > o.boxes.shape[0]:
@@ -471,8 +531,9 @@ def pad_scene(scene: Scene, K: int, T: int, M: int, V: int, G: int, W: int) -> S
     drv, drv_ok = polys(scene.drivable, scene.drivable_valid, M, V)
     reg, reg_ok = polys(scene.goal.region, scene.goal.region_valid, G, W)
     goal = dataclasses.replace(scene.goal, region=reg, region_valid=reg_ok)
+    lights = pad_lights(no_lights() if scene.lights is None else scene.lights, NL, P)
     return dataclasses.replace(scene, drivable=drv, drivable_valid=drv_ok, obstacles=obs, obstacle_sl=sl,
-                               obstacle_type=ty, goal=goal)
+                               obstacle_type=ty, goal=goal, lights=lights)
 
 
 def stack_scenes(scenes: list, min_steps: int = 1, min_sizes: tuple | None = None) -> Scene:
@@ -482,7 +543,7 @@ def stack_scenes(scenes: list, min_steps: int = 1, min_sizes: tuple | None = Non
     Args:
         min_steps: pad obstacles to at least this many steps.
         min_sizes: optional lower bounds ``(K, T, M, V, G, W)`` of the padded sizes (one
-            compiled shape for several batches).
+            compiled shape for several batches), optionally followed by ``(NL, P)`` (stop lines).
     """
     if not scenes:
         raise ValueError("stack_scenes: no scenes")
@@ -490,7 +551,11 @@ def stack_scenes(scenes: list, min_steps: int = 1, min_sizes: tuple | None = Non
                       *s.goal.region.shape[:2]] for s in scenes] + ([list(min_sizes)] if min_sizes else []))
     K, T, M, V, G, W = dims.max(0)
     K = max(int(K), 1)  # one invalid obstacle at least: no zero-size arrays in the kernels
-    padded = [pad_scene(s, int(K), int(max(T, min_steps)), int(M), int(V), int(G), int(W)) for s in scenes]
+    NL, P = np.array([list(np.shape(s.lights.color)) if s.lights is not None else [0, 1] for s in scenes]
+                     + ([list(min_sizes[6:8])] if min_sizes and len(min_sizes) >= 8 else [])).max(0)
+    padded = [pad_scene(s, int(K), int(max(T, min_steps)), int(M), int(V), int(G), int(W), int(NL), int(P),
+                        LP=max([1] + [np.shape(s.lane_paths)[0] for s in scenes if s.lane_paths is not None]))
+              for s in scenes]
     f = jnp.result_type(float)
 
     def stack(*xs):

@@ -1,26 +1,37 @@
-"""``jaxplan drive``: scenario files in, closed-loop drives out (host side).
+"""``jaxplan drive``: scenario files in, closed-loop drives out (host side), for a handful of
+scenes or thousands.
 
-``drive(...)`` loads every scenario (``.json`` shared format, ``.xml`` CommonRoad, or the
-built-in scenes), stacks them into one padded batch, drives each planner through
-``rollout`` (split over every local device by ``jaxplan.eval.batch.sharded_map``), computes
-the metrics and writes, per scenario, ``<scenario>/driven.json`` (the format below), a
-bird's-eye PNG (``--animate``: a GIF too) and, for CommonRoad input, a solution file; then
-``metrics.json`` (summary figures ``drive.<planner>.<figure>`` and one row per drive under
-``rows``) and ``report.md``.
+``drive(records, planners, out, config)`` drives every ``SceneRecord`` with every planner:
+
+- **grouped by size**: scenes are padded to size classes (``jaxplan.sim.sizes``) and driven
+  group by group in batches of ``batch_size`` (split over every local device), so a batch is
+  not padded to its largest member and a new file reuses a compiled program;
+- **resumable**: every finished drive is a row of ``OUT/rows.jsonl`` (``jaxplan.sim.store``);
+  the same command started again skips what is done; other settings or files in the same
+  folder are refused with one line;
+- **bounded memory**: a batch's logs are written and dropped before the next;
+- **progress**: a bar with drives done, drives per minute and the time left;
+- **judged by one verdict** (``jaxplan.sim.verdict``): per drive the metrics, ``success`` and,
+  for a drive that did not succeed, why.
+
+Outputs, per drive: ``<scenario>/driven.json`` (``OUT/<planner>/<scenario>/`` with several
+planners), a bird's-eye PNG (``plots``: ``all``, ``failed`` or ``none``; ``auto`` = all up to
+50 drives, else the failed ones), with ``animate`` a GIF, for CommonRoad input a solution
+file; for the run ``metrics.json`` (strict JSON: summary figures ``drive.<planner>.<figure>``,
+per-folder and per-location tables, the timing split into parse, compile and drive, one row
+per drive under ``rows``) and ``report.md``.
 
 ``driven.json``: ``{"scenario": key, "planner": name, "dt": 0.1, "vehicle": {"length": L,
 "width": W}, "states": [[t, x, y, theta, v, a], ...]}``, ``(x, y)`` the centre of the car's
 box in the scenario's own (world) coordinates, ``t`` from the scenario start, one row per
 ``dt`` from ``t = 0`` to the end of the drive. ``key`` is the scenario id, made unique over the
 files of one run as ``jaxplan.scenarios.files.scenario_keys`` does (``<id>@<file name>`` for a
-later file with the same id); the folder is named by it too.
-
-With one planner the per-scenario folders are ``OUT/<scenario>/``; with several,
-``OUT/<planner>/<scenario>/``.
+later file with the same id).
 """
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import json
 import math
 import os
@@ -32,27 +43,37 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxplan.planner import make_planner
-from jaxplan.scenarios.files import scenario_format
+from jaxplan.scenarios.files import location, scenario_format
+from jaxplan.sim import sizes, verdict
+from jaxplan.sim.devices import place, sharded_map
 from jaxplan.sim.metrics.registry import evaluate_batch
-from jaxplan.sim.rollout import SimConfig, planner_program, rollout
+from jaxplan.sim.rollout import SimConfig, driven_scene, planner_program, rollout
+from jaxplan.sim.store import RunStore, write_json
 
 DEFAULT_MAX_STEPS = 200  # 20 s at dt 0.1
+DEFAULT_BATCH = 16
+DRIVE_STEP_CLASSES = (40, 100, 150, 200, 300, 400, 600)  # a drive's length is padded to one of these
 
 
 @dataclasses.dataclass
 class DriveResult:
-    """What ``drive`` computed: per planner the metrics rows and the summary figures."""
+    """What ``drive`` computed: per planner the metrics rows and the summary figures, and the
+    run's timing (``parse_s``, ``compile_s``, ``drive_s``, ``write_s``, ``wall_s``)."""
 
     rows: dict
     summary: dict
     out: str
+    timing: dict = dataclasses.field(default_factory=dict)
 
 
-SUMMARY = (  # figure, metric key, how it aggregates over drives
+SUMMARY = (  # figure, row key, how it aggregates over drives
+    ("success_share", "success", "mean"),
     ("goal_share", "goal.reached", "mean"),
     ("collision_share", "overlap.collided", "mean"),
     ("at_fault_collisions", "overlap.at_fault", "sum"),
     ("offroad_share", "offroad.offroad", "mean"),
+    ("red_light_crossings", "redlight.crossings", "sum"),
+    ("goal_off_map", "goal.off_map", "sum"),
     ("max_abs_accel", "comfort.max_abs_accel", "max"),
     ("min_accel", "comfort.min_accel", "min"),
     ("max_abs_jerk", "comfort.max_abs_jerk", "max"),
@@ -64,17 +85,22 @@ SUMMARY = (  # figure, metric key, how it aggregates over drives
 
 
 def summarize(rows: list) -> dict:
-    """Summary figures over drives (rows of per-drive metrics)."""
+    """Summary figures over drives (rows of per-drive metrics); figures whose key no row has are left out."""
     if not rows:
         return {}
-    col = lambda k: np.array([r[k] for r in rows], float)
     out = {}
     for name, key, how in SUMMARY:
-        v = col(key)
-        out[name] = float({"mean": np.mean, "sum": np.sum, "max": np.max, "min": np.min}[how](v))
+        vals = [r[key] for r in rows if r.get(key) is not None]
+        if key not in rows[0] and not vals:
+            continue
+        v = np.array(vals, float)
+        out[name] = float({"mean": np.mean, "sum": np.sum, "max": np.max, "min": np.min}[how](v)) if len(v) else None
+    col = lambda k: np.array([float(r.get(k) or 0.0) for r in rows])  # noqa: E731
+    out["collisions"] = float(np.sum(col("overlap.collided")))
     out["not_at_fault_collisions"] = float(np.sum(col("overlap.collided")) - np.sum(col("overlap.at_fault")))
     reached = col("goal.reached") > 0
-    out["time_to_goal_mean"] = float(np.mean(col("goal.time")[reached])) if reached.any() else float("nan")
+    times = np.array([r.get("goal.time") if r.get("goal.time") is not None else np.inf for r in rows], float)
+    out["time_to_goal_mean"] = float(np.mean(times[reached])) if reached.any() else None
     out["plan_not_ok_share"] = float(np.mean(col("plan_not_ok_share")))
     out["fallback_cycles"] = float(np.sum(col("fallback_cycles")))
     out["replans_per_drive"] = float(np.mean(col("replans")))
@@ -82,11 +108,24 @@ def summarize(rows: list) -> dict:
     return out
 
 
-def n_steps_for(records, dt: float, cap: int) -> int:
-    """Steps to simulate: up to the latest end of a goal's time interval, at most ``cap``."""
-    ends = [float(np.asarray(r.scene.goal.time)[1]) for r in records]
-    need = max(int(math.ceil(e / dt - 1e-6)) if math.isfinite(e) else cap for e in ends)
+def summarize_by(rows: list, key: str) -> dict:
+    """``{value of row[key]: summarize(rows with it)}``, in sorted order."""
+    groups: dict = {}
+    for r in rows:
+        groups.setdefault(r.get(key, ""), []).append(r)
+    return {g: summarize(groups[g]) for g in sorted(groups)}
+
+
+def scene_steps(record, dt: float, cap: int) -> int:
+    """Steps to simulate one scene: up to the end of its goal's time interval, at most ``cap``."""
+    e = float(np.asarray(record.scene.goal.time)[1])
+    need = int(math.ceil(e / dt - 1e-6)) if math.isfinite(e) else cap
     return max(1, min(cap, need))
+
+
+def n_steps_for(records, dt: float, cap: int) -> int:
+    """Steps to simulate a batch: up to the latest end of a goal's time interval, at most ``cap``."""
+    return max(scene_steps(r, dt, cap) for r in records)
 
 
 def time_plans(planner, batch, n: int) -> dict:
@@ -114,77 +153,76 @@ def _plan_once(planner, scene, ego):
     return planner_program(planner, _plan, ("planner",))(planner, scene, ego)
 
 
-def run_planner(planner, batch, config: SimConfig, chunk: int | None = None) -> tuple[dict, dict, dict]:
-    """Drive every scene of ``batch`` (sharded over local devices, in chunks); returns
-    (numpy log fields, numpy metrics, timing figures)."""
-    from jaxplan.eval.batch import sharded_map
-
+def run_planner(planner, batch, config: SimConfig, chunk: int | None = None) -> tuple:
+    """Drive every scene of an in-memory ``batch`` (sharded over local devices, in chunks of
+    ``chunk`` scenes); returns (numpy ``DriveLog``, numpy metrics, timing figures)."""
     B = int(batch.start.shape[0])
     chunk = chunk or B
-    fn = lambda sc: rollout(planner, sc, config)  # rollout is jitted (planner and config static): cached
-    take = lambda a, lo, hi: jax.tree_util.tree_map(lambda x: x[lo:hi], a)
+    fn = lambda sc: rollout(planner, sc, config)  # noqa: E731  (rollout is jitted: cached)
+    take = lambda a, lo, hi: jax.tree_util.tree_map(lambda x: x[lo:hi], a)  # noqa: E731
     t0 = time.perf_counter()
-    first = sharded_map(fn, take(batch, 0, min(B, chunk)), pad_to=min(B, chunk))
-    t_first = time.perf_counter() - t0
-    parts = [first]
-    t1 = time.perf_counter()
-    for lo in range(chunk, B, chunk):
-        parts.append(sharded_map(fn, take(batch, lo, min(B, lo + chunk)), pad_to=chunk))
-    if len(parts) == 1:  # time a second, warm run of the single chunk
-        t1 = time.perf_counter()
-        parts = [sharded_map(fn, take(batch, 0, B), pad_to=B)]
-    t_run = time.perf_counter() - t1
+    parts = [sharded_map(fn, take(batch, lo, min(B, lo + chunk)), pad_to=chunk) for lo in range(0, B, chunk)]
+    t_run = time.perf_counter() - t0
     log = jax.tree_util.tree_map(lambda *a: np.concatenate(a), *parts)
-    metrics = evaluate_batch(jax.tree_util.tree_map(jnp.asarray, log), batch, planner.vehicle)
+    jlog = jax.tree_util.tree_map(jnp.asarray, log)
+    metrics = evaluate_batch(jlog, driven_scene(jlog, batch), planner.vehicle)
     metrics = {k: np.asarray(v) for k, v in metrics.items()}
     steps = B * config.n_steps
-    timing = {"compile_and_first_run_s": t_first, "run_s": t_run,
-              "scenario_steps_per_s": steps / t_run if t_run > 0 else float("nan")}
+    timing = {"run_s": t_run, "scenario_steps_per_s": steps / t_run if t_run > 0 else float("nan")}
     return log, metrics, timing
 
 
+def _value(x):
+    x = np.asarray(x)
+    return bool(x) if x.dtype == bool else (int(x) if np.issubdtype(x.dtype, np.integer) else float(x))
+
+
 def _row(i, rec, planner_name, metrics, log) -> dict:
-    row = {"planner": planner_name, "scenario": rec.name}
+    row = {"planner": planner_name, "scenario": rec.name, "folder": _folder(rec), "location": location(rec.name)}
     for k, v in metrics.items():
-        x = v[i]
-        row[k] = bool(x) if x.dtype == bool else (int(x) if np.issubdtype(x.dtype, np.integer) else float(x))
+        row[k] = _value(v[i])
     ok = np.asarray(log.plan_ok[i])
     row["plan_not_ok_share"] = float(1.0 - np.mean(ok))
     row["fallback_cycles"] = int(np.sum(log.fallback[i]))
     row["replans"] = int(np.sum(log.replanned[i]))
     row["end_time"] = float(np.asarray(log.t[i])[int(log.end_step[i])])
+    row["success"] = verdict.success(row)
+    row["outcome"] = verdict.outcome(row)
     return row
 
 
-def _write_json(path: str, obj) -> None:
-    tmp = path + ".tmp"
-    with open(tmp, "w") as f:
-        json.dump(obj, f, indent=1, allow_nan=True)
-    os.replace(tmp, path)
+def _folder(rec) -> str:
+    """The folder a scene's file lies in (its name), or ``builtin`` for generated scenes."""
+    return os.path.basename(os.path.dirname(os.path.abspath(rec.path))) if rec.path else "builtin"
 
 
-def write_drive(folder: str, rec, planner_name: str, vehicle, log_i: dict, row: dict, animate: bool) -> None:
-    """One drive's outputs: ``driven.json``, a PNG, a GIF (``animate``), a CommonRoad solution (XML input)."""
+def write_drive(folder: str, rec, planner_name: str, vehicle, log_i: dict, row: dict, animate: bool,
+                plot: bool = True, scene=None) -> None:
+    """One drive's outputs: ``driven.json``, a PNG (``plot``), a GIF (``animate``), a CommonRoad
+    solution (XML input). ``scene``: the scene as driven (default the record's)."""
     from jaxplan.sim.plots import animate_drive, plot_drive
 
     os.makedirs(folder, exist_ok=True)
+    scene = rec.scene if scene is None else scene
     n = int(log_i["end_step"]) + 1
     ox, oy = (float(c) for c in np.asarray(rec.scenario.origin, float))
     states = [[round(float(log_i["t"][k]), 6), float(log_i["x"][k]) + ox, float(log_i["y"][k]) + oy,
                float(log_i["heading"][k]), float(log_i["v"][k]), float(log_i["a"][k])] for k in range(n)]
-    _write_json(os.path.join(folder, "driven.json"),
-                {"scenario": rec.name, "planner": planner_name, "dt": float(rec.scenario.dt),
-                 "vehicle": {"length": float(vehicle.length), "width": float(vehicle.width)}, "states": states})
+    write_json(os.path.join(folder, "driven.json"),
+               {"scenario": rec.name, "planner": planner_name, "dt": float(rec.scenario.dt),
+                "vehicle": {"length": float(vehicle.length), "width": float(vehicle.width)}, "states": states},
+               indent=None)
     title = f"{rec.name}: {planner_name}"
-    plot_drive(os.path.join(folder, "drive.png"), rec.scene, row, log_i, vehicle, title)
+    if plot:
+        plot_drive(os.path.join(folder, "drive.png"), scene, row, log_i, vehicle, title)
     if animate:
-        animate_drive(os.path.join(folder, "drive.gif"), rec.scene, log_i, vehicle, title)
+        animate_drive(os.path.join(folder, "drive.gif"), scene, log_i, vehicle, title)
     if rec.path and scenario_format(rec.path) == "xml":
         from jaxplan.scenarios.commonroad import write_solution
         from jaxplan.types import Trajectory
 
         sl = slice(0, n)
-        f = lambda k: np.asarray(log_i[k])[sl]
+        f = lambda k: np.asarray(log_i[k])[sl]  # noqa: E731
         traj = Trajectory(f("x"), f("y"), f("heading"), f("kappa"), f("v"), f("a"), f("t"), f("t") * 0, f("t") * 0 + 1)
         try:
             write_solution(rec.scenario, traj, folder)
@@ -193,43 +231,257 @@ def write_drive(folder: str, rec, planner_name: str, vehicle, log_i: dict, row: 
                   file=sys.stderr)
 
 
+def record_digest(rec) -> str:
+    """A digest of what a scene is: its file's bytes, or (generated scenes) its arrays."""
+    from jaxplan.scenarios.cache import file_digest
+
+    if rec.path and os.path.isfile(rec.path):
+        return file_digest(rec.path)
+    h = hashlib.sha256()
+    for leaf in jax.tree_util.tree_leaves(rec.scene):
+        a = np.ascontiguousarray(np.asarray(leaf))
+        h.update(f"{a.dtype.str}{a.shape}".encode())
+        h.update(a.tobytes())
+    return h.hexdigest()
+
+
+def _code_fingerprint() -> str:
+    """SHA-256 of the library's source (a resumed run must be driven by the same code)."""
+    import jaxplan
+
+    root = os.path.dirname(jaxplan.__file__)
+    h = hashlib.sha256()
+    for d, _, files in sorted(os.walk(root)):
+        for f in sorted(files):
+            if f.endswith(".py"):
+                with open(os.path.join(d, f), "rb") as fh:
+                    h.update(os.path.relpath(os.path.join(d, f), root).encode() + b"\0" + fh.read())
+    return h.hexdigest()[:16]
+
+
+def run_settings(planners: list, config: SimConfig, planner_options: dict | None = None,
+                 run_info: dict | None = None) -> dict:
+    """Everything that decides a run's drives (``jaxplan.sim.store.RunStore`` matches it on resume):
+    the planners and their options, the simulation settings, the library's code, the caller's settings."""
+    return {"planners": list(planners), "sim": dataclasses.asdict(config),
+            "planner_options": {k: repr(sorted(v.items())) for k, v in (planner_options or {}).items()},
+            "code": _code_fingerprint(), **(run_info or {})}
+
+
+class _Programs:
+    """The compiled drive programs of one planner, one per (size class, steps); compile time measured apart."""
+
+    def __init__(self, planner, config: SimConfig):
+        self.planner, self.config, self.compiled, self.compile_s = planner, config, {}, 0.0
+
+    def run(self, key, placed):
+        if key not in self.compiled:
+            t = time.perf_counter()
+            program = planner_program(self.planner)
+            self.compiled[key] = program.lower(self.planner, placed, config=key[1]).compile()
+            self.compile_s += time.perf_counter() - t
+        return self.compiled[key](placed)
+
+
+def _plots_for(policy: str, n_drives: int, row: dict) -> bool:
+    if policy == "auto":
+        policy = "all" if n_drives <= 50 else "failed"
+    return policy == "all" or (policy == "failed" and not row["success"])
+
+
+def _describe(planner, info: dict, end_step: int, every: int) -> str:
+    """What the planner said of its last plans (``planner.describe`` when it has one)."""
+    fn = getattr(planner, "describe", None)
+    if fn is None or not info:
+        return ""
+    c = min(end_step // every, next(iter(info.values())).shape[0] - 1)
+    lo = max(0, c - 6)
+    return fn({k: np.asarray(v)[lo:c + 1] for k, v in info.items()})
+
+
 def drive(records, planners: list, out: str, config: SimConfig, animate: bool = False, planner_options=None,
-          progress: bool = True, chunk: int | None = None, skipped: list = ()) -> DriveResult:
-    """Drive ``records`` (``SceneRecord``s) with each planner name; write the outputs under ``out``."""
+          progress: bool = True, batch_size: int = DEFAULT_BATCH, plots: str = "auto", fresh: bool = False,
+          skipped: list = (), run_info: dict | None = None, parse_s: float = 0.0) -> DriveResult:
+    """Drive ``records`` (``SceneRecord``s) with each planner name; write the outputs under ``out``.
+
+    Args:
+        records: the scenes (names unique: ``jaxplan.scenarios.scene.unique_names``).
+        planners: planner names (``jaxplan.planner.make_planner``).
+        out: output folder; a run there with the same settings and scenes is resumed.
+        config: ``SimConfig``; its ``n_steps`` is the step cap: each scene is driven to the end of
+            its goal's time interval, at most that.
+        animate: also a GIF per drive.
+        planner_options: ``{planner name: {option: value}}`` for ``make_planner``.
+        progress: show a progress bar on stderr.
+        batch_size: scenes per batch (per compiled program call).
+        plots: ``auto``, ``all``, ``failed`` or ``none`` (per-drive PNGs).
+        fresh: discard a previous run in ``out``.
+        skipped: files that could not be loaded (named in the report).
+        run_info: settings of the caller to record with the run (and to match on resume).
+        parse_s: seconds spent loading the scenes (for the timing split).
+
+    Raises:
+        jaxplan.sim.store.RunMismatch: ``out`` holds a run with other settings or scenes.
+    """
+    from tqdm import tqdm
+
     from jaxplan.scenarios.scene import stack_scenes
 
-    batch = stack_scenes([r.scene for r in records], min_steps=config.n_steps + 1)
-    os.makedirs(out, exist_ok=True)
-    all_rows, summary = {}, {}
+    if plots not in ("auto", "all", "failed", "none"):
+        raise ValueError(f"plots must be auto, all, failed or none, got {plots!r}")
+    t_wall = time.perf_counter()
     opts = planner_options or {}
+    made = {name: make_planner(name, **opts.get(name, {})) for name in planners}
+    for p in made.values():
+        config.validate(p)
+    settings = run_settings(planners, config, opts, run_info)
+    store = RunStore(out, settings, {r.name: record_digest(r) for r in records}, fresh=fresh)
+    folder_of = (lambda name, rec: os.path.join(out, rec.name)) if len(planners) == 1 else \
+        (lambda name, rec: os.path.join(out, name, rec.name))
+    pending = {name: [r for r in records if not store.done(name, r.name)] for name in planners}
+    total = sum(len(v) for v in pending.values())
+    n_drives = len(records) * len(planners)
+    timing = {"parse_s": parse_s, "compile_s": 0.0, "drive_s": 0.0, "metrics_s": 0.0, "write_s": 0.0,
+              "drives": total, "resumed_drives": n_drives - total}
+    bar = tqdm(total=total, desc="driving", unit="drive", disable=not progress, file=sys.stderr, dynamic_ncols=True)
+    dt = config.dt
+    try:
+        for name, planner in made.items():
+            programs = _Programs(planner, config)
+            groups: dict = {}
+            for r in pending[name]:
+                n = scene_steps(r, dt, config.n_steps)
+                n = min(sizes.size_class(n, DRIVE_STEP_CLASSES), config.n_steps)
+                groups.setdefault((sizes.drive_class(r.scene, n), n), []).append(r)
+            for (dclass, n), recs in sorted(groups.items(), key=lambda kv: (kv[0][1], kv[0][0])):
+                cfg = dataclasses.replace(config, n_steps=n)
+                for lo in range(0, len(recs), batch_size):
+                    part = recs[lo:lo + batch_size]
+                    m_cls = sizes.metric_sizes([r.scene for r in part])
+                    batch = stack_scenes([r.scene for r in part], min_steps=n + 1,
+                                         min_sizes=(dclass.K, dclass.T, *m_cls, dclass.G, dclass.W))
+                    placed, B = place(sizes.for_drive(batch), pad_to=batch_size)
+                    t0 = time.perf_counter()
+                    c0 = programs.compile_s
+                    log = programs.run((dclass, cfg), placed)
+                    log = jax.tree_util.tree_map(lambda y: np.asarray(y)[:B], log)
+                    timing["drive_s"] += time.perf_counter() - t0 - (programs.compile_s - c0)
+                    t0 = time.perf_counter()
+                    jlog = jax.tree_util.tree_map(jnp.asarray, log)
+                    judged = driven_scene(jlog, batch)
+                    metrics = {k: np.asarray(v) for k, v in evaluate_batch(jlog, judged, planner.vehicle).items()}
+                    timing["metrics_s"] += time.perf_counter() - t0
+                    t0 = time.perf_counter()
+                    for i, rec in enumerate(part):
+                        row = _row(i, rec, name, metrics, log)
+                        log_i = {k: np.asarray(getattr(log, k)[i]) for k in ("t", "x", "y", "heading", "v", "a",
+                                                                              "kappa", "valid", "end_step")}
+                        scene_i = jax.tree_util.tree_map(lambda a: np.asarray(a)[i], judged)
+                        info_i = jax.tree_util.tree_map(lambda a: np.asarray(a)[i], log.info)
+                        row["why"] = verdict.explain(row, log_i, scene_i, rec.scenario.obstacle_types,
+                                                     _describe(planner, info_i, int(log_i["end_step"]),
+                                                               config.replan_every))
+                        row["size_class"] = dclass.label()
+                        write_drive(folder_of(name, rec), rec, name, planner.vehicle, log_i, row, animate,
+                                    plot=_plots_for(plots, n_drives, row), scene=scene_i)
+                        store.add(row)
+                        bar.update(1)
+                    timing["write_s"] += time.perf_counter() - t0
+                    done = bar.n
+                    if done and bar.format_dict.get("elapsed"):
+                        bar.set_postfix_str(f"{60.0 * done / bar.format_dict['elapsed']:.0f} drives/min")
+            timing["compile_s"] += programs.compile_s
+            timing[f"programs.{name}"] = len(programs.compiled)
+    finally:
+        bar.close()
+        store.close()
+    timing["wall_s"] = time.perf_counter() - t_wall + parse_s
+    all_rows = {name: store.rows(name) for name in planners}
+    summary = {name: summarize(rows) for name, rows in all_rows.items()}
     for name in planners:
-        planner = make_planner(name, **opts.get(name, {}))
-        config.validate(planner)
-        log, metrics, timing = run_planner(planner, batch, config, chunk)
-        rows = [_row(i, rec, name, metrics, log) for i, rec in enumerate(records)]
-        summ = summarize(rows)
-        summ.update(timing)
-        summ.update(time_plans(planner, batch, min(len(records), 8)))
-        summ["skipped_files"] = float(len(skipped))
-        iterator = enumerate(records)
-        if progress:
-            from tqdm import tqdm
-
-            iterator = tqdm(list(iterator), desc=f"writing {name}", unit="drive", leave=False)
-        for i, rec in iterator:
-            folder = os.path.join(out, rec.name) if len(planners) == 1 else os.path.join(out, name, rec.name)
-            log_i = {k: np.asarray(getattr(log, k)[i]) for k in ("t", "x", "y", "heading", "v", "a", "kappa",
-                                                                  "valid", "end_step")}
-            write_drive(folder, rec, name, planner.vehicle, log_i, rows[i], animate)
-        all_rows[name], summary[name] = rows, summ
+        summary[name]["skipped_files"] = float(len(skipped))
+    by_folder = {name: summarize_by(rows, "folder") for name, rows in all_rows.items()}
+    by_location = {name: summarize_by(rows, "location") for name, rows in all_rows.items()}
     figures = {f"drive.{p}.{k}": v for p, s in summary.items() for k, v in s.items()}
-    run = {"kind": "jaxplan drive", "planners": list(planners), "replan_every": config.replan_every,
-           "replan": config.replan,
-           "tracking": config.tracking, "n_steps": config.n_steps, "dt": config.dt,
+    run = {"kind": "jaxplan drive", "planners": list(planners), **{k: v for k, v in settings.items() if k != "sim"},
+           "replan_every": config.replan_every, "replan": config.replan, "tracking": config.tracking,
+           "n_steps": config.n_steps, "dt": config.dt, "batch_size": batch_size,
            "scenarios": [r.name for r in records], "skipped_files": list(skipped)}
-    _write_json(os.path.join(out, "metrics.json"),
-                {**figures, "run": run, "rows": [r for p in planners for r in all_rows[p]]})
+    for k in ("agents", "prediction"):
+        if hasattr(config, k):
+            run[k] = getattr(config, k)
+    write_json(os.path.join(out, "metrics.json"),
+               {**figures, "run": run, "timing": timing, "by_folder": by_folder, "by_location": by_location,
+                "rows": [r for p in planners for r in all_rows[p]]})
     from jaxplan.sim.report import write_drive_report
 
-    write_drive_report(out, summary, all_rows, run)
-    return DriveResult(all_rows, summary, out)
+    write_drive_report(out, summary, all_rows, run, timing, by_folder, by_location)
+    return DriveResult(all_rows, summary, out, timing)
+
+
+def judge_drives(records, driven: dict, planner_name: str, batch_size: int = DEFAULT_BATCH,
+                 progress: bool = False) -> list:
+    """Judge drives made by any planner (``driven.json`` objects, e.g. a peer's) with the same metrics
+    and verdict as ``drive``: one row per record that has a drive (in the records' order).
+
+    Args:
+        records: ``SceneRecord``s (names as the drives' ``scenario`` keys).
+        driven: ``{scenario key: driven.json object}`` (states in world coordinates, box centre; see
+            the module docstring); the traffic is taken as recorded (log replay).
+        planner_name: the ``planner`` of the rows.
+    """
+    from jaxplan.baselines.brake import SIM_VEHICLE
+    from jaxplan.scenarios.scene import stack_scenes
+    from jaxplan.sim.rollout import DriveLog
+
+    todo = [r for r in records if r.name in driven]
+    groups: dict = {}
+    for r in todo:
+        d = driven[r.name]
+        states = np.asarray(d["states"], float)
+        if states.ndim != 2 or states.shape[1] < 5 or len(states) < 1:
+            raise ValueError(f"{r.name}: driven states should be rows of [t, x, y, theta, v, ...]")
+        n = sizes.size_class(len(states) - 1, DRIVE_STEP_CLASSES)
+        veh = dataclasses.replace(SIM_VEHICLE, length=float(d["vehicle"]["length"]), width=float(d["vehicle"]["width"]))
+        groups.setdefault((sizes.drive_class(r.scene, n), n, veh), []).append((r, states))
+    rows = {}
+    for (dclass, n, veh), items in sorted(groups.items(), key=lambda kv: (kv[0][1], kv[0][0])):
+        for lo in range(0, len(items), batch_size):
+            part = items[lo:lo + batch_size]
+            m_cls = sizes.metric_sizes([r.scene for r, _ in part])
+            batch = stack_scenes([r.scene for r, _ in part], min_steps=n + 1,
+                                 min_sizes=(dclass.K, dclass.T, *m_cls, dclass.G, dclass.W))
+            N = n + 1
+            cols = {k: np.zeros((len(part), N)) for k in ("x", "y", "heading", "v", "a", "kappa")}
+            valid = np.zeros((len(part), N), bool)
+            end = np.zeros(len(part), int)
+            for i, (r, st) in enumerate(part):
+                m = min(len(st), N)
+                o = np.asarray(r.scenario.origin, float)
+                for j, k in enumerate(("x", "y", "heading", "v")):
+                    col = st[:m, j + 1] - (o[j] if j < 2 else 0.0)
+                    cols[k][i, :m], cols[k][i, m:] = col, col[-1]
+                if st.shape[1] > 5:
+                    cols["a"][i, :m] = st[:m, 5]
+                valid[i, :m] = True
+                end[i] = m - 1
+            t = np.broadcast_to(np.arange(N) * float(records[0].scenario.dt), (len(part), N))
+            C = 1
+            log = DriveLog(t, cols["x"], cols["y"], cols["heading"], cols["v"], cols["a"], cols["kappa"], valid, end,
+                           np.ones((len(part), C), bool), np.zeros((len(part), C), bool),
+                           np.ones((len(part), C), bool), {}, None)
+            log = jax.tree_util.tree_map(jnp.asarray, log)
+            traffic = jax.vmap(lambda s: s.obstacles.window(0, N))(batch)
+            log = dataclasses.replace(log, traffic=traffic)
+            judged = driven_scene(log, batch)
+            metrics = {k: np.asarray(v) for k, v in evaluate_batch(log, judged, veh).items()}
+            nlog = jax.tree_util.tree_map(np.asarray, log)
+            for i, (r, _) in enumerate(part):
+                row = _row(i, r, planner_name, metrics, nlog)
+                for k in ("plan_not_ok_share", "fallback_cycles", "replans"):  # not known of another planner
+                    row[k] = None
+                log_i = {k: np.asarray(getattr(nlog, k)[i]) for k in ("t", "x", "y", "heading", "v", "end_step")}
+                scene_i = jax.tree_util.tree_map(lambda a: np.asarray(a)[i], judged)
+                row["why"] = verdict.explain(row, log_i, scene_i, r.scenario.obstacle_types)
+                rows[r.name] = row
+    return [rows[r.name] for r in todo]

@@ -1,38 +1,48 @@
-"""``report.md`` of a drive: the headline table (one line per planner), the definitions of
-its figures, and one compact line per scenario."""
+"""``report.md`` of a drive run: the headline table (one line per planner, success first), where
+the time went, per-folder and per-location tables, why each failed drive failed, and one
+compact line per scenario."""
 from __future__ import annotations
 
 import math
 import os
 
 HEADLINE = (  # column, figure, format
-    ("goal reached", "goal_share", "{:.0%}"),
-    ("collisions at fault", "at_fault_collisions", "{:.0f}"),
-    ("collisions not at fault", "not_at_fault_collisions", "{:.0f}"),
-    ("off road", "offroad_share", "{:.0%}"),
+    ("success", "success_share", "{:.1%}"),
+    ("goal reached", "goal_share", "{:.1%}"),
+    ("collisions", "collisions", "{:.0f}"),
+    ("at fault", "at_fault_collisions", "{:.0f}"),
+    ("off road", "offroad_share", "{:.1%}"),
+    ("red lights run", "red_light_crossings", "{:.0f}"),
+    ("goal off map", "goal_off_map", "{:.0f}"),
     ("max abs accel (m/s^2)", "max_abs_accel", "{:.1f}"),
     ("max abs lat accel (m/s^2)", "max_abs_lat_accel", "{:.1f}"),
-    ("max curvature (1/m)", "max_abs_curvature", "{:.3f}"),
-    ("min TTC (s)", "min_ttc", "{:.1f}"),
-    ("re-plans per drive", "replans_per_drive", "{:.1f}"),
-    ("plan ms (median)", "plan_ms_median", "{:.1f}"),
-    ("scenario-steps/s", "scenario_steps_per_s", "{:.0f}"),
+    ("plan not ok", "plan_not_ok_share", "{:.1%}"),
+)
+
+GROUP_COLUMNS = (  # the per-folder / per-location tables
+    ("success", "success_share", "{:.1%}"),
+    ("goal", "goal_share", "{:.1%}"),
+    ("collisions", "collisions", "{:.0f}"),
+    ("at fault", "at_fault_collisions", "{:.0f}"),
+    ("off road", "offroad_share", "{:.1%}"),
+    ("red lights run", "red_light_crossings", "{:.0f}"),
+    ("goal off map", "goal_off_map", "{:.0f}"),
 )
 
 DEFINITIONS = """\
-- **goal reached**: share of drives that, at one step, had the box centre in the goal region, the
-  time in the goal's interval, speed and heading in their ranges (CommonRoad's rule).
-- **collisions at fault**: drives whose first contact was with a static obstacle or one whose centre
-  was ahead of the car along its heading; **not at fault**: another road user drove into the car
-  (recorded traffic does not react).
-- **off road**: drives where the car's box was not inside the union of the lanelets (gaps up to
-  10 cm between lanelets, map seams, count as road; the referee's rule).
-- **max abs accel / lat accel / curvature**: largest |dv/dt|, |v dtheta/dt|, |dtheta/ds| of the
-  driven states (finite differences over 0.1 s).
-- **min TTC**: smallest constant-velocity time to collision with an obstacle ahead or static (3 s cap).
-- **re-plans per drive**: plans installed (periodic: every cycle; lazy: only when needed).
-- **plan ms**: wall time of one planning call for one scene (compile excluded), median over scenes.
-- **scenario-steps/s**: simulated steps per second of the whole batched closed loop (compile excluded).
+- **success**: the goal reached (CommonRoad's rule: at one step the box centre in the goal region,
+  the time in the goal's interval, speed and heading in their ranges), no collision at any step and
+  never off road: what makes a CommonRoad solution valid.
+- **collisions**: drives in which the car's box overlapped an obstacle's at some step; **at fault**:
+  drives in which some obstacle's first contact was not a moving obstacle hitting the car squarely
+  from behind (``jaxplan.sim.metrics.overlap``).
+- **off road**: drives where the car's box left the union of the lanelets (map seams up to 10 cm wide
+  count as road; the referee's rule).
+- **red lights run**: stop lines crossed while their light showed red.
+- **goal off map**: drives whose goal region lies off the lanelets (reaching it means leaving the road);
+  counted in the other columns too, and shown here apart.
+- **max abs accel / lat accel**: largest |dv/dt| and |v dtheta/dt| of the driven states.
+- **plan not ok**: share of planning cycles in which the planner reported no good plan.
 """
 
 
@@ -44,39 +54,70 @@ def _fmt(fmt: str, v) -> str:
     return fmt.format(v)
 
 
-def headline_table(summary: dict) -> list:
-    """Markdown lines: one row per planner of ``summary {planner: {figure: value}}``."""
-    cols = ["planner", "drives"] + [c for c, _, _ in HEADLINE]
+def headline_table(summary: dict, columns=HEADLINE, label: str = "planner") -> list:
+    """Markdown lines: one row per key of ``summary {name: {figure: value}}``."""
+    cols = [label, "drives"] + [c for c, _, _ in columns]
     lines = ["| " + " | ".join(cols) + " |", "|" + " --- |" * len(cols)]
     for p, s in summary.items():
-        vals = [p, _fmt("{:.0f}", s.get("scenes"))] + [_fmt(fmt, s.get(k)) for _, k, fmt in HEADLINE]
+        vals = [str(p), _fmt("{:.0f}", s.get("scenes"))] + [_fmt(fmt, s.get(k)) for _, k, fmt in columns]
         lines.append("| " + " | ".join(vals) + " |")
     return lines
 
 
+def timing_lines(timing: dict) -> list:
+    """One line on where the run's time went."""
+    if not timing:
+        return []
+    f = lambda k: timing.get(k) or 0.0  # noqa: E731
+    return [f"Wall time {f('wall_s'):.0f} s: parsing {f('parse_s'):.0f} s, compiling {f('compile_s'):.0f} s, "
+            f"driving {f('drive_s'):.0f} s, metrics {f('metrics_s'):.0f} s, writing outputs {f('write_s'):.0f} s "
+            f"({int(f('drives'))} drives this run, {int(f('resumed_drives'))} from an earlier run in this folder)."]
+
+
 def _cell(r: dict) -> str:
-    out = "goal" if r["goal.reached"] else "-"
-    if r["overlap.collided"]:
-        out += ", HIT" if r["overlap.at_fault"] else ", hit (not at fault)"
-    if r["offroad.offroad"]:
+    out = "success" if r.get("success") else ("goal" if r.get("goal.reached") else "-")
+    if r.get("overlap.collided"):
+        out += ", HIT" if r.get("overlap.at_fault") else ", hit from behind"
+    if r.get("offroad.offroad"):
         out += ", off road"
+    if r.get("redlight.crossings"):
+        out += ", ran a red light"
     return out
 
 
-def write_drive_report(out: str, summary: dict, rows: dict, run: dict) -> str:
-    """Write ``out/report.md``."""
+def write_drive_report(out: str, summary: dict, rows: dict, run: dict, timing: dict | None = None,
+                       by_folder: dict | None = None, by_location: dict | None = None) -> str:
+    """Write ``out/report.md``; returns its path."""
     planners = list(summary)
-    lines = ["# jaxplan drive", "",
-             f"{len(run['scenarios'])} scenarios, {run.get('replan', 'periodic')} re-planning checked every "
-             f"{run['replan_every']} steps ({run['replan_every'] * run['dt']:.1f} s), {run['tracking']} tracking, "
-             f"up to {run['n_steps']} steps.", ""]
-    lines += headline_table(summary) + ["", DEFINITIONS, "## Per scenario", ""]
-    lines += ["| scenario | " + " | ".join(planners) + " |", "|" + " --- |" * (len(planners) + 1)]
+    n = len(run["scenarios"])
+    setting = (f"{n} scenarios, {run.get('replan', 'periodic')} re-planning every {run['replan_every']} steps "
+               f"({run['replan_every'] * run['dt']:.1f} s), {run['tracking']} tracking, each scene driven to the end "
+               f"of its goal's time window, at most {run['n_steps']} steps")
+    if run.get("agents"):
+        setting += f"; traffic: {run['agents']}, predictions: {run.get('prediction', 'oracle')}"
+    lines = ["# jaxplan drive", "", setting + ".", ""]
+    lines += headline_table(summary) + [""] + timing_lines(timing or {}) + ["", DEFINITIONS]
+    for title, table in (("folder", by_folder), ("location", by_location)):
+        if not table:
+            continue
+        lines += [f"## Per {title}", ""]
+        for p in planners:
+            if len(table.get(p, {})) <= 1 and title == "folder":
+                continue
+            lines += [f"`{p}`:", ""] + headline_table(table.get(p, {}), GROUP_COLUMNS, title) + [""]
+    failed = [(p, r) for p in planners for r in rows[p] if not r.get("success")]
+    if failed:
+        lines += ["## Drives that did not succeed", "", "| planner | scenario | why |", "| --- | --- | --- |"]
+        lines += [f"| {p} | {r['scenario']} | {r.get('why') or r.get('outcome', '')} |" for p, r in failed]
+        lines.append("")
+    lines += ["## Per scenario", "", "| scenario | " + " | ".join(planners) + " |",
+              "|" + " --- |" * (len(planners) + 1)]
     by = {p: {r["scenario"]: r for r in rows[p]} for p in planners}
     for name in run["scenarios"]:
-        lines.append(f"| {name} | " + " | ".join(_cell(by[p][name]) for p in planners) + " |")
+        lines.append(f"| {name} | " + " | ".join(_cell(by[p][name]) if name in by[p] else "not driven"
+                                                 for p in planners) + " |")
     if run.get("skipped_files"):
-        lines += ["", "Skipped files: " + ", ".join(run["skipped_files"])]
+        lines += ["", "Files that could not be loaded: " + ", ".join(run["skipped_files"])]
     path = os.path.join(out, "report.md")
     with open(path + ".tmp", "w") as f:
         f.write("\n".join(lines) + "\n")

@@ -1,8 +1,14 @@
-"""Closed-loop log replay: any ``Planner`` drives a batch of ``Scene``s.
+"""Closed-loop driving: any ``Planner`` drives a batch of ``Scene``s among their traffic.
 
-Recorded traffic moves as recorded (non-reactive); the planner sees the obstacles'
-recorded futures as predictions (as CommonRoad benchmarks do) and static obstacles at
-every time. Every ``replan_every`` steps the planner plans from the car's state; between
+The traffic (``SimConfig.agents``): ``log`` replays the recording (non-reactive: it drives
+through the car); ``idm`` moves every dynamic obstacle along its recorded path with an IDM
+that keeps a gap to whatever is ahead on it, the car included (``jaxplan.sim.agents``).
+What the planner sees (``SimConfig.prediction``): ``oracle``, the recorded future (as
+CommonRoad benchmarks do; with IDM agents re-anchored where each one actually is), or ``cv``,
+the present extrapolated at constant speed along each obstacle's lane
+(``jaxplan.sim.prediction``); static obstacles at every time. The log records the traffic as
+it was at every step (``DriveLog.traffic``; ``driven_scene`` gives the scene the metrics
+judge). Every ``replan_every`` steps the planner plans from the car's state; between
 re-plans the car follows the plan through the tracking model (``exact`` or ``bicycle``,
 ``jaxplan.sim.tracking``). A plan with a NaN or inf in the steps the car would follow is
 not followed: the car brakes at ``a_fallback`` along its heading instead (counted).
@@ -23,10 +29,15 @@ import jax.numpy as jnp
 from jax import lax
 
 from jaxplan.compile_options import jit, options_key
+from jaxplan.geometry.frenet import to_frenet
 from jaxplan.planner import EgoState, Planner, planner_compiler_options
+from jaxplan.sim.agents import AgentParams, agent_boxes, agent_paths, agents_step, init_agents
 from jaxplan.sim.metrics.goal import goal_reached
+from jaxplan.sim.prediction import PREDICTIONS, lane_cache, planner_view
 from jaxplan.sim.tracking import TRACKERS
-from jaxplan.types import _pytree
+from jaxplan.types import Obstacles, _pytree
+
+AGENTS = ("log", "idm")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -49,6 +60,13 @@ class SimConfig:
             seconds left, or its remaining part comes within ``lazy_margin`` m of a predicted
             obstacle (seed 003's rule for road driving; the planner still runs every cycle
             inside the batched scan, so this saves planning work on a car, not here).
+        agents: ``"log"`` (the traffic replays its recording) or ``"idm"`` (every dynamic obstacle
+            follows its recorded path with an IDM gap to what is ahead of it, the car included:
+            ``jaxplan.sim.agents``).
+        prediction: what the planner sees of the traffic: ``"oracle"`` (the recorded future; with
+            IDM agents re-anchored where they are) or ``"cv"`` (the present, extrapolated at
+            constant speed along each obstacle's lane: ``jaxplan.sim.prediction``).
+        agent_params: ``AgentParams`` of the IDM agents.
     """
 
     n_steps: int = 150
@@ -64,6 +82,9 @@ class SimConfig:
     replan: str = "periodic"
     lazy_min_remaining: float = 2.0
     lazy_margin: float = 0.2
+    agents: str = "log"
+    prediction: str = "oracle"
+    agent_params: AgentParams = AgentParams()
 
     def validate(self, planner: Planner | None = None) -> "SimConfig":
         if self.n_steps < 1 or self.replan_every < 1:
@@ -72,6 +93,7 @@ class SimConfig:
             raise ValueError(f"SimConfig.replan must be 'periodic' or 'lazy', got {self.replan!r}")
         if self.tracking not in TRACKERS:
             raise ValueError(f"SimConfig.tracking must be one of {', '.join(TRACKERS)}, got {self.tracking!r}")
+        self.check_traffic()
         if planner is not None:
             if abs(planner.dt - self.dt) > 1e-9:
                 raise ValueError(f"planner dt {planner.dt} differs from the simulation's dt {self.dt}")
@@ -80,13 +102,25 @@ class SimConfig:
                                  f"re-plan period ({self.replan_every} steps)")
         return self
 
+    def check_traffic(self) -> "SimConfig":
+        """The traffic settings (``agents``, ``prediction``, ``agent_params``); ``drive_one`` checks
+        them when it is traced."""
+        if self.agents not in AGENTS:
+            raise ValueError(f"SimConfig.agents must be one of {', '.join(AGENTS)}, got {self.agents!r}")
+        if self.prediction not in PREDICTIONS:
+            raise ValueError(f"SimConfig.prediction must be one of {', '.join(PREDICTIONS)}, got {self.prediction!r}")
+        if not isinstance(self.agent_params, AgentParams):
+            raise ValueError(f"SimConfig.agent_params must be an AgentParams, got {type(self.agent_params).__name__}")
+        self.agent_params.validate()
+        return self
+
     @property
     def n_cycles(self) -> int:
         return -(-self.n_steps // self.replan_every)
 
 
 @_pytree(data_fields=("t", "x", "y", "heading", "v", "a", "kappa", "valid", "end_step", "plan_ok", "fallback",
-                      "replanned", "info"))
+                      "replanned", "info", "traffic"))
 class DriveLog:
     """A drive (add leading batch axes for batches): ``N = n_steps + 1`` states at
     ``t = k dt``, positions of the car's **box centre**.
@@ -99,6 +133,9 @@ class DriveLog:
             the plan was not finite and the car braked instead; replanned: ``(C,)`` a new plan was
             installed at that cycle (always, periodic; when needed, lazy) before the drive ended.
         info: the planner's info pytree, ``(C, ...)``.
+        traffic: ``Obstacles`` ``(K, N, 5)`` the obstacles as they were at every logged step
+            (``valid``, ``static``, ``t = k dt``): the recording with ``log`` agents, the simulated
+            agents with ``idm`` ones. ``driven_scene`` puts them in the scene for the metrics.
     """
 
     t: Any
@@ -114,6 +151,31 @@ class DriveLog:
     fallback: Any
     replanned: Any
     info: Any
+    traffic: Any = None
+
+
+def driven_scene(log: DriveLog, scene):
+    """The scene as driven: ``scene`` with its obstacles replaced by the log's traffic
+    (``DriveLog.traffic``, ``N`` steps from ``t = 0``) and their Frenet coordinates on the route,
+    so that the metrics (``jaxplan.sim.metrics.evaluate(log, driven_scene(log, scene), vehicle)``,
+    which read ``scene.obstacles.window(0, N)``) judge the drive against where the traffic
+    really was. Works on one drive or a batch (a leading axis on both), inside or outside jit.
+    With ``log`` agents the obstacles are the recording's first ``N`` steps, as before.
+
+    Args:
+        log: ``DriveLog`` (with ``traffic``).
+        scene: the ``Scene`` it was driven in.
+
+    Returns:
+        ``Scene`` with ``obstacles`` ``(K, N, 5)`` and ``obstacle_sl`` ``(K, N, 2)``.
+    """
+    if log.traffic is None:
+        raise ValueError("driven_scene: the DriveLog has no traffic (a log from rollout has it)")
+    if jnp.ndim(scene.dt) > 0:
+        return jax.vmap(driven_scene)(log, scene)
+    obs = log.traffic
+    s, l = to_frenet(scene.route, obs.boxes[..., :2])
+    return dataclasses.replace(scene, obstacles=obs, obstacle_sl=jnp.stack([s, l], -1))
 
 
 def _brake(ego: EgoState, n: int, dt: float, a: float) -> EgoState:
@@ -166,18 +228,33 @@ def drive_one(planner: Planner, scene, config: SimConfig) -> DriveLog:
     dt = jnp.asarray(config.dt, f)
     t_end = scene.goal.time[1]
     min_left = int(round(config.lazy_min_remaining / config.dt))
+    config.check_traffic()
+    idm = config.agents == "idm"
+    paths = agent_paths(scene.obstacles, scene.obstacle_sl, dt) if idm else None
+    agents0 = init_agents(paths) if idm else None
+    lanes = lane_cache(scene) if config.prediction == "cv" else None
+    view_len = (C - 1) * K + H  # steps of the planner's view: every cycle's window fits
+
+    def view(step, agents):  # what the planner sees (the scene itself for oracle predictions of the log)
+        return planner_view(scene, step, H, view_len, config.prediction, paths, agents, lanes)
+
+    def ego_box(ego):
+        f2 = ego.x.dtype
+        return jnp.concatenate([ego.box_centre(veh), jnp.stack([jnp.asarray(veh.length, f2),
+                                                                jnp.asarray(veh.width, f2), ego.heading])])
 
     def reached(ego, t):
         c = ego.box_centre(veh)
         return goal_reached(scene.goal, c, ego.heading, ego.v, t)
 
     def cycle(carry, c):
-        ego, done, plan, idx, plan_ok = carry
+        ego, done, plan, idx, plan_ok, agents = carry
         step = c * K
-        out = planner.plan(scene, ego, step)
+        seen = view(step, agents)
+        out = planner.plan(seen, ego, step)
         if config.replan == "lazy":  # keep the installed plan unless it is short, abnormal or in conflict
             need = (c == 0) | ~plan_ok | (H - 1 - idx < max(min_left, K)) | \
-                plan_conflicts(plan, idx, scene, step, veh, config.lazy_margin)
+                plan_conflicts(plan, idx, seen, step, veh, config.lazy_margin)
         else:
             need = jnp.asarray(True)
         plan = jax.tree_util.tree_map(lambda a, b: jnp.where(need, a, b), out.trajectory, plan)
@@ -191,22 +268,27 @@ def drive_one(planner: Planner, scene, config: SimConfig) -> DriveLog:
                            lambda: _brake(ego, K, config.dt, config.a_fallback))
         # freeze once the drive has ended; the end is checked at every tracked step
         def step_fn(c2, j):
-            e, d = c2
+            e, d, ag = c2
             new = jax.tree_util.tree_map(lambda a: a[j], nxt)
             t = (step + j + 1) * dt
+            if idm:  # the agents react to the car where it is now, then both move on
+                ag = agents_step(paths, ag, step + j, ego_box(e), e.v, config.dt, config.agent_params)
+                moved = agent_boxes(paths, ag, step + j + 1)
+            else:
+                moved = None
             e = jax.tree_util.tree_map(lambda a, b: jnp.where(d, a, b), e, new)
             end_now = (config.stop_at_goal & reached(e, t)) | (t >= t_end - 1e-6)
-            return (e, d | end_now), (e, d)
+            return (e, d | end_now, ag), (e, d, moved)
 
-        (ego_n, done_n), (states, was_done) = lax.scan(step_fn, (ego, done), jnp.arange(K))
-        carry = (ego_n, done_n, plan, idx + K, plan_ok)
-        return carry, (states, was_done, out.ok, ~finite, need & ~done, out.info)
+        (ego_n, done_n, agents_n), (states, was_done, moved) = lax.scan(step_fn, (ego, done, agents), jnp.arange(K))
+        carry = (ego_n, done_n, plan, idx + K, plan_ok, agents_n)
+        return carry, (states, was_done, out.ok, ~finite, need & ~done, out.info, moved)
 
     done0 = (config.stop_at_goal & reached(ego0, 0.0)) | (t_end <= 1e-6)
     plan0 = jax.eval_shape(lambda: planner.plan(scene, ego0, 0)).trajectory
     plan0 = jax.tree_util.tree_map(lambda a: jnp.zeros(a.shape, a.dtype), plan0)
-    carry0 = (ego0, done0, plan0, jnp.asarray(0), jnp.asarray(False))
-    _, (states, was_done, ok, fallback, replanned, info) = lax.scan(cycle, carry0, jnp.arange(C))
+    carry0 = (ego0, done0, plan0, jnp.asarray(0), jnp.asarray(False), agents0)
+    _, (states, was_done, ok, fallback, replanned, info, moved) = lax.scan(cycle, carry0, jnp.arange(C))
     flat = jax.tree_util.tree_map(lambda a: a.reshape((C * K,) + a.shape[2:])[:config.n_steps], states)
     was_done = was_done.reshape(C * K)[:config.n_steps]
     seq = jax.tree_util.tree_map(lambda a0, a: jnp.concatenate([jnp.reshape(a0, (1,)), a]), ego0, flat)
@@ -215,8 +297,15 @@ def drive_one(planner: Planner, scene, config: SimConfig) -> DriveLog:
     n = config.n_steps + 1
     t = jnp.arange(n, dtype=f) * dt
     end_step = jnp.max(jnp.where(valid, jnp.arange(n), 0))
+    if idm:  # the agents at every step: (C, K, K_obstacles, ...) -> (K_obstacles, N, ...)
+        b0, v0 = agent_boxes(paths, agents0, 0)
+        mb, mv = (a.reshape((C * K,) + a.shape[2:])[:config.n_steps] for a in moved)
+        traffic = Obstacles(jnp.swapaxes(jnp.concatenate([b0[None], mb]), 0, 1),
+                            jnp.swapaxes(jnp.concatenate([v0[None], mv]), 0, 1), t, paths.static)
+    else:
+        traffic = scene.obstacles.window(0, n)
     return DriveLog(t, centre[:, 0], centre[:, 1], seq.heading, seq.v, seq.a, seq.kappa, valid, end_step, ok,
-                    fallback, replanned, info)
+                    fallback, replanned, info, traffic)
 
 
 def _rollout(planner: Planner, scenes, config: SimConfig) -> DriveLog:

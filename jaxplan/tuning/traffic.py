@@ -14,6 +14,7 @@ import jax.numpy as jnp
 from jax import lax
 
 from jaxplan.geometry.frenet import ReferenceLine, to_cartesian, to_frenet
+from jaxplan.models.idm import idm_accel as idm_model
 from jaxplan.types import Obstacles
 
 NO_GAP = 1e3  # gap (m) reported when nobody is ahead
@@ -105,11 +106,10 @@ class IDMParams:
 
 
 def idm_accel(p: IDMParams, v, v_des, gap, v_lead, has_leader):
-    """IDM acceleration (Treiber, Hennecke, Helbing 2000); all args ``(...)``."""
-    free = 1.0 - (jnp.maximum(v, 0.0) / jnp.maximum(v_des, 0.1)) ** p.delta
-    s_star = p.s_jam + jnp.maximum(0.0, v * p.headway + v * (v - v_lead) / (2.0 * jnp.sqrt(p.a_max * p.b_comf)))
-    inter = jnp.where(has_leader, (s_star / jnp.maximum(gap, 0.1)) ** 2, 0.0)
-    return p.a_max * (free - inter)
+    """IDM acceleration (``jaxplan.models.idm.idm_accel`` with these parameters, unclipped); all
+    args ``(...)``."""
+    return idm_model(v, v_des, gap, v - v_lead, a_max=p.a_max, b_comf=p.b_comf, time_gap=p.headway,
+                     min_gap=p.s_jam, delta=p.delta, has_leader=has_leader)
 
 
 def idm_rollout(traffic: FrenetTraffic, s0, l0, v0, length, p: IDMParams, dt: float, band: float = 1.75,

@@ -2,6 +2,10 @@
 position (its box centre) is inside the goal region (any of its polygons; anywhere when
 the goal has none), the time is inside the goal's interval, and the speed and heading are
 inside their ranges where the goal gives them (the heading interval taken on the circle).
+
+``off_map``: the goal has a region and no part of it touches the road: none of its polygons'
+vertices, nor their centroids, lies inside a lanelet (some recorded scenes put the goal past
+the map's end; a car cannot reach it without leaving the road). Such drives are shown apart.
 """
 from __future__ import annotations
 
@@ -33,10 +37,24 @@ def goal_reached(goal, xy, heading, v, t):
     return pos & tim & spd & hdg
 
 
+def region_on_road(goal, drivable, drivable_valid):
+    """``()`` bool: some vertex or centroid of the goal's polygons ``(G, W, 2)`` lies inside a lanelet
+    outline of ``drivable (M, V, 2)`` (masks ``goal.region_valid (G, W)``, ``drivable_valid (M, V)``)."""
+    ok = goal.region_valid
+    w = ok.astype(goal.region.dtype)
+    centroid = jnp.sum(goal.region * w[..., None], -2) / jnp.maximum(jnp.sum(w, -1, keepdims=True), 1.0)  # (G, 2)
+    pts = jnp.concatenate([goal.region, centroid[:, None]], 1).reshape(-1, 2)  # (P, 2), P = G (W + 1)
+    pok = jnp.concatenate([ok, jnp.any(ok, -1, keepdims=True)], 1).reshape(-1)
+    inside = points_in_simple_polygon(pts[None], drivable, drivable_valid)  # (M, P)
+    lane_ok = jnp.any(drivable_valid, -1)
+    return jnp.any(inside & pok[None] & lane_ok[:, None])
+
+
 @register_metric("goal")
 def goal(log, scene, vehicle):
     ok = goal_reached(scene.goal, jnp.stack([log.x, log.y], -1), log.heading, log.v, log.t) & log.valid
     k = jnp.argmax(ok)
     reached = jnp.any(ok)
+    off_map = scene.goal.has_region & ~region_on_road(scene.goal, scene.drivable, scene.drivable_valid)
     return {"reached": reached, "step": jnp.where(reached, k, -1),
-            "time": jnp.where(reached, log.t[k], jnp.inf)}
+            "time": jnp.where(reached, log.t[k], jnp.inf), "off_map": off_map}

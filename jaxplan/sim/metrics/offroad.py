@@ -66,45 +66,75 @@ def in_drivable(pts, scene, margin: float = 0.0):
     return inside.reshape(pts.shape[:-1])
 
 
-def road_edge_vertices(scene, near_lo, near_hi):
-    """``(M, V)`` bool: lanelet vertices on the outer edge of the drivable area (see the module doc), among
-    those inside the box ``[near_lo, near_hi]`` (others are ``False``)."""
+EDGE_VERTICES = 256  # lanelet vertices near the drive that are tested for the road's edge
+
+
+def road_edge_vertices(scene, idx, use=None):
+    """``(n,)`` bool: which of the lanelet vertices ``idx (n,)`` (indices into the flattened ``(M V)``
+    outline vertices) lie on the outer edge of the drivable area (see the module docstring).
+
+    ``use (n,)``: the vertices to test (default all); the others are False, and their probes are
+    put on the first used vertex, so that lanelets far from every used vertex are skipped."""
     v, ok = scene.drivable, scene.drivable_valid  # (M, V, 2), (M, V)
     k = jnp.sum(ok, axis=-1, keepdims=True)
-    idx = jnp.arange(v.shape[-2])
-    nxt = jnp.take_along_axis(v, jnp.where(idx + 1 < k, idx + 1, 0)[..., None], axis=-2)
-    prv = jnp.take_along_axis(v, jnp.where(idx > 0, idx - 1, k - 1)[..., None], axis=-2)
+    pos = jnp.arange(v.shape[-2])
+    nxt = jnp.take_along_axis(v, jnp.where(pos + 1 < k, pos + 1, 0)[..., None], axis=-2)
+    prv = jnp.take_along_axis(v, jnp.where(pos > 0, pos - 1, k - 1)[..., None], axis=-2)
+    flat = lambda a: a.reshape((-1,) + a.shape[2:])[idx]  # noqa: E731
+    v, nxt, prv, ok = flat(v), flat(nxt), flat(prv), flat(ok)
 
     def unit(d):
         return d / jnp.maximum(jnp.linalg.norm(d, axis=-1, keepdims=True), 1e-9)
 
     e1, e2 = unit(v - prv), unit(nxt - v)
     perp = lambda d: jnp.stack([-d[..., 1], d[..., 0]], -1)  # noqa: E731
-    dirs = jnp.stack([perp(e1), perp(e2), unit(e2 - e1)], -2)  # (M, V, 3, 2)
-    probes = v[..., None, :] + PROBE * jnp.concatenate([dirs, -dirs], -2)  # (M, V, 6, 2)
-    near = ok & jnp.all((v >= near_lo) & (v <= near_hi), axis=-1)
-    outside = ~in_drivable(jnp.where(near[..., None, None], probes, near_lo), scene)  # far ones: a stand-in point
-    return near & jnp.any(outside, axis=-1)
+    dirs = jnp.stack([perp(e1), perp(e2), unit(e2 - e1)], -2)  # (n, 3, 2)
+    probes = v[..., None, :] + PROBE * jnp.concatenate([dirs, -dirs], -2)  # (n, 6, 2)
+    use = ok if use is None else ok & use
+    probes = jnp.where(use[:, None, None], probes, v[jnp.argmax(use)])
+    outside = ~in_drivable(probes, scene)
+    return use & jnp.any(outside, axis=-1)
 
 
 def offroad_steps(log, scene, vehicle):
-    """``(N,)`` bool: the car's box is not enclosed by the drivable area at that step (within the drive)."""
+    """``(N,)`` bool: the car's box is not enclosed by the drivable area at that step (within the drive).
+
+    The road's edge is looked for among the ``EDGE_VERTICES`` lanelet vertices nearest the drive that
+    lie within reach of the car's box (the others cannot touch it)."""
+    return _offroad(log, scene, vehicle)[0]
+
+
+def _offroad(log, scene, vehicle):
+    """``offroad_steps`` and the count of vertices within reach left unchecked (beyond ``EDGE_VERTICES``)."""
     boxes = car_boxes(log, vehicle)
     pts = outline_points(boxes, SPACING, vehicle.length, vehicle.width)  # (N, P, 2)
-    lo, hi = jnp.min(pts, axis=(0, 1)), jnp.max(pts, axis=(0, 1))
     out_pts = ~jnp.all(in_drivable(pts, scene), axis=-1)
-    edge = road_edge_vertices(scene, lo, hi).reshape(-1)  # (M V,)
+    verts = scene.drivable.reshape(-1, 2)
+    vok = scene.drivable_valid.reshape(-1)
+    reach = 0.5 * jnp.hypot(vehicle.length, vehicle.width) + PROBE
+
+    def nearest(d2, b):  # the squared distance of every vertex to the nearest box centre of the drive
+        d = jnp.sum((verts - b[:2]) ** 2, -1)
+        return jnp.minimum(d2, jnp.where(b[5] > 0, d, jnp.inf)), None
+
+    d2, _ = jax.lax.scan(nearest, jnp.full(verts.shape[:1], jnp.inf, verts.dtype),
+                         jnp.concatenate([boxes, log.valid[:, None].astype(boxes.dtype)], -1))
+    within = vok & (d2 <= reach ** 2)
+    n = min(EDGE_VERTICES, verts.shape[0])
+    _, idx = jax.lax.top_k(jnp.where(within, -d2, -jnp.inf), n)
+    edge = road_edge_vertices(scene, idx, within[idx])  # (n,)
     c, s = jnp.cos(boxes[:, 4]), jnp.sin(boxes[:, 4])
-    d = scene.drivable.reshape(-1, 2)[None] - boxes[:, None, :2]  # (N, M V, 2)
+    d = verts[idx][None] - boxes[:, None, :2]  # (N, n, 2)
     along = d[..., 0] * c[:, None] + d[..., 1] * s[:, None]
     across = -d[..., 0] * s[:, None] + d[..., 1] * c[:, None]
     # deeper than TOL: the referee's lanelets are buffered by that much
     dips = edge & (jnp.abs(along) < vehicle.length / 2 - TOL) & (jnp.abs(across) < vehicle.width / 2 - TOL)
-    return (out_pts | jnp.any(dips, axis=-1)) & log.valid
+    return (out_pts | jnp.any(dips, axis=-1)) & log.valid, jnp.maximum(jnp.sum(within) - n, 0)
 
 
 @register_metric("offroad")
 def offroad(log, scene, vehicle):
-    off = offroad_steps(log, scene, vehicle)
+    off, unchecked = _offroad(log, scene, vehicle)
     k = jnp.argmax(off)
-    return {"offroad": jnp.any(off), "first_step": jnp.where(jnp.any(off), k, -1), "steps": jnp.sum(off)}
+    return {"offroad": jnp.any(off), "first_step": jnp.where(jnp.any(off), k, -1), "steps": jnp.sum(off),
+            "unchecked_vertices": unchecked}
