@@ -536,26 +536,45 @@ def pad_scene(scene: Scene, K: int, T: int, M: int, V: int, G: int, W: int, NL: 
                                obstacle_type=ty, goal=goal, lights=lights)
 
 
-def stack_scenes(scenes: list, min_steps: int = 1, min_sizes: tuple | None = None) -> Scene:
+SIZE_NAMES = ("K", "T", "M", "V", "G", "W", "NL", "P", "LP")
+
+
+def scene_sizes(scene: Scene) -> dict:
+    """The counts of an unbatched (numpy) scene that padding changes (``SIZE_NAMES``): obstacles ``K``
+    over ``T`` steps, ``M`` lanelet outlines of ``V`` vertices, ``G`` goal polygons of ``W``
+    vertices, ``NL`` stop lines with ``P`` steps of colours, ``LP`` lane paths."""
+    b = np.shape(scene.obstacles.boxes)
+    nl, p = np.shape(scene.lights.color) if scene.lights is not None else (0, 1)
+    return {"K": b[0], "T": b[1], "M": np.shape(scene.drivable)[0], "V": np.shape(scene.drivable)[1],
+            "G": np.shape(scene.goal.region)[0], "W": np.shape(scene.goal.region)[1], "NL": nl, "P": p,
+            "LP": np.shape(scene.lane_paths)[0] if scene.lane_paths is not None else 0}
+
+
+def stack_scenes(scenes: list, min_steps: int = 1, min_sizes=None) -> Scene:
     """One batched ``Scene`` (jnp leaves with a leading scene axis) from unbatched numpy scenes
     of any sizes (same route points and lanes).
 
     Args:
         min_steps: pad obstacles to at least this many steps.
-        min_sizes: optional lower bounds ``(K, T, M, V, G, W)`` of the padded sizes (one
-            compiled shape for several batches), optionally followed by ``(NL, P)`` (stop lines).
+        min_sizes: optional lower bounds of the padded sizes (one compiled shape for several
+            batches): a dict over ``SIZE_NAMES`` (missing ones: the largest scene's), or a tuple
+            ``(K, T, M, V, G, W)`` optionally followed by ``(NL, P)``.
     """
     if not scenes:
         raise ValueError("stack_scenes: no scenes")
-    dims = np.array([[s.obstacles.boxes.shape[0], s.obstacles.boxes.shape[1], *s.drivable.shape[:2],
-                      *s.goal.region.shape[:2]] for s in scenes] + ([list(min_sizes)] if min_sizes else []))
-    K, T, M, V, G, W = dims.max(0)
-    K = max(int(K), 1)  # one invalid obstacle at least: no zero-size arrays in the kernels
-    NL, P = np.array([list(np.shape(s.lights.color)) if s.lights is not None else [0, 1] for s in scenes]
-                     + ([list(min_sizes[6:8])] if min_sizes and len(min_sizes) >= 8 else [])).max(0)
-    padded = [pad_scene(s, int(K), int(max(T, min_steps)), int(M), int(V), int(G), int(W), int(NL), int(P),
-                        LP=max([1] + [np.shape(s.lane_paths)[0] for s in scenes if s.lane_paths is not None]))
-              for s in scenes]
+    if min_sizes is not None and not isinstance(min_sizes, dict):
+        min_sizes = dict(zip(SIZE_NAMES, min_sizes))
+    bad = set(min_sizes or ()) - set(SIZE_NAMES)
+    if bad:
+        raise ValueError(f"stack_scenes: min_sizes has unknown sizes {sorted(bad)}; known: {', '.join(SIZE_NAMES)}")
+    have = [scene_sizes(s) for s in scenes]
+    size = {k: max([h[k] for h in have] + [int((min_sizes or {}).get(k, 0))]) for k in SIZE_NAMES}
+    size["K"] = max(size["K"], 1)  # one invalid obstacle at least: no zero-size arrays in the kernels
+    size["T"] = max(size["T"], min_steps)
+    size["P"] = max(size["P"], 1)
+    size["LP"] = max(size["LP"], 1)
+    padded = [pad_scene(s, size["K"], size["T"], size["M"], size["V"], size["G"], size["W"], size["NL"], size["P"],
+                        LP=size["LP"]) for s in scenes]
     f = jnp.result_type(float)
 
     def stack(*xs):

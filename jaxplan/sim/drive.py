@@ -47,12 +47,13 @@ from jaxplan.scenarios.files import location, scenario_format
 from jaxplan.sim import sizes, verdict
 from jaxplan.sim.devices import place, sharded_map
 from jaxplan.sim.metrics.registry import evaluate_batch
-from jaxplan.sim.rollout import SimConfig, driven_scene, planner_program, rollout
+from jaxplan.sim.rollout import ChunkedRollout, DriveLog, SimConfig, driven_scene, planner_program, rollout
 from jaxplan.sim.store import RunStore, write_json
+from jaxplan.types import Obstacles
 
 DEFAULT_MAX_STEPS = 200  # 20 s at dt 0.1
 DEFAULT_BATCH = 16
-DRIVE_STEP_CLASSES = (40, 100, 150, 200, 300, 400, 600)  # a drive's length is padded to one of these
+CHUNK_CYCLES = 6  # planning cycles per compiled call; a batch stops after the chunk in which its last drive ends
 
 
 @dataclasses.dataclass
@@ -101,9 +102,10 @@ def summarize(rows: list) -> dict:
     reached = col("goal.reached") > 0
     times = np.array([r.get("goal.time") if r.get("goal.time") is not None else np.inf for r in rows], float)
     out["time_to_goal_mean"] = float(np.mean(times[reached])) if reached.any() else None
-    out["plan_not_ok_share"] = float(np.mean(col("plan_not_ok_share")))
-    out["fallback_cycles"] = float(np.sum(col("fallback_cycles")))
-    out["replans_per_drive"] = float(np.mean(col("replans")))
+    known = [r for r in rows if r.get("plan_not_ok_share") is not None]  # (not known of other planners' drives)
+    out["plan_not_ok_share"] = float(np.mean([r["plan_not_ok_share"] for r in known])) if known else None
+    out["fallback_cycles"] = float(sum(r["fallback_cycles"] for r in known)) if known else None
+    out["replans_per_drive"] = float(np.mean([r["replans"] for r in known])) if known else None
     out["scenes"] = float(len(rows))
     return out
 
@@ -164,7 +166,7 @@ def run_planner(planner, batch, config: SimConfig, chunk: int | None = None) -> 
     parts = [sharded_map(fn, take(batch, lo, min(B, lo + chunk)), pad_to=chunk) for lo in range(0, B, chunk)]
     t_run = time.perf_counter() - t0
     log = jax.tree_util.tree_map(lambda *a: np.concatenate(a), *parts)
-    jlog = jax.tree_util.tree_map(jnp.asarray, log)
+    jlog = jax.tree_util.tree_map(jnp.asarray, log)  # (an in-memory batch: judged as one)
     metrics = evaluate_batch(jlog, driven_scene(jlog, batch), planner.vehicle)
     metrics = {k: np.asarray(v) for k, v in metrics.items()}
     steps = B * config.n_steps
@@ -177,13 +179,16 @@ def _value(x):
     return bool(x) if x.dtype == bool else (int(x) if np.issubdtype(x.dtype, np.integer) else float(x))
 
 
-def _row(i, rec, planner_name, metrics, log) -> dict:
+def _row(i, rec, planner_name, metrics, log, every: int = 1) -> dict:
+    """One drive's row: its metrics, planning figures over the cycles up to its end (``every``:
+    steps per cycle), its end time and verdict."""
     row = {"planner": planner_name, "scenario": rec.name, "folder": _folder(rec), "location": location(rec.name)}
     for k, v in metrics.items():
         row[k] = _value(v[i])
-    ok = np.asarray(log.plan_ok[i])
+    cycles = int(log.end_step[i]) // every + 1
+    ok = np.asarray(log.plan_ok[i])[:cycles]
     row["plan_not_ok_share"] = float(1.0 - np.mean(ok))
-    row["fallback_cycles"] = int(np.sum(log.fallback[i]))
+    row["fallback_cycles"] = int(np.sum(np.asarray(log.fallback[i])[:cycles]))
     row["replans"] = int(np.sum(log.replanned[i]))
     row["end_time"] = float(np.asarray(log.t[i])[int(log.end_step[i])])
     row["success"] = verdict.success(row)
@@ -268,19 +273,38 @@ def run_settings(planners: list, config: SimConfig, planner_options: dict | None
             "code": _code_fingerprint(), **(run_info or {})}
 
 
-class _Programs:
-    """The compiled drive programs of one planner, one per (size class, steps); compile time measured apart."""
+def _judge(log: DriveLog, records, run: dict, vehicle, batch_size: int):
+    """The metrics of a batch of drives (numpy ``log``, leading axis over ``records``), each scene and its
+    traffic padded to the run's sizes (``sizes.run_sizes``) so that one metrics program serves every
+    batch of the run. Returns ``(the scenes as driven (numpy), {metric: (B,) numpy})``."""
+    from jaxplan.scenarios.scene import stack_scenes
 
-    def __init__(self, planner, config: SimConfig):
-        self.planner, self.config, self.compiled, self.compile_s = planner, config, {}, 0.0
-
-    def run(self, key, placed):
-        if key not in self.compiled:
-            t = time.perf_counter()
-            program = planner_program(self.planner)
-            self.compiled[key] = program.lower(self.planner, placed, config=key[1]).compile()
-            self.compile_s += time.perf_counter() - t
-        return self.compiled[key](placed)
+    batch = stack_scenes([r.scene for r in records], min_sizes=run)
+    K = int(batch.obstacles.boxes.shape[1])
+    # the steps up to the batch's last drive's end, rounded up to a class (a few metrics programs per run)
+    N = int(np.asarray(log.t).shape[1])
+    n = min(N, sizes.size_class(int(np.max(log.end_step)) + 1, sizes.CLASSES["T"]))
+    if n < N:
+        cut_n = lambda a: a[:, :n] if np.ndim(a) >= 2 and np.shape(a)[1] == N else a  # noqa: E731
+        log = dataclasses.replace(log, **{f: cut_n(getattr(log, f)) for f in ("t", "x", "y", "heading", "v", "a",
+                                                                              "kappa", "valid")})
+        log = dataclasses.replace(log, traffic=dataclasses.replace(
+            log.traffic, boxes=log.traffic.boxes[:, :, :n], valid=log.traffic.valid[:, :, :n],
+            t=log.traffic.t[:, :n]))
+    tr = log.traffic
+    pad = K - tr.boxes.shape[1]
+    if pad > 0:  # the traffic of the drive's obstacle class, padded with absent obstacles
+        tr = dataclasses.replace(
+            tr, boxes=np.concatenate([tr.boxes, np.repeat(np.ones_like(tr.boxes[:, :1]), pad, 1)], 1),
+            valid=np.concatenate([tr.valid, np.zeros(tr.valid.shape[:1] + (pad,) + tr.valid.shape[2:], bool)], 1),
+            static=np.concatenate([tr.static, np.zeros((tr.static.shape[0], pad), bool)], 1))
+    full = dataclasses.replace(log, traffic=tr)
+    placed, B = place((full, batch), pad_to=batch_size)
+    jlog, jbatch = placed
+    judged = driven_scene(jlog, jbatch)
+    metrics = evaluate_batch(jlog, judged, vehicle)
+    cut = lambda a: np.asarray(a)[:B]  # noqa: E731
+    return jax.tree_util.tree_map(cut, judged), {k: cut(v) for k, v in metrics.items()}
 
 
 def _plots_for(policy: str, n_drives: int, row: dict) -> bool:
@@ -345,35 +369,31 @@ def drive(records, planners: list, out: str, config: SimConfig, animate: bool = 
               "drives": total, "resumed_drives": n_drives - total}
     bar = tqdm(total=total, desc="driving", unit="drive", disable=not progress, file=sys.stderr, dynamic_ncols=True)
     dt = config.dt
+    run = sizes.run_sizes([r.scene for r in records])
     try:
         for name, planner in made.items():
-            programs = _Programs(planner, config)
+            driver = ChunkedRollout(planner, config, CHUNK_CYCLES)
             groups: dict = {}
             for r in pending[name]:
-                n = scene_steps(r, dt, config.n_steps)
-                n = min(sizes.size_class(n, DRIVE_STEP_CLASSES), config.n_steps)
-                groups.setdefault((sizes.drive_class(r.scene, n), n), []).append(r)
-            for (dclass, n), recs in sorted(groups.items(), key=lambda kv: (kv[0][1], kv[0][0])):
-                cfg = dataclasses.replace(config, n_steps=n)
+                groups.setdefault(sizes.obstacle_class(r.scene), []).append(r)
+            for k_class, recs in sorted(groups.items()):
+                recs = sorted(recs, key=lambda r: scene_steps(r, dt, config.n_steps))  # similar lengths together
                 for lo in range(0, len(recs), batch_size):
                     part = recs[lo:lo + batch_size]
-                    m_cls = sizes.metric_sizes([r.scene for r in part])
-                    batch = stack_scenes([r.scene for r in part], min_steps=n + 1,
-                                         min_sizes=(dclass.K, dclass.T, *m_cls, dclass.G, dclass.W))
+                    batch = stack_scenes([r.scene for r in part], min_sizes=dict(run, K=k_class))
                     placed, B = place(sizes.for_drive(batch), pad_to=batch_size)
+                    timing["compile_s"] += driver.compile(placed)
+                    need = max(scene_steps(r, dt, config.n_steps) for r in part)
                     t0 = time.perf_counter()
-                    c0 = programs.compile_s
-                    log = programs.run((dclass, cfg), placed)
-                    log = jax.tree_util.tree_map(lambda y: np.asarray(y)[:B], log)
-                    timing["drive_s"] += time.perf_counter() - t0 - (programs.compile_s - c0)
+                    log = driver(placed, cycles=-(-need // config.replan_every))
+                    log = jax.tree_util.tree_map(lambda y: y[:B], log)
+                    timing["drive_s"] += time.perf_counter() - t0
                     t0 = time.perf_counter()
-                    jlog = jax.tree_util.tree_map(jnp.asarray, log)
-                    judged = driven_scene(jlog, batch)
-                    metrics = {k: np.asarray(v) for k, v in evaluate_batch(jlog, judged, planner.vehicle).items()}
+                    judged, metrics = _judge(log, part, run, planner.vehicle, batch_size)
                     timing["metrics_s"] += time.perf_counter() - t0
                     t0 = time.perf_counter()
                     for i, rec in enumerate(part):
-                        row = _row(i, rec, name, metrics, log)
+                        row = _row(i, rec, name, metrics, log, config.replan_every)
                         log_i = {k: np.asarray(getattr(log, k)[i]) for k in ("t", "x", "y", "heading", "v", "a",
                                                                               "kappa", "valid", "end_step")}
                         scene_i = jax.tree_util.tree_map(lambda a: np.asarray(a)[i], judged)
@@ -381,17 +401,15 @@ def drive(records, planners: list, out: str, config: SimConfig, animate: bool = 
                         row["why"] = verdict.explain(row, log_i, scene_i, rec.scenario.obstacle_types,
                                                      _describe(planner, info_i, int(log_i["end_step"]),
                                                                config.replan_every))
-                        row["size_class"] = dclass.label()
+                        row["obstacle_class"] = k_class
                         write_drive(folder_of(name, rec), rec, name, planner.vehicle, log_i, row, animate,
                                     plot=_plots_for(plots, n_drives, row), scene=scene_i)
                         store.add(row)
                         bar.update(1)
                     timing["write_s"] += time.perf_counter() - t0
-                    done = bar.n
-                    if done and bar.format_dict.get("elapsed"):
-                        bar.set_postfix_str(f"{60.0 * done / bar.format_dict['elapsed']:.0f} drives/min")
-            timing["compile_s"] += programs.compile_s
-            timing[f"programs.{name}"] = len(programs.compiled)
+                    if bar.n and bar.format_dict.get("elapsed"):
+                        bar.set_postfix_str(f"{60.0 * bar.n / bar.format_dict['elapsed']:.0f} drives/min")
+            timing[f"programs.{name}"] = len(groups)
     finally:
         bar.close()
         store.close()
@@ -419,43 +437,47 @@ def drive(records, planners: list, out: str, config: SimConfig, animate: bool = 
     return DriveResult(all_rows, summary, out, timing)
 
 
-def judge_drives(records, driven: dict, planner_name: str, batch_size: int = DEFAULT_BATCH,
-                 progress: bool = False) -> list:
+def judge_drives(records, driven: dict, planner_name: str, max_steps: int | None = None,
+                 batch_size: int = DEFAULT_BATCH) -> list:
     """Judge drives made by any planner (``driven.json`` objects, e.g. a peer's) with the same metrics
     and verdict as ``drive``: one row per record that has a drive (in the records' order).
 
     Args:
         records: ``SceneRecord``s (names as the drives' ``scenario`` keys).
-        driven: ``{scenario key: driven.json object}`` (states in world coordinates, box centre; see
-            the module docstring); the traffic is taken as recorded (log replay).
+        driven: ``{scenario key: driven.json object}`` (states in world coordinates, box centre, one row
+            per ``dt`` from ``t = 0``; see the module docstring); the traffic is taken as recorded.
         planner_name: the ``planner`` of the rows.
+        max_steps: the drives' step cap (default: the longest drive's).
     """
     from jaxplan.baselines.brake import SIM_VEHICLE
-    from jaxplan.scenarios.scene import stack_scenes
-    from jaxplan.sim.rollout import DriveLog
 
     todo = [r for r in records if r.name in driven]
+    if not todo:
+        return []
+    states = {}
+    for r in todo:
+        st = np.asarray(driven[r.name].get("states"), float)
+        if st.ndim != 2 or st.shape[1] < 5 or len(st) < 1 or not np.all(np.isfinite(st[:, :5])):
+            raise ValueError(f"{r.name}: driven states should be finite rows of [t, x, y, theta, v, ...]")
+        states[r.name] = st
+    N = (max_steps or max(len(st) - 1 for st in states.values())) + 1
+    run = sizes.run_sizes([r.scene for r in todo])
     groups: dict = {}
     for r in todo:
-        d = driven[r.name]
-        states = np.asarray(d["states"], float)
-        if states.ndim != 2 or states.shape[1] < 5 or len(states) < 1:
-            raise ValueError(f"{r.name}: driven states should be rows of [t, x, y, theta, v, ...]")
-        n = sizes.size_class(len(states) - 1, DRIVE_STEP_CLASSES)
-        veh = dataclasses.replace(SIM_VEHICLE, length=float(d["vehicle"]["length"]), width=float(d["vehicle"]["width"]))
-        groups.setdefault((sizes.drive_class(r.scene, n), n, veh), []).append((r, states))
+        d = driven[r.name]["vehicle"]
+        veh = dataclasses.replace(SIM_VEHICLE, length=float(d["length"]), width=float(d["width"]))
+        groups.setdefault(veh, []).append(r)
     rows = {}
-    for (dclass, n, veh), items in sorted(groups.items(), key=lambda kv: (kv[0][1], kv[0][0])):
-        for lo in range(0, len(items), batch_size):
-            part = items[lo:lo + batch_size]
-            m_cls = sizes.metric_sizes([r.scene for r, _ in part])
-            batch = stack_scenes([r.scene for r, _ in part], min_steps=n + 1,
-                                 min_sizes=(dclass.K, dclass.T, *m_cls, dclass.G, dclass.W))
-            N = n + 1
+    dt = float(todo[0].scenario.dt)
+    for veh, recs in groups.items():
+        for lo in range(0, len(recs), batch_size):
+            part = recs[lo:lo + batch_size]
             cols = {k: np.zeros((len(part), N)) for k in ("x", "y", "heading", "v", "a", "kappa")}
             valid = np.zeros((len(part), N), bool)
             end = np.zeros(len(part), int)
-            for i, (r, st) in enumerate(part):
+            boxes, there, static = [], [], []
+            for i, r in enumerate(part):
+                st = states[r.name]
                 m = min(len(st), N)
                 o = np.asarray(r.scenario.origin, float)
                 for j, k in enumerate(("x", "y", "heading", "v")):
@@ -465,22 +487,25 @@ def judge_drives(records, driven: dict, planner_name: str, batch_size: int = DEF
                     cols["a"][i, :m] = st[:m, 5]
                 valid[i, :m] = True
                 end[i] = m - 1
-            t = np.broadcast_to(np.arange(N) * float(records[0].scenario.dt), (len(part), N))
-            C = 1
+                w = jax.tree_util.tree_map(jnp.asarray, r.scene.obstacles).window(0, N)  # the recorded traffic
+                boxes.append(np.asarray(w.boxes))
+                there.append(np.asarray(w.valid))
+                static.append(np.asarray(w.static))
+            K = max(b.shape[0] for b in boxes)
+            pad = lambda a, fill: np.concatenate([a, np.full((K - a.shape[0],) + a.shape[1:], fill, a.dtype)])  # noqa: E731
+            traffic = Obstacles(np.stack([pad(b, 1.0) for b in boxes]), np.stack([pad(v, False) for v in there]),
+                                np.broadcast_to(np.arange(N) * dt, (len(part), N)),
+                                np.stack([pad(s_, False) for s_ in static]))
+            t = np.broadcast_to(np.arange(N) * dt, (len(part), N))
+            one = np.ones((len(part), 1), bool)
             log = DriveLog(t, cols["x"], cols["y"], cols["heading"], cols["v"], cols["a"], cols["kappa"], valid, end,
-                           np.ones((len(part), C), bool), np.zeros((len(part), C), bool),
-                           np.ones((len(part), C), bool), {}, None)
-            log = jax.tree_util.tree_map(jnp.asarray, log)
-            traffic = jax.vmap(lambda s: s.obstacles.window(0, N))(batch)
-            log = dataclasses.replace(log, traffic=traffic)
-            judged = driven_scene(log, batch)
-            metrics = {k: np.asarray(v) for k, v in evaluate_batch(log, judged, veh).items()}
-            nlog = jax.tree_util.tree_map(np.asarray, log)
-            for i, (r, _) in enumerate(part):
-                row = _row(i, r, planner_name, metrics, nlog)
+                           one, ~one, one, {}, traffic)
+            judged, metrics = _judge(log, part, run, veh, batch_size)
+            for i, r in enumerate(part):
+                row = _row(i, r, planner_name, metrics, log)
                 for k in ("plan_not_ok_share", "fallback_cycles", "replans"):  # not known of another planner
                     row[k] = None
-                log_i = {k: np.asarray(getattr(nlog, k)[i]) for k in ("t", "x", "y", "heading", "v", "end_step")}
+                log_i = {k: np.asarray(getattr(log, k)[i]) for k in ("t", "x", "y", "heading", "v", "end_step")}
                 scene_i = jax.tree_util.tree_map(lambda a: np.asarray(a)[i], judged)
                 row["why"] = verdict.explain(row, log_i, scene_i, r.scenario.obstacle_types)
                 rows[r.name] = row

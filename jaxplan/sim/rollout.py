@@ -215,45 +215,93 @@ def plan_conflicts(traj, idx, scene, step, vehicle, margin: float):
     return jnp.any(obs.valid & inside[None] & (sep < margin))
 
 
-def drive_one(planner: Planner, scene, config: SimConfig) -> DriveLog:
-    """One scene's drive (unbatched; ``rollout`` batches it)."""
-    veh = planner.vehicle
-    K = config.replan_every
-    C = config.n_cycles
-    H = planner.horizon_steps
-    track = TRACKERS[config.tracking]
-    ego0 = EgoState.from_box_centre(scene.start, veh)
-    f = jnp.result_type(float)
-    ego0 = jax.tree_util.tree_map(lambda a: jnp.asarray(a, f), ego0)
-    dt = jnp.asarray(config.dt, f)
-    t_end = scene.goal.time[1]
-    min_left = int(round(config.lazy_min_remaining / config.dt))
-    config.check_traffic()
-    idm = config.agents == "idm"
-    paths = agent_paths(scene.obstacles, scene.obstacle_sl, dt) if idm else None
-    agents0 = init_agents(paths) if idm else None
-    lanes = lane_cache(scene) if config.prediction == "cv" else None
-    view_len = (C - 1) * K + H  # steps of the planner's view: every cycle's window fits
+@_pytree(data_fields=("ego", "done", "plan", "idx", "plan_ok", "agents"))
+class DriveState:
+    """Where a drive stands between planning cycles (one scene; add leading axes for a batch).
 
-    def view(step, agents):  # what the planner sees (the scene itself for oracle predictions of the log)
-        return planner_view(scene, step, H, view_len, config.prediction, paths, agents, lanes)
+    Attributes:
+        ego: ``EgoState`` of the car (reference point).
+        done: ``()`` the drive has ended.
+        plan: the installed plan (``Trajectory`` ``(H,)``); idx: ``()`` the index on it the car is at.
+        plan_ok: ``()`` the planner's ``ok`` for the installed plan.
+        agents: the IDM agents' state (None with ``log`` agents).
+    """
 
-    def ego_box(ego):
+    ego: Any
+    done: Any
+    plan: Any
+    idx: Any
+    plan_ok: Any
+    agents: Any = None
+
+
+@_pytree(data_fields=("states", "was_done", "ok", "fallback", "replanned", "info", "moved"))
+class DriveChunk:
+    """What consecutive planning cycles produced (``C`` cycles of ``K = replan_every`` steps each):
+    ``states`` (``EgoState`` ``(C, K)``), ``was_done (C, K)``, ``ok, fallback, replanned (C,)``,
+    the planner's ``info`` ``(C, ...)``, and the IDM agents' boxes and valid flags after each step
+    (``moved``: ``((C, K, K_obs, 5), (C, K, K_obs))``; None with ``log`` agents)."""
+
+    states: Any
+    was_done: Any
+    ok: Any
+    fallback: Any
+    replanned: Any
+    info: Any
+    moved: Any = None
+
+
+class _Drive:
+    """One scene's closed loop (unbatched): what every cycle shares, and the cycle itself."""
+
+    def __init__(self, planner: Planner, scene, config: SimConfig):
+        self.planner, self.scene, self.config = planner, scene, config
+        self.veh = planner.vehicle
+        self.K = config.replan_every
+        self.C = config.n_cycles
+        self.H = planner.horizon_steps
+        self.track = TRACKERS[config.tracking]
+        self.f = jnp.result_type(float)
+        self.dt = jnp.asarray(config.dt, self.f)
+        self.t_end = scene.goal.time[1]
+        self.min_left = int(round(config.lazy_min_remaining / config.dt))
+        self.idm = config.agents == "idm"
+        self.paths = agent_paths(scene.obstacles, scene.obstacle_sl, self.dt) if self.idm else None
+        self.lanes = lane_cache(scene) if config.prediction == "cv" else None
+        self.view_len = (self.C - 1) * self.K + self.H  # steps of the planner's view: every cycle's window fits
+
+    def ego0(self) -> EgoState:
+        e = EgoState.from_box_centre(self.scene.start, self.veh)
+        return jax.tree_util.tree_map(lambda a: jnp.asarray(a, self.f), e)
+
+    def view(self, step, agents):  # what the planner sees (the scene itself for oracle predictions of the log)
+        return planner_view(self.scene, step, self.H, self.view_len, self.config.prediction, self.paths, agents,
+                            self.lanes)
+
+    def ego_box(self, ego):
         f2 = ego.x.dtype
-        return jnp.concatenate([ego.box_centre(veh), jnp.stack([jnp.asarray(veh.length, f2),
-                                                                jnp.asarray(veh.width, f2), ego.heading])])
+        return jnp.concatenate([ego.box_centre(self.veh), jnp.stack([jnp.asarray(self.veh.length, f2),
+                                                                     jnp.asarray(self.veh.width, f2), ego.heading])])
 
-    def reached(ego, t):
-        c = ego.box_centre(veh)
-        return goal_reached(scene.goal, c, ego.heading, ego.v, t)
+    def reached(self, ego, t):
+        return goal_reached(self.scene.goal, ego.box_centre(self.veh), ego.heading, ego.v, t)
 
-    def cycle(carry, c):
-        ego, done, plan, idx, plan_ok, agents = carry
+    def start(self) -> DriveState:
+        ego0 = self.ego0()
+        done0 = (self.config.stop_at_goal & self.reached(ego0, 0.0)) | (self.t_end <= 1e-6)
+        plan0 = jax.eval_shape(lambda: self.planner.plan(self.scene, ego0, 0)).trajectory
+        plan0 = jax.tree_util.tree_map(lambda a: jnp.zeros(a.shape, a.dtype), plan0)
+        agents0 = init_agents(self.paths) if self.idm else None
+        return DriveState(ego0, done0, plan0, jnp.asarray(0), jnp.asarray(False), agents0)
+
+    def cycle(self, st: DriveState, c):
+        config, K, H, veh = self.config, self.K, self.H, self.veh
+        ego, done, plan, idx, plan_ok, agents = st.ego, st.done, st.plan, st.idx, st.plan_ok, st.agents
         step = c * K
-        seen = view(step, agents)
-        out = planner.plan(seen, ego, step)
+        seen = self.view(step, agents)
+        out = self.planner.plan(seen, ego, step)
         if config.replan == "lazy":  # keep the installed plan unless it is short, abnormal or in conflict
-            need = (c == 0) | ~plan_ok | (H - 1 - idx < max(min_left, K)) | \
+            need = (c == 0) | ~plan_ok | (H - 1 - idx < max(self.min_left, K)) | \
                 plan_conflicts(plan, idx, seen, step, veh, config.lazy_margin)
         else:
             need = jnp.asarray(True)
@@ -264,48 +312,74 @@ def drive_one(planner: Planner, scene, config: SimConfig) -> DriveLog:
         head = jax.tree_util.tree_map(lambda a: a[..., :K + 1], traj)
         finite = _finite(head)
         safe = jax.tree_util.tree_map(lambda a: jnp.where(finite, a, 0.0), traj)
-        nxt = jax.lax.cond(finite, lambda: track(safe, ego, K, veh, config),
+        nxt = jax.lax.cond(finite, lambda: self.track(safe, ego, K, veh, config),
                            lambda: _brake(ego, K, config.dt, config.a_fallback))
+
         # freeze once the drive has ended; the end is checked at every tracked step
         def step_fn(c2, j):
             e, d, ag = c2
             new = jax.tree_util.tree_map(lambda a: a[j], nxt)
-            t = (step + j + 1) * dt
-            if idm:  # the agents react to the car where it is now, then both move on
-                ag = agents_step(paths, ag, step + j, ego_box(e), e.v, config.dt, config.agent_params)
-                moved = agent_boxes(paths, ag, step + j + 1)
+            t = (step + j + 1) * self.dt
+            if self.idm:  # the agents react to the car where it is now, then both move on
+                ag = agents_step(self.paths, ag, step + j, self.ego_box(e), e.v, config.dt, config.agent_params)
+                moved = agent_boxes(self.paths, ag, step + j + 1)
             else:
                 moved = None
             e = jax.tree_util.tree_map(lambda a, b: jnp.where(d, a, b), e, new)
-            end_now = (config.stop_at_goal & reached(e, t)) | (t >= t_end - 1e-6)
+            end_now = (config.stop_at_goal & self.reached(e, t)) | (t >= self.t_end - 1e-6)
             return (e, d | end_now, ag), (e, d, moved)
 
         (ego_n, done_n, agents_n), (states, was_done, moved) = lax.scan(step_fn, (ego, done, agents), jnp.arange(K))
-        carry = (ego_n, done_n, plan, idx + K, plan_ok, agents_n)
-        return carry, (states, was_done, out.ok, ~finite, need & ~done, out.info, moved)
+        nst = DriveState(ego_n, done_n, plan, idx + K, plan_ok, agents_n)
+        return nst, DriveChunk(states, was_done, out.ok, ~finite, need & ~done, out.info, moved)
 
-    done0 = (config.stop_at_goal & reached(ego0, 0.0)) | (t_end <= 1e-6)
-    plan0 = jax.eval_shape(lambda: planner.plan(scene, ego0, 0)).trajectory
-    plan0 = jax.tree_util.tree_map(lambda a: jnp.zeros(a.shape, a.dtype), plan0)
-    carry0 = (ego0, done0, plan0, jnp.asarray(0), jnp.asarray(False), agents0)
-    _, (states, was_done, ok, fallback, replanned, info, moved) = lax.scan(cycle, carry0, jnp.arange(C))
-    flat = jax.tree_util.tree_map(lambda a: a.reshape((C * K,) + a.shape[2:])[:config.n_steps], states)
-    was_done = was_done.reshape(C * K)[:config.n_steps]
-    seq = jax.tree_util.tree_map(lambda a0, a: jnp.concatenate([jnp.reshape(a0, (1,)), a]), ego0, flat)
-    valid = jnp.concatenate([jnp.ones((1,), bool), ~was_done])  # the step that ends the drive is part of it
-    centre = seq.box_centre(veh)
-    n = config.n_steps + 1
-    t = jnp.arange(n, dtype=f) * dt
-    end_step = jnp.max(jnp.where(valid, jnp.arange(n), 0))
-    if idm:  # the agents at every step: (C, K, K_obstacles, ...) -> (K_obstacles, N, ...)
-        b0, v0 = agent_boxes(paths, agents0, 0)
-        mb, mv = (a.reshape((C * K,) + a.shape[2:])[:config.n_steps] for a in moved)
-        traffic = Obstacles(jnp.swapaxes(jnp.concatenate([b0[None], mb]), 0, 1),
-                            jnp.swapaxes(jnp.concatenate([v0[None], mv]), 0, 1), t, paths.static)
-    else:
-        traffic = scene.obstacles.window(0, n)
-    return DriveLog(t, centre[:, 0], centre[:, 1], seq.heading, seq.v, seq.a, seq.kappa, valid, end_step, ok,
-                    fallback, replanned, info, traffic)
+    def log(self, chunk: DriveChunk) -> DriveLog:
+        """The ``DriveLog`` of a whole drive from its cycles (``C`` of them)."""
+        config, K, C = self.config, self.K, self.C
+        ego0 = self.ego0()
+        flat = jax.tree_util.tree_map(lambda a: a.reshape((C * K,) + a.shape[2:])[:config.n_steps], chunk.states)
+        was_done = chunk.was_done.reshape(C * K)[:config.n_steps]
+        seq = jax.tree_util.tree_map(lambda a0, a: jnp.concatenate([jnp.reshape(a0, (1,)), a]), ego0, flat)
+        valid = jnp.concatenate([jnp.ones((1,), bool), ~was_done])  # the step that ends the drive is part of it
+        centre = seq.box_centre(self.veh)
+        n = config.n_steps + 1
+        t = jnp.arange(n, dtype=self.f) * self.dt
+        end_step = jnp.max(jnp.where(valid, jnp.arange(n), 0))
+        if self.idm:  # the agents at every step: (C, K, K_obstacles, ...) -> (K_obstacles, N, ...)
+            b0, v0 = agent_boxes(self.paths, init_agents(self.paths), 0)
+            mb, mv = (a.reshape((C * K,) + a.shape[2:])[:config.n_steps] for a in chunk.moved)
+            traffic = Obstacles(jnp.swapaxes(jnp.concatenate([b0[None], mb]), 0, 1),
+                                jnp.swapaxes(jnp.concatenate([v0[None], mv]), 0, 1), t, self.paths.static)
+        else:
+            traffic = self.scene.obstacles.window(0, n)
+        return DriveLog(t, centre[:, 0], centre[:, 1], seq.heading, seq.v, seq.a, seq.kappa, valid, end_step,
+                        chunk.ok, chunk.fallback, chunk.replanned, chunk.info, traffic)
+
+
+def drive_start(planner: Planner, scene, config: SimConfig) -> DriveState:
+    """A drive's state before its first cycle (one scene)."""
+    return _Drive(planner, scene, config).start()
+
+
+def drive_cycles(planner: Planner, scene, state: DriveState, c0, n: int, config: SimConfig):
+    """Planning cycles ``c0 .. c0 + n - 1`` of a drive (one scene; ``c0`` may be traced, ``n`` static).
+
+    Returns:
+        ``(DriveState after them, DriveChunk of them)``.
+    """
+    d = _Drive(planner, scene, config)
+    return lax.scan(d.cycle, state, jnp.asarray(c0) + jnp.arange(n))
+
+
+def drive_log(planner: Planner, scene, chunk: DriveChunk, config: SimConfig) -> DriveLog:
+    """The ``DriveLog`` of a drive from all its cycles' ``DriveChunk`` (``config.n_cycles`` of them)."""
+    return _Drive(planner, scene, config).log(chunk)
+
+
+def drive_one(planner: Planner, scene, config: SimConfig) -> DriveLog:
+    """One scene's drive (unbatched; ``rollout`` batches it): every cycle in one ``lax.scan``."""
+    _, chunk = drive_cycles(planner, scene, drive_start(planner, scene, config), 0, config.n_cycles, config)
+    return drive_log(planner, scene, chunk, config)
 
 
 def _rollout(planner: Planner, scenes, config: SimConfig) -> DriveLog:
@@ -342,3 +416,100 @@ def rollout(planner: Planner, scenes, config: SimConfig = SimConfig()) -> DriveL
         ``DriveLog`` with a leading scene axis.
     """
     return planner_program(planner)(planner, scenes, config=config)
+
+
+def _starts(planner: Planner, scenes, config: SimConfig) -> DriveState:
+    return jax.vmap(lambda s: drive_start(planner, s, config))(scenes)
+
+
+def _advance(planner: Planner, scenes, state: DriveState, c0, config: SimConfig, n: int):
+    return jax.vmap(lambda s, st: drive_cycles(planner, s, st, c0, n, config))(scenes, state)
+
+
+def _logs(planner: Planner, scenes, chunk: DriveChunk, config: SimConfig) -> DriveLog:
+    return jax.vmap(lambda s, ch: drive_log(planner, s, ch, config))(scenes, chunk)
+
+
+class ChunkedRollout:
+    """``rollout`` of one planner and config in chunks of ``chunk_cycles`` planning cycles, with a
+    host loop between the chunks that stops as soon as every drive of the batch has ended (or has
+    reached ``cycles``). The drives are those of ``rollout``: the same cycles, states and outputs up
+    to each drive's end (the cycles after the last drive's end are not run: their entries repeat
+    the last state, marked ended).
+
+    One compiled program per batch shape for any drive length, so that scenes of different
+    lengths share it. ``compile(scenes)`` compiles ahead of time and returns the seconds it took
+    (a drive's time is then the drive alone).
+
+    Args:
+        planner: the ``Planner`` (static).
+        config: ``SimConfig``; ``n_steps`` is the longest drive.
+        chunk_cycles: cycles per compiled call.
+    """
+
+    def __init__(self, planner: Planner, config: SimConfig, chunk_cycles: int = 6):
+        if chunk_cycles < 1:
+            raise ValueError(f"ChunkedRollout: chunk_cycles must be >= 1, got {chunk_cycles}")
+        self.planner, self.config = planner, config
+        self.n = min(chunk_cycles, config.n_cycles)
+        self._programs: dict = {}
+
+    def _key(self, scenes):
+        leaves, tree = jax.tree_util.tree_flatten(scenes)
+        return tree, tuple((x.shape, str(x.dtype), str(getattr(x, "sharding", ""))) for x in leaves)
+
+    def compile(self, scenes) -> float:
+        """Compile the programs for batches shaped as ``scenes``; seconds taken (0 when compiled before)."""
+        import time
+
+        key = self._key(scenes)
+        if key in self._programs:
+            return 0.0
+        t = time.perf_counter()
+        p, cfg = self.planner, self.config
+        start = planner_program(p, _starts, ("planner", "config")).lower(p, scenes, config=cfg).compile()
+        state = jax.eval_shape(functools.partial(_starts, p, config=cfg), scenes)
+        adv = planner_program(p, _advance, ("planner", "config", "n")).lower(
+            p, scenes, state, jnp.asarray(0), config=cfg, n=self.n).compile()
+        _, chunk = jax.eval_shape(functools.partial(_advance, p, config=cfg, n=self.n), scenes, state, jnp.asarray(0))
+        full = jax.tree_util.tree_map(
+            lambda a: jax.ShapeDtypeStruct((a.shape[0], cfg.n_cycles) + a.shape[2:], a.dtype), chunk)
+        logs = planner_program(p, _logs, ("planner", "config")).lower(p, scenes, full, config=cfg).compile()
+        self._programs[key] = (start, adv, logs)
+        return time.perf_counter() - t
+
+    def __call__(self, scenes, cycles: int | None = None) -> DriveLog:
+        """Drive a batch (leading scene axis); ``cycles``: at most this many cycles (default all).
+
+        Returns:
+            ``DriveLog`` of numpy arrays with a leading scene axis.
+        """
+        import numpy as np
+
+        self.compile(scenes)
+        start, adv, logs = self._programs[self._key(scenes)]
+        C = self.config.n_cycles
+        limit = C if cycles is None else max(1, min(C, cycles))
+        state = start(scenes)
+        parts, c0 = [], 0
+        while c0 < limit:
+            state, chunk = adv(scenes, state, jnp.asarray(c0))
+            parts.append(jax.tree_util.tree_map(np.asarray, chunk))
+            c0 += self.n
+            if bool(np.all(np.asarray(state.done))):
+                break
+        got = jax.tree_util.tree_map(lambda *a: np.concatenate(a, axis=1), *parts)
+        ran = got.ok.shape[1]
+        if ran < C:  # the cycles not run: the last state, ended
+            def fill(a, value=None):
+                rest = np.repeat(a[:, -1:], C - ran, axis=1) if value is None else \
+                    np.full((a.shape[0], C - ran) + a.shape[2:], value, a.dtype)
+                return np.concatenate([a, rest], axis=1)
+
+            got = DriveChunk(jax.tree_util.tree_map(fill, got.states), fill(got.was_done, True), fill(got.ok, True),
+                             fill(got.fallback, False), fill(got.replanned, False),
+                             jax.tree_util.tree_map(fill, got.info),
+                             None if got.moved is None else jax.tree_util.tree_map(fill, got.moved))
+        elif ran > C:
+            got = jax.tree_util.tree_map(lambda a: a[:, :C], got)
+        return jax.tree_util.tree_map(np.asarray, logs(scenes, got))

@@ -43,35 +43,47 @@ def outline_points(boxes, spacing: float = SPACING, length=4.5, width=1.8):
     return jnp.concatenate(pts, axis=-2)
 
 
-def in_drivable(pts, scene, margin: float = 0.0):
-    """``(..., P)`` bool: points ``(..., P, 2)`` inside some lanelet of ``scene.drivable`` (within ``TOL``).
+NEAR_LANELETS = 16  # lanelets a group of points is tested against (the nearest by bounding box)
 
-    One lanelet at a time (memory ``(..., P, V)``, not ``(..., M, P, V)``); lanelets whose bounding box is
-    farther than ``margin`` from every point are skipped.
+
+def lanelet_boxes(scene):
+    """``(M, 2), (M, 2)``: the lower and upper corners of every lanelet outline's bounding box
+    (empty outlines: an inverted box that no point is near)."""
+    v, ok = scene.drivable, scene.drivable_valid
+    big = 1e9
+    return (jnp.min(jnp.where(ok[..., None], v, big), axis=-2), jnp.max(jnp.where(ok[..., None], v, -big), axis=-2))
+
+
+def in_drivable(pts, scene):
+    """``(G, P)`` bool, ``()`` int: whether points ``(G, P, 2)`` lie inside some lanelet of ``scene.drivable``
+    (within ``TOL``), and how many lanelets went untested.
+
+    Each group of ``P`` points (e.g. a box's outline at one step) is tested against the
+    ``NEAR_LANELETS`` lanelets whose bounding boxes are nearest the group's centre; a lanelet that
+    holds one of the points lies within the group's radius of its centre, so only when more than
+    ``NEAR_LANELETS`` do is one left out (the count returned, 0 normally).
     """
-    flat = pts.reshape(-1, 2)
-    lo, hi = jnp.min(flat, axis=0) - margin, jnp.max(flat, axis=0) + margin
-
-    def add(inside, poly):
-        v, ok = poly
-        big = 1e9
-        plo = jnp.min(jnp.where(ok[:, None], v, big), axis=0)
-        phi = jnp.max(jnp.where(ok[:, None], v, -big), axis=0)
-        near = jnp.any(ok) & jnp.all(plo <= hi + TOL) & jnp.all(phi >= lo - TOL)
-        here = jax.lax.cond(near, lambda: points_in_simple_polygon(flat, v, ok, TOL),
-                            lambda: jnp.zeros(flat.shape[:-1], bool))
-        return inside | here, None
-
-    inside, _ = jax.lax.scan(add, jnp.zeros(flat.shape[:-1], bool), (scene.drivable, scene.drivable_valid))
-    return inside.reshape(pts.shape[:-1])
+    lo, hi = lanelet_boxes(scene)  # (M, 2)
+    centre = jnp.mean(pts, axis=-2)  # (G, 2)
+    radius = jnp.max(jnp.linalg.norm(pts - centre[:, None], axis=-1), axis=-1) + TOL  # (G,)
+    gap = jnp.linalg.norm(jnp.maximum(jnp.maximum(lo[None] - centre[:, None], centre[:, None] - hi[None]), 0.0),
+                          axis=-1)  # (G, M) distance from the centre to each bounding box
+    reach = gap <= radius[:, None]
+    L = min(NEAR_LANELETS, lo.shape[0])
+    neg, idx = jax.lax.top_k(-gap, L)  # (G, L) the nearest
+    use = -neg <= radius[:, None]
+    poly, ok = scene.drivable[idx], scene.drivable_valid[idx] & use[..., None]  # (G, L, V, 2), (G, L, V)
+    inside = points_in_simple_polygon(pts[:, None], poly, ok, TOL)  # (G, L, P)
+    return jnp.any(inside, axis=1), jnp.maximum(jnp.sum(reach) - jnp.sum(use), 0)
 
 
-EDGE_VERTICES = 256  # lanelet vertices near the drive that are tested for the road's edge
+EDGE_VERTICES = 192  # lanelet vertices near the drive that are tested for the road's edge
 
 
 def road_edge_vertices(scene, idx, use=None):
     """``(n,)`` bool: which of the lanelet vertices ``idx (n,)`` (indices into the flattened ``(M V)``
-    outline vertices) lie on the outer edge of the drivable area (see the module docstring).
+    outline vertices) lie on the outer edge of the drivable area (see the module docstring), and the
+    count of lanelets left untested (``in_drivable``).
 
     ``use (n,)``: the vertices to test (default all); the others are False, and their probes are
     put on the first used vertex, so that lanelets far from every used vertex are skipped."""
@@ -92,8 +104,8 @@ def road_edge_vertices(scene, idx, use=None):
     probes = v[..., None, :] + PROBE * jnp.concatenate([dirs, -dirs], -2)  # (n, 6, 2)
     use = ok if use is None else ok & use
     probes = jnp.where(use[:, None, None], probes, v[jnp.argmax(use)])
-    outside = ~in_drivable(probes, scene)
-    return use & jnp.any(outside, axis=-1)
+    inside, unchecked = in_drivable(probes, scene)
+    return use & jnp.any(~inside, axis=-1), unchecked
 
 
 def offroad_steps(log, scene, vehicle):
@@ -105,10 +117,12 @@ def offroad_steps(log, scene, vehicle):
 
 
 def _offroad(log, scene, vehicle):
-    """``offroad_steps`` and the count of vertices within reach left unchecked (beyond ``EDGE_VERTICES``)."""
+    """``offroad_steps`` and how much was left unchecked: vertices within reach beyond ``EDGE_VERTICES``,
+    lanelets within reach beyond ``NEAR_LANELETS`` (0 normally)."""
     boxes = car_boxes(log, vehicle)
     pts = outline_points(boxes, SPACING, vehicle.length, vehicle.width)  # (N, P, 2)
-    out_pts = ~jnp.all(in_drivable(pts, scene), axis=-1)
+    inside, unchecked_outline = in_drivable(pts, scene)
+    out_pts = ~jnp.all(inside, axis=-1)
     verts = scene.drivable.reshape(-1, 2)
     vok = scene.drivable_valid.reshape(-1)
     reach = 0.5 * jnp.hypot(vehicle.length, vehicle.width) + PROBE
@@ -122,14 +136,15 @@ def _offroad(log, scene, vehicle):
     within = vok & (d2 <= reach ** 2)
     n = min(EDGE_VERTICES, verts.shape[0])
     _, idx = jax.lax.top_k(jnp.where(within, -d2, -jnp.inf), n)
-    edge = road_edge_vertices(scene, idx, within[idx])  # (n,)
+    edge, unchecked_probes = road_edge_vertices(scene, idx, within[idx])  # (n,)
     c, s = jnp.cos(boxes[:, 4]), jnp.sin(boxes[:, 4])
     d = verts[idx][None] - boxes[:, None, :2]  # (N, n, 2)
     along = d[..., 0] * c[:, None] + d[..., 1] * s[:, None]
     across = -d[..., 0] * s[:, None] + d[..., 1] * c[:, None]
     # deeper than TOL: the referee's lanelets are buffered by that much
     dips = edge & (jnp.abs(along) < vehicle.length / 2 - TOL) & (jnp.abs(across) < vehicle.width / 2 - TOL)
-    return (out_pts | jnp.any(dips, axis=-1)) & log.valid, jnp.maximum(jnp.sum(within) - n, 0)
+    unchecked = jnp.maximum(jnp.sum(within) - n, 0) + unchecked_outline + unchecked_probes
+    return (out_pts | jnp.any(dips, axis=-1)) & log.valid, unchecked
 
 
 @register_metric("offroad")
@@ -137,4 +152,4 @@ def offroad(log, scene, vehicle):
     off, unchecked = _offroad(log, scene, vehicle)
     k = jnp.argmax(off)
     return {"offroad": jnp.any(off), "first_step": jnp.where(jnp.any(off), k, -1), "steps": jnp.sum(off),
-            "unchecked_vertices": unchecked}
+            "unchecked": unchecked}
