@@ -106,7 +106,7 @@ def lattice_config(n, near_k=None):
     V, L = _grid(n)
     return LatticeConfig(horizon=HORIZON, dt=DT, speed_deltas_kmh=tuple(np.linspace(-36, 36, V).round(4)),
                          escalation=(1.0,), n_offsets=L, offset_span=3.0, vehicle=CAR, buffer_lon=1.0,
-                         buffer_lat=0.3, terminal=True, ignore_behind=True, near_budget=0.0,
+                         buffer_lat=0.3, terminal=True, near_budget=0.0,
                          near_k=NEAR_K if near_k is None else near_k)
 
 

@@ -140,6 +140,7 @@ ROUTE_BUILDER = "jaxplan.scenarios.scene:world_route"  # the route every jaxplan
 
 # BMW 320i (CommonRoad vehicle type 2), the reactive planner's and Frenetix's default car.
 CAR_LENGTH, CAR_WIDTH = 4.508, 1.61
+DT = 0.1  # s: the harness's step
 WB_REAR = 1.4227170936  # centre to rear axle
 PEERS = ("reactive", "frenetix")
 VENVS = {"reactive": "/work/venvs/reactive/bin/python", "frenetix": "/work/venvs/frenetix/bin/python",
@@ -649,30 +650,6 @@ def judge_worker(job: dict) -> dict:
     sys.path.insert(0, ROOT)
     from jaxplan.eval import referee
 
-    opened = referee._open
-    if not getattr(opened, "reads_gz", False):
-        # the referee opens scenario files by name (.json / .xml); a gzip-compressed one is decompressed
-        # in memory here, the same scenario object the referee builds from the plain file
-        def open_any(path: str):
-            if not path.lower().endswith(".gz"):
-                return opened(path)
-            from jaxplan.scenarios.files import scenario_format
-            from jaxplan.scenarios.loader import read_bytes
-
-            if scenario_format(path) == "json":
-                from jaxplan.scenarios.commonroad import dict_to_commonroad
-
-                id_map: dict = {}
-                sc, pps = dict_to_commonroad(json.loads(read_bytes(path)), path, id_map)
-            else:
-                (sc, pps), id_map = _read_xml_set(path), {}
-            problems = list(pps.planning_problem_dict.values())
-            if not problems:
-                raise ValueError(f"{path}: no planning problem")
-            return sc, problems[0], id_map
-
-        open_any.reads_gz = True
-        referee._open = open_any
     return referee.judge_folders(job["folders"], job["scenarios"])
 
 
@@ -1100,8 +1077,12 @@ def main(argv=None) -> dict:
                                            "scenarios": {k: info[k]["path"] for k in keys}}, tmp)
     for label, folder in drives.items():  # jaxplan's own plan time per cycle, where its metrics say it
         timing[label] = _jaxplan_timing(folder, label)
+    own = jaxplan_verdicts(folders, {k: info[k]["path"] for k in keys}, args.max_steps)
     result = {"scenarios": scen, "route_source": source, "verdicts": verdicts["drives"],
               "summary": _summary(verdicts, timing, scen), "by_folder": _by_folder(verdicts, scen),
+              "verdict": {label: {k: v for k, v in o.items() if k != "rows"} for label, o in own.items()},
+              "verdict_rows": {label: o["rows"] for label, o in own.items()},
+              "agreement": agreement(verdicts["drives"], own),
               "settings": settings_table(args, list(folders)), "timing": timing, "args": vars(args),
               "cpu_count": os.cpu_count(), "wall_s": time.time() - t_start,
               "drive_wall_s": {p: round(sum(r.get("drive_wall_s", 0.0) for r in timing.get(p, {}).values()
@@ -1193,6 +1174,62 @@ def plot_drives(res: dict, folders: dict, out: str) -> list:
     return written
 
 
+def jaxplan_verdicts(folders: dict, paths: dict, max_steps: int) -> dict:
+    """Every folder's drives judged by jaxplan's verdict (``jaxplan.sim.drive.judge_drives``: the
+    metrics and the success rule ``jaxplan drive`` uses), the same code for every planner:
+    ``{label: {"rows", "summary", "by_folder", "by_location", "missing"}}``."""
+    sys.path.insert(0, ROOT)
+    import dataclasses
+
+    from jaxplan.scenarios.cache import load_many
+    from jaxplan.sim.drive import judge_drives, summarize, summarize_by
+
+    keys = list(paths)
+    loaded = load_many([paths[k] for k in keys], progress=False)
+    by_path = {r.path: r for r in loaded.records}
+    records = [dataclasses.replace(by_path[paths[k]], name=k) for k in keys if paths[k] in by_path]
+    out = {}
+    for label, folder in folders.items():
+        driven = {}
+        for k in keys:
+            f = os.path.join(folder, k, "driven.json")
+            if os.path.exists(f):
+                with open(f) as fh:
+                    driven[k] = json.load(fh)
+        rows = judge_drives(records, driven, label, max_steps)
+        out[label] = {"rows": rows, "summary": summarize(rows), "by_folder": summarize_by(rows, "folder"),
+                      "by_location": summarize_by(rows, "location"),
+                      "missing": [k for k in keys if k not in driven]}
+    return out
+
+
+def agreement(referee_rows: dict, own: dict) -> dict:
+    """Per planner: the drives on which the referee and jaxplan's verdict agree on collision (and its
+    time), off road (and its time) and goal (and its time), and the disagreements."""
+    out = {}
+    for label, rows in referee_rows.items():
+        mine = {r["scenario"]: r for r in own.get(label, {}).get("rows", [])}
+        agree, differ = 0, []
+        for v in rows:
+            r = mine.get(v["scenario"])
+            if r is None or "goal_reached" not in v:
+                continue
+            t = lambda key, ok: round(r[key] * DT, 6) if ok and r[key] is not None else None  # noqa: E731
+            ours = {"collided": (bool(r["overlap.collided"]), t("overlap.first_step", r["overlap.collided"])),
+                    "off_road": (bool(r["offroad.offroad"]), t("offroad.first_step", r["offroad.offroad"])),
+                    "goal_reached": (bool(r["goal.reached"]), t("goal.step", r["goal.reached"]))}
+            theirs = {"collided": (bool(v["collided"]), v["first_collision_time"]),
+                      "off_road": (bool(v["off_road"]), v["first_off_road_time"]),
+                      "goal_reached": (bool(v["goal_reached"]), v["goal_time"])}
+            diff = {k: {"jaxplan": ours[k], "referee": theirs[k]} for k in ours if ours[k] != theirs[k]}
+            if diff:
+                differ.append({"scenario": v["scenario"], **diff})
+            else:
+                agree += 1
+        out[label] = {"agree": agree, "judged": agree + len(differ), "disagreements": differ}
+    return out
+
+
 def _jaxplan_timing(folder: str, label: str) -> dict:
     """Plan time per cycle from ``jaxplan drive``'s ``metrics.json`` (``drive.<planner>.plan_ms_median``)."""
     f = os.path.join(folder, "metrics.json")
@@ -1245,8 +1282,40 @@ def render_report(res: dict) -> str:
                      f"{s['goal_reached']}/{s['scenarios']} | "
                      f"{s['collided']} | {s['off_road']} | {s['judged']} | {fmt(s['plan_ms_median'], '.1f')} | "
                      f"{fmt(s['cpu_ms_median'], '.1f')} |")
+    if res.get("verdict"):
+        lines += ["", "## jaxplan's verdict: the same code for every planner", "",
+                  "Success: goal reached (CommonRoad's rule), no collision at any step, never off road. At fault: some "
+                  "obstacle's first contact was not a moving obstacle hitting the car squarely from behind "
+                  "(`jaxplan.sim.metrics.overlap`).", "",
+                  "| planner | drives | success | goal | collisions | at fault | off road | goal off map | "
+                  "referee agrees |", "| --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
+        for label, o in res["verdict"].items():
+            s_ = o["summary"]
+            ag = res.get("agreement", {}).get(label, {})
+            lines.append(f"| {label} | {fmt(s_.get('scenes'), '.0f')} | {fmt(s_.get('success_share'), '.1%')} | "
+                         f"{fmt(s_.get('goal_share'), '.1%')} | {fmt(s_.get('collisions'), '.0f')} | "
+                         f"{fmt(s_.get('at_fault_collisions'), '.0f')} | {fmt(s_.get('offroad_share'), '.1%')} | "
+                         f"{fmt(s_.get('goal_off_map'), '.0f')} | {ag.get('agree', '-')}/{ag.get('judged', '-')} |")
+        lines += ["", "Per folder (success / goal / collisions / at fault):", "",
+                  "| planner | " + " | ".join(sorted({g for o in res["verdict"].values() for g in o["by_folder"]})) + " |"]
+        groups = sorted({g for o in res["verdict"].values() for g in o["by_folder"]})
+        lines.append("| --- |" + " --- |" * len(groups))
+        for label, o in res["verdict"].items():
+            cells = []
+            for g in groups:
+                b = o["by_folder"].get(g)
+                cells.append("-" if not b else f"{fmt(b.get('success_share'), '.0%')} / {fmt(b.get('goal_share'), '.0%')} / "
+                             f"{fmt(b.get('collisions'), '.0f')} / {fmt(b.get('at_fault_collisions'), '.0f')} "
+                             f"({fmt(b.get('scenes'), '.0f')})")
+            lines.append(f"| {label} | " + " | ".join(cells) + " |")
+        dis = [(label, d) for label, a in res.get("agreement", {}).items() for d in a["disagreements"]]
+        if dis:
+            lines += ["", "Where the referee and jaxplan's verdict disagree:", ""]
+            lines += [f"- {label} {d['scenario']}: " + "; ".join(f"{k} jaxplan {v['jaxplan']} referee {v['referee']}"
+                                                              for k, v in d.items() if k != "scenario")
+                      for label, d in dis]
     if res.get("by_folder"):
-        lines += ["", "## Per folder", "", "Success: a judged drive that reached the goal without a collision and "
+        lines += ["", "## Per folder (referee)", "", "Success: a judged drive that reached the goal without a collision and "
                   "without leaving the road (count over the folder's scenarios).", "",
                   "| planner | folder | scenarios | success | goals | collisions | off road | judged |",
                   "| --- | --- | --- | --- | --- | --- | --- | --- |"]

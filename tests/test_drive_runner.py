@@ -114,7 +114,7 @@ def test_goal_off_map_is_flagged():
     off = _record(far)
     for rec, want in ((on, True), (off, False)):
         sc = jax.tree_util.tree_map(np.asarray, rec.scene)
-        assert bool(region_on_road(sc.goal, sc.drivable, sc.drivable_valid)) == want
+        assert bool(region_on_road(sc.goal, sc)) == want
 
 
 def test_chunked_rollout_equals_rollout():

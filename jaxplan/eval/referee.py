@@ -111,22 +111,16 @@ def load_driven(path: str) -> dict:
 
 
 def _open(path: str):
-    """``(scenario, planning problem, id map)`` of a scenario file."""
-    import warnings
+    """``(scenario, planning problem, id map)`` of a scenario file (``.json`` / ``.xml``, either ``.gz``)."""
+    from jaxplan.scenarios.commonroad import dict_to_commonroad, read_commonroad
+    from jaxplan.scenarios.files import scenario_format
+    from jaxplan.scenarios.loader import read_bytes
 
-    if path.endswith(".json"):
-        from jaxplan.scenarios.commonroad import dict_to_commonroad
-
-        with open(path) as f:
-            d = json.load(f)
+    if scenario_format(path) == "json":
         id_map: dict = {}
-        sc, pps = dict_to_commonroad(d, path, id_map)
+        sc, pps = dict_to_commonroad(json.loads(read_bytes(path)), path, id_map)
     else:
-        from commonroad.common.file_reader import CommonRoadFileReader
-
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            sc, pps = CommonRoadFileReader(path).open()
+        sc, pps = read_commonroad(path)
         id_map = {}
     problems = list(pps.planning_problem_dict.values())
     if not problems:

@@ -76,7 +76,8 @@ class LatticeConfig:
         stop_gap: metres kept before a stopped obstacle (its box inflated by ``buffer_lon``) by the
             stopping mode.
         emergency: add the emergency level (after the escalation levels): braking with
-            ``emergency_a_min`` (m/s^2) and jerk ``emergency_jerk`` (m/s^3).
+            ``emergency_a_min`` (m/s^2) and jerk ``emergency_jerk`` (m/s^3), and speeding up
+            with ``emergency_a_max`` (m/s^2; the escape from a vehicle closing in from behind).
         fallback: add the last level: braking at ``fallback_decel`` (m/s^2) to a stop.
     Lateral:
         lateral_times: several times (s) by which each offset is reached (empty: ``lateral_time``).
@@ -91,8 +92,6 @@ class LatticeConfig:
     Safety:
         buffer_lon, buffer_lat: obstacles are inflated by these (m) along and across their
             heading for the "free" test (``collided`` stays the plain overlap).
-        ignore_behind: obstacles behind the car in its corridor (now) do not count while they
-            stay in it, unless they overlap the car.
         terminal: the end state must be able to stop behind whatever is ahead in its corridor,
             decelerating at ``terminal_decel`` (m/s^2) with ``terminal_gap`` (m) left, the
             obstacle braking as hard.
@@ -144,6 +143,7 @@ class LatticeConfig:
     stop_gap: float = 2.0
     emergency: bool = False
     emergency_a_min: float = -8.0
+    emergency_a_max: float = 4.0
     emergency_jerk: float = 20.0
     fallback: bool = False
     fallback_decel: float = 5.0
@@ -159,7 +159,6 @@ class LatticeConfig:
     emergency_lat_acc_max: float = 6.0
     buffer_lon: float = 0.0
     buffer_lat: float = 0.0
-    ignore_behind: bool = False
     terminal: bool = False
     terminal_decel: float = 6.0
     terminal_gap: float = 1.0
@@ -221,7 +220,7 @@ class LatticeConfig:
         (the road planner gives the lanes' offsets in ``RoadTargets``, ``max_lanes`` of them)."""
         base = dict(modes=("follow", "stop", "goal"), emergency=True, fallback=True,
                     lateral_times=(2.0, 3.0, 4.5), hold_offset=True, goal_offset=True, lanes=(-2, -1, 0, 1, 2),
-                    n_offsets=3, offset_span=0.6, buffer_lon=1.0, buffer_lat=0.3, ignore_behind=True, terminal=True,
+                    n_offsets=3, offset_span=0.6, buffer_lon=1.0, buffer_lat=0.3, terminal=True,
                     near_budget=0.0, near_k=6, d_threshold=150.0)
         base.update(overrides)
         return cls(**base)
@@ -250,8 +249,9 @@ class LatticeConfig:
             raise ValueError(f"LatticeConfig.borrow_gain must be >= 0 m (inf: never borrow), got {self.borrow_gain}")
         if self.all_collide not in ("harm", "seed"):
             raise ValueError(f"LatticeConfig.all_collide must be 'harm' or 'seed', got {self.all_collide!r}")
-        if not (self.emergency_a_min < 0 and self.fallback_decel > 0 and self.emergency_jerk > 0):
-            raise ValueError("LatticeConfig: need emergency_a_min < 0, fallback_decel > 0, emergency_jerk > 0")
+        if not (self.emergency_a_min < 0 < self.emergency_a_max and self.fallback_decel > 0 and self.emergency_jerk > 0):
+            raise ValueError("LatticeConfig: need emergency_a_min < 0 < emergency_a_max, fallback_decel > 0, "
+                             "emergency_jerk > 0")
         lo, hi = self.lon_acc_limits
         if not (lo < 0 < hi) or self.lon_jerk_max <= 0 or self.lat_acc_max <= 0 or self.kappa_max < 0:
             raise ValueError("LatticeConfig: need lon_acc_limits (lo < 0 < hi), positive jerk, lateral "

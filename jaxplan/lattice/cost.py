@@ -20,9 +20,11 @@ optax tune them like the seed's):
   distance to obstacles (1 at contact, ``1/e`` at ``obstacle_scale`` metres);
 - ``v_offset``: mean ``|v - v_set|`` over the horizon, ``v_set`` the set speed (from the
   scene's speed limit in the road planner, not the current speed);
-- ``goal``: the error of the predicted arrival at the goal region's middle: seconds outside
-  its time window (``/ config.goal_weight_time``) + m/s outside its speed range + metres
-  outside its lateral range (0 without a goal; capped at ``GOAL_CAP``);
+- ``goal``: whether the car is inside the goal region's stretch of the route at some time in
+  the goal's window (``goal_error``: followed past the horizon at its end speed): the seconds
+  by which it arrives late or passes through before the window opens (``/
+  config.goal_weight_time``) + m/s outside its speed range + metres outside its lateral range
+  then (0 without a goal; capped at ``GOAL_CAP``);
 - ``infeasible``: the feasibility filter's verdict; ``unsafe_end``: collision-free but the
   terminal condition fails (both as 0/1, with large weights, so that the smooth form ranks
   like the exact rule).
@@ -244,8 +246,22 @@ def road_features_from(base, motion, obstacle, goal_err, feasible, terminal_ok, 
     return jnp.concatenate([base, extra], axis=-1)
 
 
+GOAL_INSIDE = 0.5  # m: the box centre counts as in the goal region this far inside its ends
+GOAL_OVERLAP = 0.5  # s: how long a plan should be in the goal region inside its window
+
+
 def goal_error(s, l, v, t, goal_s, goal_l, goal_t, goal_v, center_offset, time_weight=1.0):
-    """Arrival error ``(..., N)`` at the goal region's middle (see the module docstring).
+    """The goal error ``(..., N)`` of candidates (see the module docstring): whether the car's box
+    centre is inside the goal region's stretch of the route at some time inside the goal's window,
+    with its speed and offset in their ranges then.
+
+    Each candidate is followed past its horizon at its end speed: it enters the stretch (its near
+    end, ``GOAL_INSIDE`` m in) at ``t_in`` and leaves it (the far end) at ``t_out``. The error is the
+    seconds by which ``[t_in, t_out]`` misses the window (late: ``t_in`` after its end; through
+    before it opens: ``t_out`` before its start), divided by ``time_weight``, plus the m/s outside the
+    speed range and the metres outside the lateral range when it is first inside in the window.
+    The stay should overlap the window by ``GOAL_OVERLAP`` s (at most half the window): the seconds
+    it falls short of that are the time error (late arrivals and passes before the window alike).
 
     Args:
         s, l, v: ``(..., N, T)`` arc length on the line, offset and speed of the reference point.
@@ -255,21 +271,36 @@ def goal_error(s, l, v, t, goal_s, goal_l, goal_t, goal_v, center_offset, time_w
     f = s.dtype
     gs = jnp.asarray(goal_s, f)
     has = jnp.all(jnp.isfinite(gs), axis=-1)
-    target = jnp.where(has, 0.5 * (gs[..., 0] + gs[..., 1]), 0.0) - center_offset
-    sc = s
-    reach = sc >= target[..., None, None]
-    arrived = jnp.any(reach, axis=-1)
-    k = jnp.argmax(reach, axis=-1)
-    at = lambda a: jnp.take_along_axis(a, k[..., None], axis=-1)[..., 0]
-    v_end = v[..., -1]
-    t_ext = t[-1] + (target[..., None] - sc[..., -1]) / jnp.maximum(v_end, 0.1)
-    t_arr = jnp.where(arrived, t[k], jnp.minimum(t_ext, 1e3))
-    v_arr = jnp.where(arrived, at(v), v_end)
-    l_arr = jnp.where(arrived, at(l), l[..., -1])
-    out = lambda x, lo, hi: jnp.maximum(lo - x, 0.0) + jnp.maximum(x - hi, 0.0)
+    lo0 = jnp.where(has, gs[..., 0], 0.0)
+    hi0 = jnp.where(has, gs[..., 1], 0.0)
+    inside = jnp.minimum(GOAL_INSIDE, 0.5 * (hi0 - lo0))
+    lo = (lo0 + inside - center_offset)[..., None]  # (..., 1): reference point positions
+    hi = (hi0 - inside - center_offset)[..., None]
+    s_end, v_end = s[..., -1], v[..., -1]
+    slow = jnp.maximum(v_end, 1e-3)
+    entered = s >= lo[..., None]
+    k_in = jnp.argmax(entered, axis=-1)
+    t_in = jnp.where(jnp.any(entered, axis=-1), t[k_in], t[-1] + jnp.maximum(lo - s_end, 0.0) / slow)
+    left = s > hi[..., None]
+    t_out = jnp.where(jnp.any(left, axis=-1), t[jnp.argmax(left, axis=-1)],
+                      t[-1] + jnp.maximum(hi - s_end, 0.0) / slow)
     gt, gv, gl = (jnp.asarray(x, f) for x in (goal_t, goal_v, goal_l))
-    err = out(t_arr, gt[..., 0, None], gt[..., 1, None]) / time_weight + out(v_arr, gv[..., 0, None], gv[..., 1, None]) \
-        + out(l_arr, gl[..., 0, None], gl[..., 1, None])
+    t0, t1 = gt[..., 0, None], gt[..., 1, None]
+    # the stay should overlap the window by GOAL_OVERLAP s (half the window when it is shorter): a
+    # plan that only grazes it is missed by the next re-plan's small deviations
+    want = jnp.minimum(GOAL_OVERLAP, 0.5 * jnp.maximum(t1 - t0, 0.0))
+    terr = jnp.maximum(want - (jnp.minimum(t_out, t1) - jnp.maximum(t_in, t0)), 0.0)
+    terr = jnp.where(jnp.isfinite(t1), terr, jnp.maximum(t_in - 1e3, 0.0) + jnp.maximum(t0 - t_out, 0.0))
+    # the state when it is first inside in the window (past the horizon: its end state)
+    tau = jnp.maximum(t_in, t0)
+    k = jnp.clip(jnp.searchsorted(t, tau), 0, t.shape[0] - 1)
+    beyond = tau > t[-1]
+    at = lambda a: jnp.take_along_axis(a, k[..., None], axis=-1)[..., 0]  # noqa: E731
+    v_at = jnp.where(beyond, v_end, at(v))
+    l_at = jnp.where(beyond, l[..., -1], at(l))
+    out = lambda x, lo_, hi_: jnp.maximum(lo_ - x, 0.0) + jnp.maximum(x - hi_, 0.0)  # noqa: E731
+    err = jnp.minimum(terr, 1e3) / time_weight + out(v_at, gv[..., 0, None], gv[..., 1, None]) \
+        + out(l_at, gl[..., 0, None], gl[..., 1, None])
     return jnp.where(has[..., None], jnp.minimum(err, GOAL_CAP), 0.0)
 
 

@@ -7,7 +7,7 @@ infeasible when, at some sample,
   ``tan(max_steer) / wheelbase`` unless ``kappa_max`` is given);
 - ``lat_acc``: ``|v^2 kappa|`` exceeds the lateral acceleration limit;
 - ``lon_acc``: the acceleration, or the speed change over a step, leaves
-  ``lon_acc_limits`` (emergency levels: down to ``emergency_a_min``);
+  ``lon_acc_limits`` (emergency levels: down to ``emergency_a_min``, up to ``emergency_a_max``);
 - ``jerk``: ``|da/dt|`` (finite differences of the samples) exceeds the jerk limit;
 - ``reverse``: the speed drops below zero (a quintic profile that would reverse).
 
@@ -39,6 +39,7 @@ def feasibility(traj, level, config):
     emerg = level >= len(config.escalation)
     lo, hi = config.lon_acc_limits
     a_lo = jnp.where(emerg, min(config.emergency_a_min, lo), lo) - TOL
+    a_hi = jnp.where(emerg, max(config.emergency_a_max, hi), hi) + TOL
     lat_max = jnp.where(emerg, config.emergency_lat_acc_max, config.lat_acc_max) + TOL
     j_max = jnp.where(emerg, config.emergency_jerk_max, config.lon_jerk_max) + TOL
     kap = jnp.max(jnp.abs(traj.kappa), axis=-1)
@@ -50,7 +51,7 @@ def feasibility(traj, level, config):
     jerk = jnp.max(jnp.abs(jnp.diff(traj.a, axis=-1)), axis=-1) / jnp.asarray(config.dt, f) \
         if traj.a.shape[-1] > 1 else jnp.zeros_like(a_min)
     reasons = jnp.stack([kap > config.curvature_limit * (1 + TOL) + 1e-4, lat > lat_max,
-                         (a_min < a_lo) | (a_max > hi + TOL), jerk > j_max,
+                         (a_min < a_lo) | (a_max > a_hi), jerk > j_max,
                          jnp.min(traj.v, axis=-1) < -TOL], axis=-1)
     if not config.feasibility:
         reasons = jnp.zeros_like(reasons)

@@ -14,7 +14,9 @@ The set, in this order (``LatticeConfig`` switches the parts on):
 - **goal**: a quintic that reaches the goal region's middle inside its time window (at three
   times spread over the window) at a speed inside its range;
 - **emergency** (level ``E``): constant-jerk braking with the stronger limits
-  (``emergency_a_min``, ``emergency_jerk``) to a stop and to half the speed;
+  (``emergency_a_min``, ``emergency_jerk``) to a stop and to half the speed, and the escape:
+  speeding up at up to ``emergency_a_max`` by ``ESCAPE_DV`` (a vehicle closing in from behind
+  faster than the comfortable levels can leave room for);
 - **fallback** (level ``E + 1``): braking at the constant deceleration ``fallback_decel``
   (reached with the emergency jerk) to a stop; it is always generated.
 
@@ -45,6 +47,7 @@ CRUISE, FOLLOW, STOP, GOAL, EMERGENCY, FALLBACK = 0, 1, 2, 3, 4, 5
 EMERGENCY_SHARE = 0.96
 MODE_NAMES = ("cruise", "follow", "stop", "goal", "emergency", "fallback")
 MIN_END_TIME = 1.0  # s: the earliest end time of a quintic profile
+ESCAPE_DV = 10.0  # m/s: the emergency escape's speed gain
 
 
 @_pytree(data_fields=("s", "v", "a", "v_end", "level", "kind", "available", "end_time"))
@@ -96,7 +99,7 @@ def n_profiles(config) -> int:
     nt = len(config.end_times)
     modes = set(config.modes)
     n += nt * ("follow" in modes) + (nt + 1) * ("stop" in modes) + 3 * ("goal" in modes)
-    return n + 2 * bool(config.emergency) + bool(config.fallback)
+    return n + 3 * bool(config.emergency) + bool(config.fallback)
 
 
 def longitudinal_set(sdot0, a0, t, config, leader_s=None, leader_v=None, leader_ok=False, stop_s=jnp.inf,
@@ -181,8 +184,12 @@ def longitudinal_set(sdot0, a0, t, config, leader_s=None, leader_v=None, leader_
         ve = jnp.stack([jnp.zeros_like(v0), 0.5 * v0])
         s, v, a = jerk_profile(v0, a0, ve, t, config.emergency_jerk, EMERGENCY_SHARE * config.emergency_a_min,
                                config.a_max)
-        parts.append((s, v, a, ve, jnp.full((2,), E), jnp.full((2,), EMERGENCY), jnp.ones((2,), bool),
-                      jnp.full((2,), jnp.inf, f)))
+        up = jnp.minimum(v0 + ESCAPE_DV, config.v_max)[None]
+        su, vu, au = jerk_profile(v0, a0, up, t, config.emergency_jerk, config.a_min,
+                                  EMERGENCY_SHARE * config.emergency_a_max)
+        parts.append((jnp.concatenate([s, su]), jnp.concatenate([v, vu]), jnp.concatenate([a, au]),
+                      jnp.concatenate([ve, up]), jnp.full((3,), E), jnp.full((3,), EMERGENCY), jnp.ones((3,), bool),
+                      jnp.full((3,), jnp.inf, f)))
     if config.fallback:
         s, v, a = jerk_profile(v0, a0, jnp.zeros((1,), f), t, config.emergency_jerk, -config.fallback_decel,
                                config.a_max)

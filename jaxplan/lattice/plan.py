@@ -27,7 +27,7 @@ from jaxplan.types import Obstacles, _pytree, is_concrete
 
 @_pytree(data_fields=("candidates", "features", "cost", "selection_cost", "collided", "first_t", "ttc",
                       "min_sep", "chosen", "mode", "obstacles", "finite", "ok", "feasible", "reasons",
-                      "collided_margin", "terminal_ok", "impact", "l_target", "ignored", "off_road", "trajectory"))
+                      "collided_margin", "terminal_ok", "impact", "l_target", "off_road", "trajectory"))
 class LatticeResult:
     """Everything one plan computed (``N`` candidates, ``T`` steps, any leading batch dims).
 
@@ -51,7 +51,6 @@ class LatticeResult:
         terminal_ok: ``(..., N)`` the end state can stop behind what is ahead (True when off).
         impact: ``(..., N)`` relative speed at first contact (m/s; 0 without contact).
         l_target: ``(...)`` the target lane's centre the lane decision took (m).
-        ignored: ``(..., K, T)`` obstacle steps left out (same-lane obstacles behind the car).
         off_road: ``(..., N)`` the candidate's box leaves the road (``RoadTargets.road_edges``;
             counted in ``collided_margin``: taken only when nothing on the road is free).
         trajectory: the chosen candidate's ``Trajectory`` ``(..., T)``, built on its own
@@ -78,7 +77,6 @@ class LatticeResult:
     terminal_ok: Any = None
     impact: Any = None
     l_target: Any = None
-    ignored: Any = None
     off_road: Any = None
     trajectory: Any = None
 
@@ -176,15 +174,8 @@ def _plan(state: PlanState, ref: ReferenceLine, obstacles: Obstacles, config: La
     parts = lattice_parts(state, ref, config, targets, (rear, lead_v, found), d_stop, (s_car, l_car))
     cand = generate_from(parts, config)
     kin = _kinematics(cand, ref, targets, config, state.v_set, t, stations_finite(parts))
-    # same-lane obstacles behind the car do not count while they stay in its corridor (unless they overlap it)
-    if config.ignore_behind and K:
-        rear_car = s_car + jnp.asarray(veh.center_offset - 0.5 * veh.length, f)
-        corridor = jnp.abs(sl[..., 1] - l_car) < ext[..., 1] + half_w  # (K, T)
-        behind0 = (sl[:, 0, 0] + ext[:, 0, 0] < rear_car) & corridor[:, 0]
-        ignored = behind0[:, None] & corridor & obs.valid
-    else:
-        ignored = jnp.zeros(obs.valid.shape, bool)
-    obs = Obstacles(obs.boxes, obs.valid & ~ignored, obs.t, obs.static)
+    # every obstacle counts, those behind the car too: one closing in faster than the car is
+    # avoided as any other (speeding up, changing lane), not left to run into it
     obs = with_stop_target(obs, ref, parts.s0 + parts.profiles[0][0, 0], state.d_crossroad, config)
     if K:
         hits = _collisions(cand, obs, t, config)
@@ -225,7 +216,7 @@ def _plan(state: PlanState, ref: ReferenceLine, obstacles: Obstacles, config: La
         sep = None
     return LatticeResult(cand, feats, costs(weights, feats), sel, risk.collided | ~finite, risk.first_t, risk.ttc,
                          sep, idx, mode, obs, finite, ok_plan, feasible, reasons, collided_m, terminal_ok, impact,
-                         l_target, ignored, off_road, candidate_trajectory(parts, idx))
+                         l_target, off_road, candidate_trajectory(parts, idx))
 
 
 def _collisions(cand: Candidates, obs: Obstacles, t, config: LatticeConfig) -> dict:

@@ -275,11 +275,14 @@ def run_settings(planners: list, config: SimConfig, planner_options: dict | None
 
 def _judge(log: DriveLog, records, run: dict, vehicle, batch_size: int):
     """The metrics of a batch of drives (numpy ``log``, leading axis over ``records``), each scene and its
-    traffic padded to the run's sizes (``sizes.run_sizes``) so that one metrics program serves every
-    batch of the run. Returns ``(the scenes as driven (numpy), {metric: (B,) numpy})``."""
-    from jaxplan.scenarios.scene import stack_scenes
+    traffic padded to the run's sizes (``sizes.run_sizes``), the outlines' vertices to the batch's class
+    and the steps to the class of the batch's longest drive: a few metrics programs serve a run.
+    Returns ``(the scenes as driven (numpy), {metric: (B,) numpy})``."""
+    from jaxplan.scenarios.scene import scene_sizes, stack_scenes
 
-    batch = stack_scenes([r.scene for r in records], min_sizes=run)
+    # the run's sizes, but the outlines' vertices at the batch's own class (the metrics' work grows with them)
+    v_class = max(sizes.size_class(scene_sizes(r.scene)["V"], sizes.CLASSES["V"]) for r in records)
+    batch = stack_scenes([r.scene for r in records], min_sizes=dict(run, V=v_class))
     K = int(batch.obstacles.boxes.shape[1])
     # the steps up to the batch's last drive's end, rounded up to a class (a few metrics programs per run)
     N = int(np.asarray(log.t).shape[1])

@@ -13,6 +13,7 @@ import jax.numpy as jnp
 
 from jaxplan.geometry.polygons import points_in_simple_polygon
 from jaxplan.sim.metrics.registry import register_metric
+from jaxplan.sim.metrics.road import in_drivable
 
 TIME_EPS = 1e-3  # s: a time step on the interval's end counts as inside
 
@@ -37,17 +38,19 @@ def goal_reached(goal, xy, heading, v, t):
     return pos & tim & spd & hdg
 
 
-def region_on_road(goal, drivable, drivable_valid):
-    """``()`` bool: some vertex or centroid of the goal's polygons ``(G, W, 2)`` lies inside a lanelet
-    outline of ``drivable (M, V, 2)`` (masks ``goal.region_valid (G, W)``, ``drivable_valid (M, V)``)."""
+def region_on_road(goal, scene):
+    """``()`` bool: some vertex or centroid of the goal's polygons ``(G, W, 2)`` (mask
+    ``goal.region_valid``) lies inside a lanelet outline of ``scene.drivable`` (``road.in_drivable``:
+    each polygon's points against the lanelets nearest it)."""
     ok = goal.region_valid
     w = ok.astype(goal.region.dtype)
     centroid = jnp.sum(goal.region * w[..., None], -2) / jnp.maximum(jnp.sum(w, -1, keepdims=True), 1.0)  # (G, 2)
-    pts = jnp.concatenate([goal.region, centroid[:, None]], 1).reshape(-1, 2)  # (P, 2), P = G (W + 1)
-    pok = jnp.concatenate([ok, jnp.any(ok, -1, keepdims=True)], 1).reshape(-1)
-    inside = points_in_simple_polygon(pts[None], drivable, drivable_valid)  # (M, P)
-    lane_ok = jnp.any(drivable_valid, -1)
-    return jnp.any(inside & pok[None] & lane_ok[:, None])
+    pts = jnp.concatenate([goal.region, centroid[:, None]], 1)  # (G, W + 1, 2)
+    pok = jnp.concatenate([ok, jnp.any(ok, -1, keepdims=True)], 1)
+    # each polygon's points about its centroid (padding vertices repeat a valid one)
+    pts = jnp.where(pok[..., None], pts, centroid[:, None])
+    inside, _ = in_drivable(pts, scene)
+    return jnp.any(inside & pok)
 
 
 @register_metric("goal")
@@ -55,6 +58,6 @@ def goal(log, scene, vehicle):
     ok = goal_reached(scene.goal, jnp.stack([log.x, log.y], -1), log.heading, log.v, log.t) & log.valid
     k = jnp.argmax(ok)
     reached = jnp.any(ok)
-    off_map = scene.goal.has_region & ~region_on_road(scene.goal, scene.drivable, scene.drivable_valid)
+    off_map = scene.goal.has_region & ~region_on_road(scene.goal, scene)
     return {"reached": reached, "step": jnp.where(reached, k, -1),
             "time": jnp.where(reached, log.t[k], jnp.inf), "off_map": off_map}
