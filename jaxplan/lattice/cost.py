@@ -248,6 +248,7 @@ def road_features_from(base, motion, obstacle, goal_err, feasible, terminal_ok, 
 
 GOAL_INSIDE = 0.5  # m: the box centre counts as in the goal region this far inside its ends
 GOAL_OVERLAP = 0.5  # s: how long a plan should be in the goal region inside its window
+GOAL_INSIDE_L = 0.3  # m: the box centre aims this far inside the goal region's lateral range
 
 
 def goal_error(s, l, v, t, goal_s, goal_l, goal_t, goal_v, center_offset, time_weight=1.0):
@@ -260,8 +261,11 @@ def goal_error(s, l, v, t, goal_s, goal_l, goal_t, goal_v, center_offset, time_w
     seconds by which ``[t_in, t_out]`` misses the window (late: ``t_in`` after its end; through
     before it opens: ``t_out`` before its start), divided by ``time_weight``, plus the m/s outside the
     speed range and the metres outside the lateral range when it is first inside in the window.
-    The stay should overlap the window by ``GOAL_OVERLAP`` s (at most half the window): the seconds
+    The stay should overlap the window by ``GOAL_OVERLAP`` s (at most half the window, and half the stay
+    itself: a short region passed at speed asks only that the middle of the pass be inside): the seconds
     it falls short of that are the time error (late arrivals and passes before the window alike).
+    Likewise the speed aims a tenth of its range (at most 1 m/s) and the offset ``GOAL_INSIDE_L`` m
+    inside their ranges (at most half of each).
 
     Args:
         s, l, v: ``(..., N, T)`` arc length on the line, offset and speed of the reference point.
@@ -288,7 +292,8 @@ def goal_error(s, l, v, t, goal_s, goal_l, goal_t, goal_v, center_offset, time_w
     t0, t1 = gt[..., 0, None], gt[..., 1, None]
     # the stay should overlap the window by GOAL_OVERLAP s (half the window when it is shorter): a
     # plan that only grazes it is missed by the next re-plan's small deviations
-    want = jnp.minimum(GOAL_OVERLAP, 0.5 * jnp.maximum(t1 - t0, 0.0))
+    want = jnp.minimum(jnp.minimum(GOAL_OVERLAP, 0.5 * jnp.maximum(t1 - t0, 0.0)),
+                       0.5 * jnp.maximum(jnp.minimum(t_out, 1e3) - jnp.minimum(t_in, 1e3), 0.0))
     terr = jnp.maximum(want - (jnp.minimum(t_out, t1) - jnp.maximum(t_in, t0)), 0.0)
     terr = jnp.where(jnp.isfinite(t1), terr, jnp.maximum(t_in - 1e3, 0.0) + jnp.maximum(t0 - t_out, 0.0))
     # the state when it is first inside in the window (past the horizon: its end state)
@@ -298,9 +303,16 @@ def goal_error(s, l, v, t, goal_s, goal_l, goal_t, goal_v, center_offset, time_w
     at = lambda a: jnp.take_along_axis(a, k[..., None], axis=-1)[..., 0]  # noqa: E731
     v_at = jnp.where(beyond, v_end, at(v))
     l_at = jnp.where(beyond, l[..., -1], at(l))
-    out = lambda x, lo_, hi_: jnp.maximum(lo_ - x, 0.0) + jnp.maximum(x - hi_, 0.0)  # noqa: E731
-    err = jnp.minimum(terr, 1e3) / time_weight + out(v_at, gv[..., 0, None], gv[..., 1, None]) \
-        + out(l_at, gl[..., 0, None], gl[..., 1, None])
+    def out(x, rng, margin):  # outside the range shrunk by ``margin`` (at most half of it) on both sides
+        lo_, hi_ = rng[..., 0, None], rng[..., 1, None]
+        m = jnp.minimum(margin, 0.5 * jnp.where(jnp.isfinite(hi_ - lo_), hi_ - lo_, 0.0))
+        return jnp.maximum(lo_ + m - x, 0.0) + jnp.maximum(x - (hi_ - m), 0.0)
+
+    # a tenth of the speed range (at most 1 m/s) and GOAL_INSIDE_L metres inside: not on the edges,
+    # which the next plans' small deviations cross
+    span_v = jnp.where(jnp.isfinite(gv[..., 1] - gv[..., 0]), gv[..., 1] - gv[..., 0], 0.0)[..., None]
+    err = jnp.minimum(terr, 1e3) / time_weight + out(v_at, gv, jnp.minimum(0.1 * span_v, 1.0)) \
+        + out(l_at, gl, GOAL_INSIDE_L)
     return jnp.where(has[..., None], jnp.minimum(err, GOAL_CAP), 0.0)
 
 

@@ -273,7 +273,7 @@ def _worker_main() -> None:
 def _bar(total: int, show: bool):
     from tqdm import tqdm
 
-    return tqdm(total=total, desc="parsing scenarios", unit="file", disable=not show, file=sys.stderr,
+    return tqdm(total=total, desc="parsing scenarios", unit="file", disable=not show or total < 2, file=sys.stderr,
                 dynamic_ncols=True)
 
 

@@ -103,7 +103,7 @@ class SimConfig:
         return self
 
     def check_traffic(self) -> "SimConfig":
-        """The traffic settings (``agents``, ``prediction``, ``agent_params``); ``drive_one`` checks
+        """The traffic settings (``agents``, ``prediction``, ``agent_params``); every drive checks
         them when it is traced."""
         if self.agents not in AGENTS:
             raise ValueError(f"SimConfig.agents must be one of {', '.join(AGENTS)}, got {self.agents!r}")
@@ -255,6 +255,7 @@ class _Drive:
     """One scene's closed loop (unbatched): what every cycle shares, and the cycle itself."""
 
     def __init__(self, planner: Planner, scene, config: SimConfig):
+        config.check_traffic()
         self.planner, self.scene, self.config = planner, scene, config
         self.veh = planner.vehicle
         self.K = config.replan_every
@@ -414,7 +415,11 @@ def rollout(planner: Planner, scenes, config: SimConfig = SimConfig()) -> DriveL
 
     Returns:
         ``DriveLog`` with a leading scene axis.
+
+    Raises:
+        ValueError: a setting of ``config`` is out of range (before anything compiles).
     """
+    config.validate(planner)
     return planner_program(planner)(planner, scenes, config=config)
 
 
@@ -450,6 +455,7 @@ class ChunkedRollout:
     def __init__(self, planner: Planner, config: SimConfig, chunk_cycles: int = 6):
         if chunk_cycles < 1:
             raise ValueError(f"ChunkedRollout: chunk_cycles must be >= 1, got {chunk_cycles}")
+        config.validate(planner)
         self.planner, self.config = planner, config
         self.n = min(chunk_cycles, config.n_cycles)
         self._programs: dict = {}

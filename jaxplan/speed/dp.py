@@ -244,7 +244,7 @@ class CostWeights:
 SpeedCostWeights = CostWeights
 
 
-@_pytree(data_fields=("limit_s", "limit_v", "stop_s", "goal_s", "goal_t", "goal_v"))
+@_pytree(data_fields=("limit_s", "limit_v", "stop_s", "goal_s", "goal_t", "goal_v", "lane_s"))
 class SpeedRoad:
     """What the road asks of the speed (one scene; stations on the path, relative to the car).
 
@@ -255,6 +255,10 @@ class SpeedRoad:
             ``inf``: none).
         goal_s: ``(2,)`` stations between which the car's box centre meets the goal;
             goal_t: ``(2,)`` its time window from now (s); goal_v: ``(2,)`` its speed range.
+        lane_s: ``()`` the station where the path leaves the car's lane (it moves sideways
+            by more than ``LANE_SHIFT`` from the car; ``inf``: it stays). An obstacle that
+            reaches the car's band from behind beyond it is one the car merges in front
+            of: blocking, not excused as ``behind`` (``nonblocking.classify``).
     """
 
     limit_s: Any
@@ -263,6 +267,7 @@ class SpeedRoad:
     goal_s: Any
     goal_t: Any
     goal_v: Any
+    lane_s: Any = float("inf")
 
     @classmethod
     def free(cls, dtype=jnp.float32) -> "SpeedRoad":
@@ -270,7 +275,7 @@ class SpeedRoad:
         inf = jnp.asarray(jnp.inf, dtype)
         two = jnp.array([-jnp.inf, jnp.inf], dtype)
         return cls(jnp.zeros((1,), dtype), jnp.full((1,), jnp.inf, dtype), inf, two, jnp.array([jnp.inf, jnp.inf], dtype),
-                   two)
+                   two, inf)
 
 
 @jax.tree_util.register_dataclass
@@ -401,8 +406,8 @@ def build_scene(profile: PathProfile, obstacles: Obstacles, vehicle: VehiclePara
     obs = resample_obstacles(obstacles, tf)
     s0 = profile.s[0]
     osl = project_obstacles(profile.ref, obs, s0)  # stations relative to the car now
-    c = classify(osl, obs, vehicle, tf, v0, config.a_min, side_width=config.side_width, buffer=config.buffer,
-                 no_overtake_side=config.no_overtake_side, v_moving=config.v_moving)
+    c = classify(osl, obs, vehicle, tf, v0, config.a_min, lane_s=road.lane_s, side_width=config.side_width,
+                 buffer=config.buffer, no_overtake_side=config.no_overtake_side, v_moving=config.v_moving)
     held = int(round(config.pass_margin * config.n_sub / config.dt))  # check times in pass_margin
     c = dataclasses.replace(c, blocking=time_margin(c.blocking, held))
     front, rear = car_extent(vehicle, dtype)

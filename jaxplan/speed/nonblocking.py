@@ -4,10 +4,14 @@ The car's band along the path (its width plus a buffer) and two strips of a conf
 width left and right of it are the regions (``st_boundary``); every obstacle is projected
 to the path frame once per time, so the strips reach beside and behind the car (negative
 stations) as well as ahead. An obstacle whose prediction enters the car's band at some
-time is *blocking*, unless it is **behind**: at the first time it enters the band its
-centre lies behind the car's centre even if the car braked at ``a_min`` from now (it would
-drive into the car; recorded traffic does not react, and such a contact is the other
-road user's fault). An obstacle that is not blocking (or is behind) and enters a side
+time is *blocking*, unless it is **behind**: squarely behind the car, as the verdict's fault
+rule has it (``jaxplan.sim.metrics.overlap``): at the first time its centre comes within
+the car's width of the path, that centre lies behind the car's even if the car braked at
+``a_min`` from now (it would drive into the car; recorded traffic does not react, and such
+a contact is the other road user's fault). One that only grazes the band is behind when it
+touches it behind the car and short of ``lane_s``, where the path leaves the car's lane. A
+car beside the path that the path moves over to, coming up from behind, is one the car
+would merge in front of: blocking. An obstacle that is not blocking (or is behind) and enters a side
 strip is *non-blocking*, and gets decisions:
 
 * ``no_bypass``: stay behind it (do not pass it), for moving neighbours on the configured
@@ -98,7 +102,7 @@ def braking_station(v0, a_min, t):
     return v0 * tc + 0.5 * a_min * tc * tc
 
 
-def classify(osl: ObstaclesSL, obstacles: Obstacles, vehicle: VehicleParams, t, v0=0.0, a_min=-5.0, *,
+def classify(osl: ObstaclesSL, obstacles: Obstacles, vehicle: VehicleParams, t, v0=0.0, a_min=-5.0, lane_s=jnp.inf, *,
              side_width=3.5, buffer=0.0, no_overtake_side: int = LEFT, v_moving=1.0) -> Classified:
     """Blocking / non-blocking classification with decisions.
 
@@ -107,14 +111,20 @@ def classify(osl: ObstaclesSL, obstacles: Obstacles, vehicle: VehicleParams, t, 
             reference point now; obstacles: the same obstacles (boxes ``(K, T, 5)``) for
             their speed and size; t: ``(T,)`` times from now.
         v0, a_min: the car's speed now and hardest braking (for the ``behind`` rule).
+        lane_s: the station where the path leaves the car's lane (``SpeedRoad.lane_s``).
     """
     dtype = osl.corners.dtype
     t = jnp.asarray(t, dtype)
     blk, left, right = strip_boundaries(osl, vehicle, side_width, buffer)
     enters = jnp.any(blk.hit, -1)
-    f = _first(blk.hit)
-    centre = 0.5 * (jnp.take_along_axis(blk.lower, f[:, None], -1) + jnp.take_along_axis(blk.upper, f[:, None], -1))[:, 0]
-    behind = enters & (centre < braking_station(jnp.asarray(v0, dtype), a_min, t[f]))
+    # squarely behind (the verdict's rule): judged when its centre first comes within the car's
+    # width of the path; one that only grazes the band, when it first touches it
+    aligned = blk.hit & (jnp.abs(osl.centre[..., 1]) <= 0.5 * vehicle.width)
+    squarely = jnp.any(aligned, -1)
+    f = jnp.where(squarely, _first(aligned), _first(blk.hit))
+    at = lambda x: jnp.take_along_axis(x, f[:, None], -1)[:, 0]
+    centre = 0.5 * (at(blk.lower) + at(blk.upper))
+    behind = enters & (centre < braking_station(jnp.asarray(v0, dtype), a_min, t[f])) & (squarely | (at(blk.upper) < lane_s))
     is_blk = enters & ~behind
     blk = STBoundary(blk.lower, blk.upper, blk.hit & is_blk[:, None])
     nl, nr = jnp.sum(left.hit, -1), jnp.sum(right.hit, -1)

@@ -189,7 +189,8 @@ def speed_road(scene, ctx: RoadContext, path, v_max: float, vehicle: VehiclePara
     """What the road asks of the speed on ``path``: the lane speed limit at each path point
     (read at its route station), a stop before the path's blockage (the car's reference point
     before ``path.blocked_s``) and before the end of the mapped road (the car's front), the
-    goal's stations (box centre, along the route), time window and speeds."""
+    goal's stations (box centre, along the route), time window and speeds, where the path
+    leaves the car's lane (``lane_leave_s``)."""
     f = path.xy.dtype
     lim = route_sample(scene, scene.speed_limit, path.route_s)
     front, _ = car_extent(vehicle, f)
@@ -197,7 +198,18 @@ def speed_road(scene, ctx: RoadContext, path, v_max: float, vehicle: VehiclePara
     stop = jnp.minimum(path.blocked_s + front, jnp.where(jnp.isfinite(end), end, jnp.inf))
     goal_s = ctx.goal_s - ctx.s
     return SpeedRoad(path.s, jnp.minimum(lim, v_max), stop, goal_s.astype(f), ctx.goal_t.astype(f),
-                     ctx.goal_v.astype(f))
+                     ctx.goal_v.astype(f), lane_leave_s(path))
+
+
+LANE_SHIFT = 1.0  # m: a path that moves further sideways than this from the car leaves its lane
+
+
+def lane_leave_s(path) -> Any:
+    """``()`` the first station ahead of the car where ``path`` is more than ``LANE_SHIFT``
+    sideways of the car's own offset (``inf``: nowhere)."""
+    l_car = jnp.interp(0.0, path.s, path.l)
+    away = path.valid & (path.s >= 0) & (jnp.abs(path.l - l_car) > LANE_SHIFT)
+    return jnp.min(jnp.where(away, path.s, jnp.inf)).astype(path.xy.dtype)
 
 
 def cruise_speed(ctx: RoadContext, vehicle: VehicleParams, horizon: float):

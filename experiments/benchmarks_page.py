@@ -1,0 +1,179 @@
+"""Write ``docs/benchmarks.md`` (and the JSON it is made of) from benchmark outputs.
+
+Reads what the runs wrote and nothing else:
+
+- ``--dev DIR``: a ``jaxplan drive`` folder over the development set (``metrics.json``: every
+  planner's summary, per-folder and per-location tables, the timing split);
+- ``--combo LABEL=DIR``: more ``jaxplan drive`` folders of the same scenes with other
+  ``--agents`` / ``--prediction`` settings (their ``metrics.json``);
+- ``--peers DIR``: ``experiments/compare_peers.py``'s output (``compare_peers.json``: the peers and
+  jaxplan's planners on the same sample, judged by jaxplan's verdict and by the referee);
+- ``--bench FILE``: ``experiments/bench_drive.py``'s JSON (cold, warm and single-file timings).
+
+Writes ``--json`` (the figures the page shows, so the page can be made again) and ``--out``.
+
+Usage::
+
+    python experiments/benchmarks_page.py --dev R/dev-all --combo idm+cv=R/dev-idm-cv ... \\
+        --peers R/peers200 --bench R/bench_drive.json --json docs/benchmarks.json --out docs/benchmarks.md
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+
+COLS = (("success", "success_share", "{:.1%}"), ("goal", "goal_share", "{:.1%}"),
+        ("collisions", "collisions", "{:.0f}"), ("at fault", "at_fault_collisions", "{:.0f}"),
+        ("off road", "offroad_share", "{:.1%}"), ("red lights run", "red_light_crossings", "{:.0f}"),
+        ("goal off map", "goal_off_map", "{:.0f}"))
+
+
+def _fmt(fmt, v):
+    return "-" if v is None else fmt.format(v)
+
+
+def _table(rows: dict, label: str, cols=COLS) -> list:
+    head = [label, "drives"] + [c for c, _, _ in cols]
+    out = ["| " + " | ".join(head) + " |", "|" + " --- |" * len(head)]
+    for name, s in rows.items():
+        out.append("| " + " | ".join([str(name), _fmt("{:.0f}", s.get("scenes"))] +
+                                     [_fmt(f, s.get(k)) for _, k, f in cols]) + " |")
+    return out
+
+
+def _load(path: str) -> dict:
+    with open(path) as f:
+        return json.load(f)
+
+
+def _drive_summary(folder: str) -> dict:
+    m = _load(os.path.join(folder, "metrics.json"))
+    planners = m["run"]["planners"]
+    summary = {p: {k[len(f"drive.{p}."):]: v for k, v in m.items() if k.startswith(f"drive.{p}.")} for p in planners}
+    return {"planners": planners, "summary": summary, "by_folder": m.get("by_folder", {}),
+            "by_location": m.get("by_location", {}), "timing": m.get("timing", {}),
+            "settings": {k: m["run"].get(k) for k in ("agents", "prediction", "n_steps", "replan_every", "tracking")},
+            "scenes": len(m["run"].get("scenarios", []))}
+
+
+def collect(args) -> dict:
+    out: dict = {}
+    if args.dev:
+        out["dev"] = _drive_summary(args.dev)
+    out["combos"] = {}
+    for item in args.combo or []:
+        label, folder = item.split("=", 1)
+        out["combos"][label] = _drive_summary(folder)
+    if args.peers:
+        p = _load(os.path.join(args.peers, "compare_peers.json"))
+        out["peers"] = {"verdict": p.get("verdict", {}), "agreement": {
+            k: {"agree": v["agree"], "judged": v["judged"], "disagreements": v["disagreements"]}
+            for k, v in p.get("agreement", {}).items()}, "settings": p.get("settings", {}),
+            "scenarios": len(p.get("scenarios", {}))}
+    if args.bench:
+        out["bench"] = _load(args.bench)
+    return out
+
+
+def render(d: dict) -> str:
+    lines = ["# Benchmarks", "",
+             "Every figure below is a closed-loop drive judged by one verdict (`jaxplan.sim.verdict`): "
+             "**success** = the goal reached by CommonRoad's rule, no collision at any step, never off road; "
+             "**at fault** = some obstacle's first contact was not a moving obstacle hitting the car squarely "
+             "from behind. This page is written by `experiments/benchmarks_page.py` from the runs' own JSON "
+             "(`docs/benchmarks.json`).", ""]
+    dev = d.get("dev")
+    if dev:
+        s = dev["settings"]
+        lines += ["## The development set", "",
+                  f"{dev['scenes']} CommonRoad 2020a scenarios (`../shared/data/commonroad`), recorded traffic replayed "
+                  f"(`--agents {s.get('agents')}`), planners see the recorded future (`--prediction "
+                  f"{s.get('prediction')}`), re-plan every {s.get('replan_every')} steps, {s.get('tracking')} tracking, "
+                  f"each scene to the end of its goal's window, at most {s.get('n_steps')} steps.", ""]
+        lines += _table(dev["summary"], "planner") + [""]
+        for p in dev["planners"]:
+            lines += [f"Per folder, `{p}`:", ""] + _table(dev["by_folder"].get(p, {}), "folder") + [""]
+        t = dev.get("timing", {})
+        if t:
+            lines += [f"Wall time of that run ({', '.join(dev['planners'])}, one after another): {t.get('wall_s', 0):.0f} s "
+                      f"(parsing {t.get('parse_s', 0):.0f}, compiling {t.get('compile_s', 0):.0f}, driving "
+                      f"{t.get('drive_s', 0):.0f}, metrics {t.get('metrics_s', 0):.0f}, writing {t.get('write_s', 0):.0f}).",
+                      ""]
+    if d.get("combos") or dev:
+        rows = {}
+        if dev and "lattice" in dev["summary"]:
+            s = dev["settings"]
+            rows[f"{s.get('agents')} + {s.get('prediction')}"] = dev["summary"]["lattice"]
+        for label, c in d.get("combos", {}).items():
+            if "lattice" in c["summary"]:
+                rows[label] = c["summary"]["lattice"]
+        if len(rows) > 1:
+            lines += ["## The lattice with reactive traffic and without the recorded future", "",
+                      "`--agents log` replays the recording (traffic drives through the car); `--agents idm` moves every "
+                      "vehicle along its recorded path with an IDM gap to what is ahead, the car included. `--prediction "
+                      "oracle` shows planners the recorded future (CommonRoad's convention); `--prediction cv` only the "
+                      "present, extrapolated at constant speed along each obstacle's lane.", ""]
+            lines += _table(rows, "agents + prediction") + [""]
+    peers = d.get("peers")
+    if peers and peers.get("verdict"):
+        lines += ["## Peers on a seeded sample", "",
+                  f"{peers['scenarios']} scenarios sampled from the development set (seed 0, stratified by folder); "
+                  "the CommonRoad reactive planner and Frenetix drive in jaxplan's harness (same route, re-plan period, "
+                  "tracking, step cap, vehicle; the settings that differ are listed in the peers' report), and every "
+                  "planner's drives are judged by the same verdict code.", ""]
+        rows = {k: v["summary"] for k, v in peers["verdict"].items()}
+        lines += _table(rows, "planner") + [""]
+        ag = peers.get("agreement", {})
+        if ag:
+            lines += ["The independent referee (commonroad-drivability-checker's collision and road checks, "
+                      "commonroad-io's goal check) against jaxplan's verdict, drive by drive (collision and its time, off "
+                      "road and its time, goal and its time):", "", "| planner | agree | drives |", "| --- | --- | --- |"]
+            lines += [f"| {k} | {v['agree']} | {v['judged']} |" for k, v in ag.items()]
+            dis = [(k, x) for k, v in ag.items() for x in v["disagreements"]]
+            if dis:
+                lines += ["", "Disagreements:", ""] + [f"- {k} {x['scenario']}: " + "; ".join(
+                    f"{f} jaxplan {v['jaxplan']} referee {v['referee']}" for f, v in x.items() if f != "scenario")
+                    for k, x in dis]
+            lines.append("")
+    b = d.get("bench")
+    if b:
+        lines += ["## Time to drive the development set", "",
+                  f"`experiments/bench_drive.py`, planner `{b.get('planner')}`, on a {b['machine']['cpus']}-core machine "
+                  f"({b['machine']['platform']}): each run a fresh `jaxplan drive` process.", "",
+                  "| run | drives | process wall (s) | parsing | compiling | driving | metrics | writing |",
+                  "| --- | --- | --- | --- | --- | --- | --- | --- |"]
+        runs = [("cold caches", b.get("cold")), ("warm caches", b.get("warm"))] + \
+            [(f"one unseen file ({os.path.basename(s['file'])})", s) for s in b.get("single", [])]
+        for name, r in runs:
+            if r:
+                lines.append(f"| {name} | {r['drives']} | {r['process_wall_s']:.1f} | {r['parse_s']:.1f} | "
+                             f"{r['compile_s']:.1f} | {r['drive_s']:.1f} | {r['metrics_s']:.1f} | {r['write_s']:.1f} |")
+        lines.append("")
+    return "\n".join(lines) + "\n"
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--dev")
+    ap.add_argument("--combo", nargs="*")
+    ap.add_argument("--peers")
+    ap.add_argument("--bench")
+    ap.add_argument("--json", default="docs/benchmarks.json")
+    ap.add_argument("--out", default="docs/benchmarks.md")
+    ap.add_argument("--from-json", action="store_true", help="render --out from --json alone (no runs needed)")
+    args = ap.parse_args(argv)
+    if args.from_json:
+        d = _load(args.json)
+    else:
+        d = collect(args)
+        with open(args.json, "w") as f:
+            json.dump(d, f, indent=1)
+    with open(args.out, "w") as f:
+        f.write(render(d))
+    print(f"wrote {args.out}" + ("" if args.from_json else f" and {args.json}"))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
