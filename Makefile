@@ -15,7 +15,7 @@ demo: $(BIN)/jaxplan
 	$(BIN)/jaxplan report results
 
 test: $(BIN)/jaxplan
-	$(BIN)/python -m pytest -n 2 --dist loadfile --no-loadscope-reorder tests
+	$(BIN)/python -m pytest -n 2 --dist loadfile --no-loadscope-reorder --durations=15 tests
 
 bench: $(BIN)/jaxplan
 	$(BIN)/pip install -q -e ".[test,bench]"

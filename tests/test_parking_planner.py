@@ -278,12 +278,12 @@ def test_cli_parkout(heldout, tmp_path, capsys):
     assert "wrote" in capsys.readouterr().out
 
 
-def test_readme_scene_example_is_valid():
+def test_documented_scene_example_is_valid():
     import re
 
-    text = open(os.path.join(os.path.dirname(__file__), "..", "README.md")).read()
-    block = re.search(r"### Park-out scene files.*?```json\n(.*?)```", text, re.S).group(1)
-    p = problem_from_dict(json.loads(block), "README.md")
+    text = open(os.path.join(os.path.dirname(__file__), "..", "docs", "planners", "parkout.md")).read()
+    block = re.search(r"## Park-out scene files.*?```json\n(.*?)```", text, re.S).group(1)
+    p = problem_from_dict(json.loads(block), "parkout.md")
     assert len(p.polygons) == 2 and p.frame.sign == 1
 
 

@@ -280,3 +280,36 @@ def test_frenet_points_invert_to_cartesian(rng):
     _, th_ref, kap_ref, _ = ref_state(ref, s_true)
     np.testing.assert_allclose(th, th_ref, atol=1e-3)
     np.testing.assert_allclose(kap, kap_ref, atol=1e-3)
+
+
+def test_a_car_the_path_moves_over_to_from_behind_is_blocking():
+    """A path that leaves the car's lane for the left one at once: the faster neighbour coming up
+    from behind in the left lane reaches the car's band beside the car (behind its braking station
+    where it first grazes the band), so the car would merge in front of it: blocking, as the
+    verdict would put such a contact at the car's fault. A follower squarely behind in the car's
+    lane is still behind."""
+    xs = np.linspace(0.0, 8.0, 17)
+    shift = 3.5 * (10 * (xs / 8) ** 3 - 15 * (xs / 8) ** 4 + 6 * (xs / 8) ** 5)
+    pts = np.concatenate([[[-60.0, 0.0]], np.column_stack([xs, shift]), [[200.0, 3.5]]])
+    ref = ReferenceLine.from_polyline(pts)
+
+    def boxes(t):
+        return np.array([[-12 + 16 * t, 3.5, 4.5, 1.8, 0.0],   # 0 faster neighbour in the left lane
+                         [-9 + 14 * t, 0.0, 4.5, 1.8, 0.0]])   # 1 faster follower in the car's lane
+
+    obs = _scene(boxes)
+    osl = _project(ref, obs)
+    osl = type(osl)(osl.corners.at[..., 0].add(-60.0), osl.centre.at[..., 0].add(-60.0), osl.kappa, osl.valid)
+    lane_s = float(np.interp(1.0, shift, xs))  # where the path is 1 m over (its station ~ x here)
+    c = _classify(osl, obs, CAR, obs.t, 10.0, -5.0, lane_s, buffer=0.3)
+    assert list(np.asarray(c.behind)) == [False, True]
+    assert list(np.asarray(c.is_blocking)) == [True, False]
+    # the same path taken as the car's lane (no lane_s): excused, as before the path was known to move over
+    c_lane = _classify(osl, obs, CAR, obs.t, 10.0, -5.0, buffer=0.3)
+    assert list(np.asarray(c_lane.behind)) == [True, True]
+    # where it first grazes the band its centre is behind the car's braking station: only the
+    # squarely-behind test tells it from a follower
+    f = int(np.argmax(np.asarray(c.blocking.hit[0])))
+    centre = 0.5 * (float(c.blocking.lower[0, f]) + float(c.blocking.upper[0, f]))
+    t = float(obs.t[f])
+    assert centre < 10.0 * min(t, 2.0) - 2.5 * min(t, 2.0) ** 2

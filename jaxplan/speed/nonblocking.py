@@ -8,10 +8,10 @@ time is *blocking*, unless it is **behind**: squarely behind the car, as the ver
 rule has it (``jaxplan.sim.metrics.overlap``): at the first time its centre comes within
 the car's width of the path, that centre lies behind the car's even if the car braked at
 ``a_min`` from now (it would drive into the car; recorded traffic does not react, and such
-a contact is the other road user's fault). One that only grazes the band is behind when it
-touches it behind the car and short of ``lane_s``, where the path leaves the car's lane. A
-car beside the path that the path moves over to, coming up from behind, is one the car
-would merge in front of: blocking. An obstacle that is not blocking (or is behind) and enters a side
+a contact is the other road user's fault). Beyond ``lane_s``, where the path leaves the
+car's lane, the car is the one moving over: the centre must be behind the car's rear bumper
+there, and one that only grazes the band there is blocking (a car beside the path that the
+path moves over to, coming up from behind, is one the car would merge in front of). An obstacle that is not blocking (or is behind) and enters a side
 strip is *non-blocking*, and gets decisions:
 
 * ``no_bypass``: stay behind it (do not pass it), for moving neighbours on the configured
@@ -124,7 +124,11 @@ def classify(osl: ObstaclesSL, obstacles: Obstacles, vehicle: VehicleParams, t, 
     f = jnp.where(squarely, _first(aligned), _first(blk.hit))
     at = lambda x: jnp.take_along_axis(x, f[:, None], -1)[:, 0]
     centre = 0.5 * (at(blk.lower) + at(blk.upper))
-    behind = enters & (centre < braking_station(jnp.asarray(v0, dtype), a_min, t[f])) & (squarely | (at(blk.upper) < lane_s))
+    # where the path has left the car's lane the car is the one moving over: its rear bumper, not
+    # its reference point, must be ahead of the obstacle's centre
+    moved = at(blk.upper) >= lane_s
+    limit = braking_station(jnp.asarray(v0, dtype), a_min, t[f]) - jnp.where(moved, 0.5 * vehicle.length, 0.0)
+    behind = enters & (centre < limit) & (squarely | ~moved)
     is_blk = enters & ~behind
     blk = STBoundary(blk.lower, blk.upper, blk.hit & is_blk[:, None])
     nl, nr = jnp.sum(left.hit, -1), jnp.sum(right.hit, -1)

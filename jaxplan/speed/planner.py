@@ -37,6 +37,7 @@ import jax.numpy as jnp
 from jaxplan.baselines.brake import SIM_VEHICLE
 from jaxplan.bounds.path_planner import PathConfig, PathPlan, plan_path
 from jaxplan.geometry.frenet import ReferenceLine, frenet_to_cartesian_state, ref_state, to_frenet, wrap_angle
+from jaxplan.lattice.quintic import quintic_coeffs, quintic_eval
 from jaxplan.plan_context import RoadContext, road_context, route_sample
 from jaxplan.planner import EgoState, PlanOutput
 from jaxplan.speed.compose import compose_profile
@@ -67,24 +68,12 @@ class RoutePath:
 
 def _quintic(p0, p1, length, u):
     """Quintic ``l(u)`` (and dl/du, d2l/du2) from ``p0 = (l, dl, ddl)`` at 0 to ``p1`` at
-    ``length``, held at ``p1``'s ``l`` beyond; ``u (N,)``."""
-    l0, d0, dd0 = p0
-    T = length
-    a0, a1, a2 = l0, d0, 0.5 * dd0
-    h = p1 - a0 - a1 * T - a2 * T * T
-    a3 = (10 * h + T * (-6 * d0 - 1.5 * dd0 * T)) / T ** 3
-    a4 = (-15 * h + T * (8 * d0 + 1.5 * dd0 * T)) / T ** 4
-    a5 = (6 * h + T * (-3 * d0 - 0.5 * dd0 * T)) / T ** 5
-    x = jnp.clip(u, 0.0, T)
-    l = a0 + x * (a1 + x * (a2 + x * (a3 + x * (a4 + x * a5))))
-    dl = a1 + x * (2 * a2 + x * (3 * a3 + x * (4 * a4 + x * 5 * a5)))
-    ddl = 2 * a2 + x * (6 * a3 + x * (12 * a4 + x * 20 * a5))
-    beyond = u > T
+    ``length`` (``jaxplan.lattice.quintic``), held at ``p1``'s ``l`` beyond and continued
+    straight behind 0; ``u (N,)``."""
+    l0, d0, _ = p0
+    l, dl, ddl = quintic_eval(quintic_coeffs(*p0, p1, length), length, u)
     behind = u < 0
-    l = jnp.where(behind, l0 + d0 * u, jnp.where(beyond, p1, l))
-    dl = jnp.where(behind, d0, jnp.where(beyond, 0.0, dl))
-    ddl = jnp.where(behind | beyond, 0.0, ddl)
-    return l, dl, ddl
+    return jnp.where(behind, l0 + d0 * u, l), jnp.where(behind, d0, dl), jnp.where(behind, 0.0, ddl)
 
 
 def _join_route(ref, sr, start, target_l, length, u):
