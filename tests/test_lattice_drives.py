@@ -13,12 +13,12 @@ from conftest import DATA_DIR, shared_data_or_skip
 from jaxplan.lattice.planner import LatticePlanner
 from jaxplan.scenarios.scene import stack_scenes
 from jaxplan.sim import SimConfig
-from jaxplan.sim.drive import drive
 from jaxplan.sim.rollout import ChunkedRollout, driven_scene
 from jaxplan.sim.metrics.registry import evaluate_batch
+from jaxplan.sim.verdict import success
 from test_sim import _record, _road_dict
 
-N_STEPS = 120
+N_STEPS = 150
 T = np.arange(N_STEPS + 1) * 0.1
 
 
@@ -47,9 +47,23 @@ def _closing_in():
     return dataclasses.replace(_record(d), name="BEHIND")
 
 
+def _tjunction():
+    """A recorded T-junction of the development set where the car turns left across an oncoming car
+    (None without the shared data)."""
+    files = glob.glob(os.path.join(DATA_DIR, "commonroad", "hand-crafted", "ZAM_Tjunction-1_100_T-1.xml.gz"))
+    if not files:
+        return None
+    from jaxplan.scenarios.scene import load_records
+
+    return dataclasses.replace(load_records(files)[0], name="TJUNCTION")
+
+
 @pytest.fixture(scope="module")
 def drives():
+    """Every scene in one batch: one compiled drive."""
     recs = [_queue(), _empty_time_goal(), _closing_in()]
+    tj = _tjunction()
+    recs += [tj] if tj is not None else []
     batch = stack_scenes([r.scene for r in recs])
     planner = LatticePlanner()
     cfg = SimConfig(n_steps=N_STEPS)
@@ -57,11 +71,11 @@ def drives():
     jlog = jax.tree_util.tree_map(np.asarray, log)
     m = evaluate_batch(jax.tree_util.tree_map(lambda a: a, log), driven_scene(log, batch), planner.vehicle)
     return {r.name: (jax.tree_util.tree_map(lambda a, i=i: np.asarray(a)[i], jlog),
-                     {k: np.asarray(v)[i] for k, v in m.items()}) for i, r in enumerate(recs)}
+                     {k: np.asarray(v)[i] for k, v in m.items()}, r) for i, r in enumerate(recs)}
 
 
 def test_starts_from_a_queue_when_the_leader_leaves(drives):
-    log, m = drives["QUEUE"]
+    log, m, _ = drives["QUEUE"]
     assert not m["overlap.collided"]
     moving = np.nonzero(log.v > 0.5)[0]
     assert len(moving) and T[moving[0]] <= 4.0  # the leader leaves at 2 s; the car follows within 2 s
@@ -69,39 +83,27 @@ def test_starts_from_a_queue_when_the_leader_leaves(drives):
 
 
 def test_does_not_brake_on_an_empty_road_with_a_time_only_goal(drives):
-    log, m = drives["EMPTY"]
+    log, m, _ = drives["EMPTY"]
     assert m["goal.reached"] and not m["overlap.collided"] and not m["offroad.offroad"]
     assert m["comfort.min_accel"] > -1.0  # no braking without a reason
     assert log.v[int(log.end_step)] > 13.0
 
 
 def test_leaves_room_to_a_car_closing_in_from_behind(drives):
-    log, m = drives["BEHIND"]
+    log, m, _ = drives["BEHIND"]
     assert not m["overlap.collided"] and not m["offroad.offroad"]
 
 
-def _tjunction():
-    """A recorded T-junction of the development set where the car turns left across an oncoming car."""
-    files = glob.glob(os.path.join(DATA_DIR, "commonroad", "hand-crafted", "ZAM_Tjunction-1_100_T-1.xml.gz"))
-    return files[0] if files else None
-
-
-def test_yields_at_a_t_junction_and_then_turns(tmp_path):
+def test_yields_at_a_t_junction_and_then_turns(drives):
     """ZAM_Tjunction-1_100: a car crosses the junction ahead at about 4-5 s; the lattice lets it pass, then
     turns into the goal road within the goal's 0.1 s window, touching nothing."""
     shared_data_or_skip("commonroad")
-    from jaxplan.scenarios.scene import load_records
-
-    rec = load_records([_tjunction()])[0]
-    res = drive([rec], ["lattice"], str(tmp_path), SimConfig(n_steps=150), progress=False, plots="none")
-    row = res.rows["lattice"][0]
-    assert row["success"], row["why"]
+    log, m, rec = drives["TJUNCTION"]
+    assert success({k: v.item() for k, v in m.items()}), m
     # it gave way: the crossing car (obstacle 0) passed the point where the two paths meet before the car
-    import json
-
-    st = np.array(json.loads((tmp_path / rec.name / "driven.json").read_text())["states"])
-    xy = st[:, 1:3] - np.asarray(rec.scenario.origin)
-    other = np.asarray(rec.scene.obstacles.boxes[0, :len(xy), :2])
+    n = int(log.end_step) + 1
+    xy = np.stack([log.x[:n], log.y[:n]], -1)
+    other = np.asarray(rec.scene.obstacles.boxes[0, :n, :2])
     d = np.linalg.norm(xy[:, None] - other[None], axis=-1)  # (car step, other step)
     i, j = np.unravel_index(np.argmin(d), d.shape)
     assert d[i, j] < 3.0 and j < i  # the other car was at the meeting point first
