@@ -75,6 +75,9 @@ def main(argv=None) -> int:
     args, status = ca.parse(parser(), argv)
     if args is None:
         return status
+    import matplotlib
+
+    matplotlib.use("Agg")  # the command only writes picture files; library calls keep the user's backend
     if args.cmd == "drive":
         from jaxplan.sim import cli as drive_cli
 

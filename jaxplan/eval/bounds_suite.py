@@ -300,9 +300,6 @@ def bounds_suite(args: SuiteArgs) -> dict:
 
 
 def _plot_error(per, out):
-    import matplotlib
-
-    matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     x = np.arange(len(RADII))
@@ -325,9 +322,6 @@ def _plot_error(per, out):
 
 
 def _plot_frame(refs, S, L, OBS, res, out, radius_index=1):
-    import matplotlib
-
-    matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     i = radius_index

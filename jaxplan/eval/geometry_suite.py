@@ -62,9 +62,6 @@ def geometry_suite(args: SuiteArgs) -> dict:
 
 
 def _plot(a, va, b, vb, ref, ours, out):
-    import matplotlib
-
-    matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     from jaxplan.geometry import overlap_polygon

@@ -339,9 +339,6 @@ def _draw(ax, res, i, cfg, obs_boxes, obs_valid, title):
 
 
 def _plot_fan(results, out):
-    import matplotlib
-
-    matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     fig, axes = plt.subplots(len(KINDS), 1, figsize=(11, 2.6 * len(KINDS)))
@@ -368,9 +365,6 @@ def _plot_fan(results, out):
 def _plot_recorded(example, out):
     if example is None:
         return
-    import matplotlib
-
-    matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     res, cfg, st, obs, sid = example

@@ -210,9 +210,6 @@ def parkout_suite(args: SuiteArgs) -> dict:
 
 
 def _plot(out_dir, scene, info, out, gaps, cfg, car, examples, side_data):
-    import matplotlib
-
-    matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     from jaxplan.parking.plot import plot_parkout

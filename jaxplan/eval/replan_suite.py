@@ -229,9 +229,6 @@ def plot_timeline(sc, kinds, logs, summary, path, run: int | None = None):
     """What the supervisor did in one run, for each strategy: signed speed and gear, the
     distance to the brake-stop point, the collision-queue size, re-plan requests (by reason)
     and arrived plans (installed / rejected); and the paths driven."""
-    import matplotlib
-
-    matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     from matplotlib.lines import Line2D
 
@@ -306,9 +303,6 @@ def plot_timeline(sc, kinds, logs, summary, path, run: int | None = None):
 
 def plot_summary(res, path):
     """Collision share, success share and re-plans per run per strategy with 95 % intervals."""
-    import matplotlib
-
-    matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     keys = (("collision_share", "collision share [runs]"), ("success_share", "success share [runs]"),

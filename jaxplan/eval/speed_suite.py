@@ -191,9 +191,6 @@ def _per_scene(records, mw, mo) -> list:
 def _plot(out_dir, records, mw, mo, config, planner, batch):
     """Speed over time of the drives whose blind-zone time differs most, and the ST graph of
     the first plan of the first of them (boundaries, decisions, the DP's and QP's profiles)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     diff = np.abs(mw["blind_s"] - mo["blind_s"])
@@ -217,9 +214,6 @@ def _plot(out_dir, records, mw, mo, config, planner, batch):
 
 def plot_st_graph(path: str, planner, scene, title: str, step: int = 0) -> str:
     """The ST graph of one plan (``jaxplan.speed.plot.draw_st``) at ``step`` of ``scene``."""
-    import matplotlib
-
-    matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     from jaxplan.planner import EgoState

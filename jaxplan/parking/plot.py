@@ -78,9 +78,6 @@ def plot_parkout(ax, polygons, result, vehicle, config, frame: SlotFrame = IDENT
 
 def save_plot(path, *args, figsize=(10.5, 5.5), **kw):
     """``plot_parkout`` into a PNG file."""
-    import matplotlib
-
-    matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(figsize=figsize)

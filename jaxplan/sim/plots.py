@@ -46,9 +46,6 @@ def plot_drive(path: str, scene, row: dict, log: dict, vehicle, title: str) -> s
         row: the drive's metrics (``overlap.first_step``, ``offroad.first_step``, ``goal.step``, ...).
         log: numpy arrays ``t, x, y, heading, v, valid`` of the drive (box centres).
     """
-    import matplotlib
-
-    matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     n = int(np.sum(log["valid"]))
@@ -103,9 +100,6 @@ def plot_drive(path: str, scene, row: dict, log: dict, vehicle, title: str) -> s
 
 def animate_drive(path: str, scene, log: dict, vehicle, title: str, fps: int = 10) -> str:
     """Write a GIF of the drive (matplotlib's animation writer, Pillow)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     from matplotlib import animation
 

@@ -68,9 +68,6 @@ def plot_cycle(out: str, planner, scene, ego, step: int = 0, title: str = "") ->
         out: PNG file; planner: a ``PathSpeedPlanner``; scene: one (unbatched) ``Scene``;
         ego: the car's ``EgoState``; step: the scene step of the cycle.
     """
-    import matplotlib
-
-    matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     from jaxplan.geometry.frenet import to_cartesian
