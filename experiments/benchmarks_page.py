@@ -3,7 +3,9 @@
 Reads what the runs wrote and nothing else:
 
 - ``--dev DIR``: a ``jaxplan drive`` folder over the development set (``metrics.json``: every
-  planner's summary, per-folder and per-location tables, the timing split);
+  planner's summary, per-folder and per-location tables, the timing split; ``rows.jsonl``: the
+  drives, split into the location split's train and validation parts, ``files.split_of``);
+- ``--sample DIR``: a ``jaxplan drive`` folder of every planner on a seeded sample of it;
 - ``--combo LABEL=DIR``: more ``jaxplan drive`` folders of the same scenes with other
   ``--agents`` / ``--prediction`` settings (their ``metrics.json``);
 - ``--peers DIR``: ``experiments/compare_peers.py``'s output (``compare_peers.json``: the peers and
@@ -57,10 +59,40 @@ def _drive_summary(folder: str) -> dict:
             "scenes": len(m["run"].get("scenarios", []))}
 
 
+def _split_summary(folder: str) -> dict:
+    """``{planner: {split: summary}}`` of a run's drives over the location split (``files.split_of``)."""
+    import sys
+
+    sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+    from jaxplan.scenarios.files import split_of
+
+    groups: dict = {}
+    with open(os.path.join(folder, "rows.jsonl")) as f:
+        for line in f:
+            r = json.loads(line)
+            groups.setdefault(r["planner"], {}).setdefault(split_of(r["location"]), []).append(r)
+    out: dict = {}
+    for p, splits in groups.items():
+        for name, rs in sorted(splits.items()):
+            n = len(rs)
+            out.setdefault(p, {})[name] = {
+                "scenes": n, "success_share": sum(r["success"] for r in rs) / n,
+                "goal_share": sum(r["goal.reached"] for r in rs) / n,
+                "collisions": sum(r["overlap.collided"] for r in rs),
+                "at_fault_collisions": sum(r["overlap.at_fault"] for r in rs),
+                "offroad_share": sum(r["offroad.offroad"] for r in rs) / n,
+                "red_light_crossings": sum(r["redlight.crossings"] for r in rs),
+                "goal_off_map": sum(r["goal.off_map"] for r in rs)}
+    return out
+
+
 def collect(args) -> dict:
     out: dict = {}
     if args.dev:
         out["dev"] = _drive_summary(args.dev)
+        out["dev"]["by_split"] = _split_summary(args.dev)
+    if args.sample:
+        out["sample"] = _drive_summary(args.sample)
     out["combos"] = {}
     for item in args.combo or []:
         label, folder = item.split("=", 1)
@@ -94,22 +126,40 @@ def render(d: dict) -> str:
         lines += _table(dev["summary"], "planner") + [""]
         for p in dev["planners"]:
             lines += [f"Per folder, `{p}`:", ""] + _table(dev["by_folder"].get(p, {}), "folder") + [""]
+            if dev.get("by_split", {}).get(p):
+                lines += [f"Per part of the location split (`jaxplan.scenarios.files.split_of`: whole locations held "
+                          f"out as validation by a salted hash of the location's name), `{p}`:", ""]
+                lines += _table(dev["by_split"][p], "part") + [""]
         t = dev.get("timing", {})
-        if t:
+        if t and t.get("drives"):
             lines += [f"Wall time of that run ({', '.join(dev['planners'])}, one after another): {t.get('wall_s', 0):.0f} s "
                       f"(parsing {t.get('parse_s', 0):.0f}, compiling {t.get('compile_s', 0):.0f}, driving "
                       f"{t.get('drive_s', 0):.0f}, metrics {t.get('metrics_s', 0):.0f}, writing {t.get('write_s', 0):.0f}).",
                       ""]
-    if d.get("combos") or dev:
+    sample = d.get("sample")
+    if sample:
+        s = sample["settings"]
+        lines += ["## Every planner on a seeded sample", "",
+                  f"{sample['scenes']} scenarios sampled from the development set (`--sample {sample['scenes']} --seed 0`, "
+                  f"stratified by folder), the same settings.", ""]
+        lines += _table(sample["summary"], "planner") + [""]
+        t = sample.get("timing", {})
+        if t and t.get("drives"):
+            lines += [f"Wall time of that run ({', '.join(sample['planners'])}): {t.get('wall_s', 0):.0f} s (parsing "
+                      f"{t.get('parse_s', 0):.0f}, compiling {t.get('compile_s', 0):.0f}, driving {t.get('drive_s', 0):.0f}, "
+                      f"metrics {t.get('metrics_s', 0):.0f}, writing {t.get('write_s', 0):.0f}).", ""]
+    if d.get("combos"):
         rows = {}
-        if dev and "lattice" in dev["summary"]:
-            s = dev["settings"]
-            rows[f"{s.get('agents')} + {s.get('prediction')}"] = dev["summary"]["lattice"]
+        base = sample if sample else dev
+        if base and "lattice" in base["summary"]:
+            s = base["settings"]
+            rows[f"{s.get('agents')} + {s.get('prediction')}"] = base["summary"]["lattice"]
         for label, c in d.get("combos", {}).items():
             if "lattice" in c["summary"]:
                 rows[label] = c["summary"]["lattice"]
         if len(rows) > 1:
             lines += ["## The lattice with reactive traffic and without the recorded future", "",
+                      f"The same {base['scenes']} scenes in each row.", "",
                       "`--agents log` replays the recording (traffic drives through the car); `--agents idm` moves every "
                       "vehicle along its recorded path with an IDM gap to what is ahead, the car included. `--prediction "
                       "oracle` shows planners the recorded future (CommonRoad's convention); `--prediction cv` only the "
@@ -156,6 +206,7 @@ def render(d: dict) -> str:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--dev")
+    ap.add_argument("--sample")
     ap.add_argument("--combo", nargs="*")
     ap.add_argument("--peers")
     ap.add_argument("--bench")
