@@ -11,8 +11,9 @@ the car's width of the path, that centre lies behind the car's even if the car b
 a contact is the other road user's fault). Beyond ``lane_s``, where the path leaves the
 car's lane, the car is the one moving over: the centre must be behind the car's rear bumper
 there, and one that only grazes the band there is blocking (a car beside the path that the
-path moves over to, coming up from behind, is one the car would merge in front of). An obstacle that is not blocking (or is behind) and enters a side
-strip is *non-blocking*, and gets decisions:
+path moves over to, coming up from behind, is one the car would merge in front of). An
+obstacle that is not blocking (or is behind) and enters a side strip is *non-blocking*, and
+gets decisions:
 
 * ``no_bypass``: stay behind it (do not pass it), for moving neighbours on the configured
   no-overtake side (the left, where overtaking on the right is illegal) that are **ahead**
@@ -102,8 +103,8 @@ def braking_station(v0, a_min, t):
     return v0 * tc + 0.5 * a_min * tc * tc
 
 
-def classify(osl: ObstaclesSL, obstacles: Obstacles, vehicle: VehicleParams, t, v0=0.0, a_min=-5.0, lane_s=jnp.inf, *,
-             side_width=3.5, buffer=0.0, no_overtake_side: int = LEFT, v_moving=1.0) -> Classified:
+def classify(osl: ObstaclesSL, obstacles: Obstacles, vehicle: VehicleParams, t, v0=0.0, a_min=-5.0,
+             lane_s=jnp.inf, *, side_width=3.5, buffer=0.0, no_overtake_side: int = LEFT, v_moving=1.0) -> Classified:
     """Blocking / non-blocking classification with decisions.
 
     Args:
