@@ -303,6 +303,7 @@ def goal_error(s, l, v, t, goal_s, goal_l, goal_t, goal_v, center_offset, time_w
     at = lambda a: jnp.take_along_axis(a, k[..., None], axis=-1)[..., 0]  # noqa: E731
     v_at = jnp.where(beyond, v_end, at(v))
     l_at = jnp.where(beyond, l[..., -1], at(l))
+
     def out(x, rng, margin):  # outside the range shrunk by ``margin`` (at most half of it) on both sides
         lo_, hi_ = rng[..., 0, None], rng[..., 1, None]
         m = jnp.minimum(margin, 0.5 * jnp.where(jnp.isfinite(hi_ - lo_), hi_ - lo_, 0.0))

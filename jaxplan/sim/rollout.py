@@ -103,8 +103,8 @@ class SimConfig:
         return self
 
     def check_traffic(self) -> "SimConfig":
-        """The traffic settings (``agents``, ``prediction``, ``agent_params``); every drive checks
-        them when it is traced."""
+        """The traffic settings (``agents``, ``prediction``, ``agent_params``; part of ``validate``,
+        which every drive runs when it is traced)."""
         if self.agents not in AGENTS:
             raise ValueError(f"SimConfig.agents must be one of {', '.join(AGENTS)}, got {self.agents!r}")
         if self.prediction not in PREDICTIONS:
@@ -255,7 +255,7 @@ class _Drive:
     """One scene's closed loop (unbatched): what every cycle shares, and the cycle itself."""
 
     def __init__(self, planner: Planner, scene, config: SimConfig):
-        config.check_traffic()
+        config.validate(planner)  # host-side, when traced: before anything compiles
         self.planner, self.scene, self.config = planner, scene, config
         self.veh = planner.vehicle
         self.K = config.replan_every
@@ -417,9 +417,8 @@ def rollout(planner: Planner, scenes, config: SimConfig = SimConfig()) -> DriveL
         ``DriveLog`` with a leading scene axis.
 
     Raises:
-        ValueError: a setting of ``config`` is out of range (before anything compiles).
+        ValueError: a setting of ``config`` is out of range (when traced, before anything compiles).
     """
-    config.validate(planner)
     return planner_program(planner)(planner, scenes, config=config)
 
 
@@ -455,7 +454,6 @@ class ChunkedRollout:
     def __init__(self, planner: Planner, config: SimConfig, chunk_cycles: int = 6):
         if chunk_cycles < 1:
             raise ValueError(f"ChunkedRollout: chunk_cycles must be >= 1, got {chunk_cycles}")
-        config.validate(planner)
         self.planner, self.config = planner, config
         self.n = min(chunk_cycles, config.n_cycles)
         self._programs: dict = {}
