@@ -45,6 +45,8 @@ def _table(rows: dict, label: str, cols=COLS) -> list:
 
 
 def _load(path: str) -> dict:
+    if not os.path.isfile(path):
+        raise SystemExit(f"benchmarks_page: {path} not found (give the folder a run wrote)")
     with open(path) as f:
         return json.load(f)
 
