@@ -12,7 +12,8 @@ where a lanelet forks.
 Reference line: the centre lines of the sequence. Where the route changes lane, the
 line blends from one centre line to the other with a smooth step over
 ``LANE_CHANGE_TIME`` seconds at the start speed, at least ``LANE_CHANGE_LENGTH`` metres
-(``blend_centres``; a line that changes lane in 30 m at 33 m/s asks for 25 m/s^2 of lateral
+(``blend_lane_change``, continuing on the target lane's successors where the lanelet is
+shorter; a line that changes lane in 30 m at 33 m/s asks for 25 m/s^2 of lateral
 acceleration from whoever follows it), from the start of the lanelet (or from the car's
 position on its first lanelet). Behind the start and past the last lanelet the line is
 extended (``BACK`` metres behind along predecessors or straight; ``AHEAD_MIN`` metres past
@@ -250,27 +251,39 @@ def _straight_successor(by_id, lid, seen):
     return best
 
 
-def blend_centres(a: np.ndarray, b: np.ndarray, u0: float = 0.0, length: float = None) -> np.ndarray:
-    """A lane change from centre line ``a (P, 2)`` to ``b (Q, 2)`` (adjacent lanelets).
+def blend_lane_change(before: np.ndarray, after: np.ndarray, length: float) -> np.ndarray:
+    """The reference line of a lane change: ``after (Q, 2)``, the target lane's line from beside
+    the last point of ``before (P, 2)`` on (across as many lanelets as it runs), moved sideways
+    towards that point and blended back onto itself over its first ``length`` metres.
 
-    Both are resampled at the same normalised arc lengths ``u`` in ``[u0, 1]``; the result
-    is ``(1 - w) a + w b`` with the smooth step ``w = 3 r^2 - 2 r^3``,
-    ``r = clip((u - u0) / du, 0, 1)``: the change takes ``length`` metres of ``a`` from
-    ``u0`` on (``LANE_CHANGE_LENGTH`` by default; all of what is left when shorter).
+    A point at arc length ``u`` of ``after`` within the blend is ``after(u) + n(u) d (1 - w)``
+    with ``n`` the line's left normal, ``d`` the signed lateral distance of ``before[-1]`` from
+    ``after[0]`` and the smooth step ``w = 3 r^2 - 2 r^3``, ``r = u / length``; the blend is
+    sampled every metre and shortened only where ``after`` is shorter than ``length``. So a
+    lane change takes ``length`` metres whatever the lanelets' lengths (a change on a short
+    lanelet continues on the target lane's successors).
 
     Returns:
-        ``(n, 2)`` points, about one per metre.
+        (``(n, 2)`` points replacing ``after``, ``(n,)`` index of the point of ``after`` at or
+        before each).
     """
-    sa, sb = arc_length(a), arc_length(b)
-    length = LANE_CHANGE_LENGTH if length is None else length
-    n = max(len(a), len(b), 12, int(np.ceil((1.0 - u0) * sa[-1])))
-    u = np.linspace(u0, 1.0, n)
-    pa = resample_polyline(a, sa / sa[-1], u)
-    pb = resample_polyline(b, sb / sb[-1], u)
-    du = min(1.0 - u0, length / max(sa[-1], 1e-9))
-    r = np.clip((u - u0) / max(du, 1e-9), 0.0, 1.0)
-    w = (3 * r ** 2 - 2 * r ** 3)[:, None]
-    return (1 - w) * pa + w * pb
+    s = arc_length(after)
+    if len(after) < 2 or s[-1] < 1e-6:
+        return after, np.arange(len(after))
+    t = after[1] - after[0]
+    t = t / max(np.linalg.norm(t), 1e-9)
+    d = float(np.dot(before[-1] - after[0], [-t[1], t[0]]))
+    span = min(float(length), float(s[-1]))
+    u = np.linspace(0.0, span, max(2, int(np.ceil(span)) + 1))
+    pts = resample_polyline(after, s, u)
+    tan = np.gradient(pts, axis=0)
+    tan /= np.maximum(np.linalg.norm(tan, axis=1, keepdims=True), 1e-9)
+    r = u / max(span, 1e-9)
+    w = 3 * r ** 2 - 2 * r ** 3
+    pts = pts + np.column_stack([-tan[:, 1], tan[:, 0]]) * (d * (1 - w))[:, None]
+    rest = np.nonzero(s > span + 1e-6)[0]
+    idx = np.clip(np.searchsorted(s, u, side="right") - 1, 0, len(after) - 1)
+    return np.concatenate([pts, after[rest]]), np.concatenate([idx, rest])
 
 
 def plan_route(scenario) -> Route:
@@ -309,7 +322,9 @@ def plan_route(scenario) -> Route:
 
 
 def _build(scenario, by_id, path, start, reaches) -> Route:
-    pieces, owners = [], []
+    # runs of successor lanelets; a run after a lane change starts beside the point where the
+    # change starts (the car's position on the first lanelet, else the start of the lanelet left)
+    runs = [(None, [])]
     i = 0
     while i < len(path):
         lid, _ = path[i]
@@ -319,25 +334,39 @@ def _build(scenario, by_id, path, start, reaches) -> Route:
             j += 1
         a = by_id[lid].center
         if j > i:
-            b = by_id[path[j][0]].center
-            u0 = 0.0
+            sa = arc_length(a)
+            at = 0.0
             if i == 0:  # change lane after the start, not behind it
                 jj, along, _ = nearest_on_polyline(a, start)
-                s = arc_length(a)
-                u0 = min(0.9, (s[jj] + along) / s[-1])
-            pts = blend_centres(a, b, u0, max(LANE_CHANGE_LENGTH, LANE_CHANGE_TIME * abs(float(scenario.ego.v))))
-            if i == 0 and u0 > 0:
-                pts = np.concatenate([resample_polyline(a, arc_length(a), np.linspace(0, u0 * _length(a), 6))[:-1], pts])
+                at = float(sa[jj] + along)
+                if at > 1e-3:
+                    runs[-1][1].append((resample_polyline(a, sa, np.linspace(0.0, at, 6)), lid))
+            origin = resample_polyline(a, sa, [at])[0]
+            b = by_id[path[j][0]].center
+            sb = arc_length(b)
+            jb, along, _ = nearest_on_polyline(b, origin)
+            ub = float(sb[jb] + along)
+            runs.append((origin, [(np.concatenate([resample_polyline(b, sb, [ub]), b[sb > ub + 1e-6]]), path[j][0])]))
         else:
-            pts = a
-        if pieces:  # successor lanelets share their first point with the previous one's last
-            if np.linalg.norm(pts[0] - pieces[-1][-1]) < 1e-6:
-                pts = pts[1:]
-        pieces.append(pts)
-        owners.append(np.full(len(pts), path[j][0]))
+            runs[-1][1].append((a, lid))
         i = j + 1
-    xy = np.concatenate(pieces)
-    owner = np.concatenate(owners)
+    change = max(LANE_CHANGE_LENGTH, LANE_CHANGE_TIME * abs(float(scenario.ego.v)))
+    xy, owner = np.zeros((0, 2)), np.zeros(0, int)
+    for origin, pieces in runs:
+        if not pieces:
+            continue
+        pts, own = [pieces[0][0]], [np.full(len(pieces[0][0]), pieces[0][1])]
+        for p, lid in pieces[1:]:  # successor lanelets share their first point with the previous one's last
+            p = p[1:] if np.linalg.norm(p[0] - pts[-1][-1]) < 1e-6 else p
+            pts.append(p)
+            own.append(np.full(len(p), lid))
+        pts, own = np.concatenate(pts), np.concatenate(own)
+        if origin is not None:
+            pts, idx = blend_lane_change(xy if len(xy) else origin[None], pts, change)
+            own = own[idx]
+        elif len(xy) and np.linalg.norm(pts[0] - xy[-1]) < 1e-6:
+            pts, own = pts[1:], own[1:]
+        xy, owner = np.concatenate([xy, pts]), np.concatenate([owner, own])
     keep = np.concatenate([[True], np.linalg.norm(np.diff(xy, axis=0), axis=1) > 1e-3])
     xy, owner = xy[keep], owner[keep]
     # behind: the first lanelet's predecessors (straightest), else straight
