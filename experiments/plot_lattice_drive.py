@@ -60,7 +60,7 @@ def main(argv=None):
         off = veh.center_offset
         ego = EgoState(jnp.asarray(log.x[k] - off * np.cos(h)), jnp.asarray(log.y[k] - off * np.sin(h)),
                        jnp.asarray(h), jnp.asarray(log.v[k]), jnp.asarray(log.a[k]), jnp.asarray(log.kappa[k]))
-        res = jax.tree_util.tree_map(np.asarray, plan_result(scene, ego, jnp.asarray(k)))
+        res = jax.tree_util.tree_map(np.asarray, plan_result(planner.init_params(), scene, ego, jnp.asarray(k)))
         x, y = res.candidates.traj.x, res.candidates.traj.y
         lines = np.stack([x, y], -1)
         avail, feas = res.candidates.available & res.finite, res.feasible

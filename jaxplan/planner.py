@@ -1,14 +1,19 @@
 """The one interface every road planner implements, and the registry of planners by name.
 
-A planner is a frozen, hashable config object (static under ``jax.jit``) with
+A planner is a frozen, hashable config object (static under ``jax.jit``: sizes, counts,
+switches) with
 
 - ``vehicle``: the ``VehicleParams`` it plans for (the simulator drives that car);
 - ``dt`` and ``horizon_steps``: its trajectory's time step and length;
-- ``plan(scene, ego, step) -> PlanOutput``: jittable, for one scene (``jax.vmap`` batches
-  it). ``scene`` is a ``jaxplan.scenarios.scene.Scene``; ``ego`` an ``EgoState`` (the car's
-  reference point, as ``vehicle.reference`` says); ``step`` the simulation step (time
-  ``step * scene.dt``), so the planner reads obstacle predictions from that step on
-  (``scene.obstacles.window(step, horizon_steps)``) and the goal's time window relative to now.
+- ``init_params() -> params``: its tunable parameters (cost weights, model constants) as a
+  pytree of arrays, the defaults. They are never part of the config: a planner is compiled
+  once and driven with any params (``jax.grad`` and optax work on them);
+- ``plan(params, scene, ego, step) -> PlanOutput``: jittable, for one scene (``jax.vmap``
+  batches it). ``params`` is a pytree shaped as ``init_params()``; ``scene`` a
+  ``jaxplan.scenarios.scene.Scene``; ``ego`` an ``EgoState`` (the car's reference point, as
+  ``vehicle.reference`` says); ``step`` the simulation step (time ``step * scene.dt``), so the
+  planner reads obstacle predictions from that step on (``scene.obstacles.window(step,
+  horizon_steps)``) and the goal's time window relative to now.
 
 A planner may also name ``compiler_options``: XLA options (a dict, ``jaxplan.compile_options``)
 that its kernels run faster with; the simulator compiles a drive with them (``planner_compiler_options``).
@@ -27,6 +32,7 @@ import importlib.util
 from collections.abc import Mapping
 from typing import Any, Callable, Protocol
 
+import jax
 import jax.numpy as jnp
 
 from jaxplan.types import Trajectory, VehicleParams, _pytree
@@ -84,7 +90,28 @@ class Planner(Protocol):
     @property
     def horizon_steps(self) -> int: ...
 
-    def plan(self, scene, ego: EgoState, step) -> PlanOutput: ...
+    def init_params(self) -> Any: ...
+
+    def plan(self, params, scene, ego: EgoState, step) -> PlanOutput: ...
+
+
+def check_params(planner, params) -> Any:
+    """``params`` for ``planner``: its defaults (``init_params()``) when None, else ``params``
+    checked against them (the same pytree structure and leaf shapes; a ``ValueError`` names the
+    planner and what differs, before anything compiles) and cast to their dtypes (so that a
+    Python float or a float64 array does not compile another program)."""
+    want = planner.init_params()
+    if params is None:
+        return want
+    t_want, t_got = jax.tree_util.tree_structure(want), jax.tree_util.tree_structure(params)
+    if t_want != t_got:
+        raise ValueError(f"{type(planner).__name__} params: expected the structure of init_params() ({t_want}), "
+                         f"got {t_got}")
+    for a, b in zip(jax.tree_util.tree_leaves(want), jax.tree_util.tree_leaves(params)):
+        if jnp.shape(a) != jnp.shape(b):
+            raise ValueError(f"{type(planner).__name__} params: a leaf of shape {jnp.shape(b)} where init_params() "
+                             f"has {jnp.shape(a)}")
+    return jax.tree_util.tree_map(lambda a, b: jnp.asarray(b, jnp.result_type(a)), want, params)
 
 
 def planner_compiler_options(planner) -> dict:

@@ -100,8 +100,8 @@ R_CURVE = 60.0
 class _Spy(BrakePlanner):
     """Brakes; its info is what it saw of the traffic (``road_context``)."""
 
-    def plan(self, scene, ego, step):
-        out = super().plan(scene, ego, step)
+    def plan(self, params, scene, ego, step):
+        out = super().plan(params, scene, ego, step)
         ctx = road_context(scene, ego, step, self.horizon_steps, self.vehicle)
         return PlanOutput(out.trajectory, out.ok, {"boxes": ctx.obstacles.boxes, "valid": ctx.obstacles.valid,
                                                    "s": ctx.obstacle_s, "l": ctx.obstacle_l})

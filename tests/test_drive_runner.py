@@ -134,3 +134,82 @@ def test_chunked_rollout_equals_rollout():
         np.testing.assert_array_equal(got.plan_ok[:, :3], one.plan_ok[:, :3])
     short = ChunkedRollout(IDMPlanner(), CFG, chunk_cycles=4)(batch, cycles=4)
     assert int(np.max(short.end_step)) <= 12
+
+
+def test_new_params_drive_differently_without_compiling_again():
+    """A planner's params are traced: other values drive differently through the same compiled
+    programs (``rollout``'s jit cache and ``ChunkedRollout``'s), and params of another shape are
+    refused naming the planner."""
+    from jaxplan.sim.rollout import planner_program
+
+    recs = _records()
+    batch = stack_scenes([r.scene for r in recs])
+    planner = IDMPlanner()
+    slow = dict(a_max=0.5, time_gap=3.0)
+    program = planner_program(planner)
+    base = rollout(planner, batch, CFG)
+    n = program._cache_size()
+    other = rollout(planner, batch, CFG, params=planner.init_params(slow))
+    again = rollout(planner, batch, CFG, params=planner.init_params())
+    assert program._cache_size() == n  # neither compiled another program
+    np.testing.assert_array_equal(np.asarray(again.x), np.asarray(base.x))
+    assert float(np.min(np.asarray(other.v) - np.asarray(base.v))) < -0.5  # a gentler driver: slower somewhere
+    chunked = ChunkedRollout(planner, CFG, chunk_cycles=4)
+    chunked.compile(batch)
+    got = chunked(batch, params=planner.init_params(slow))
+    assert len(chunked._programs) == 1 and chunked.compile(batch) == 0.0
+    v = np.asarray(other.valid)
+    np.testing.assert_allclose(got.x[v], np.asarray(other.x)[v], atol=1e-4)
+    bad = dataclasses.replace(planner.init_params(), a_max=np.ones(3))
+    with pytest.raises(ValueError, match="IDMPlanner params"):
+        rollout(planner, batch, CFG, params=bad)
+    with pytest.raises(TypeError, match="a_maxx"):
+        planner.init_params({"a_maxx": 1.0})
+
+
+def test_gradient_of_a_drive_by_its_params_matches_finite_differences():
+    """``jax.grad`` through ``rollout`` with respect to the planner's params (the IDM driver's
+    acceleration and time gap: the distance it covers) agrees with central differences in float64."""
+    recs = _records()[:2]
+    planner = IDMPlanner()
+    with jax.enable_x64(True):
+        batch = jax.tree_util.tree_map(lambda a: np.asarray(a, np.float64) if np.asarray(a).dtype == np.float32 else a,
+                                       stack_scenes([r.scene for r in recs]))
+        p0 = planner.init_params()
+        assert p0.a_max.dtype == np.float64
+
+        def distance(p):
+            log = rollout(planner, batch, CFG, params=p)
+            return jax.numpy.sum(log.x[:, -1] - log.x[:, 0])
+
+        g = jax.grad(distance)(p0)
+        for name in ("a_max", "time_gap"):
+            h = 1e-4
+            up = distance(dataclasses.replace(p0, **{name: getattr(p0, name) + h}))
+            down = distance(dataclasses.replace(p0, **{name: getattr(p0, name) - h}))
+            fd = float(up - down) / (2 * h)
+            assert abs(float(getattr(g, name)) - fd) <= 1e-2 * max(abs(fd), 1e-3), (name, float(getattr(g, name)), fd)
+        assert abs(float(g.a_max)) > 1e-3  # the check is not of a flat function
+
+
+def test_drive_takes_params_by_planner_and_the_cli_refuses_names_a_planner_lacks(tmp_path, capsys):
+    """``drive(planner_params=...)`` drives a planner with other params (a run with other params in the
+    same folder is another run); ``jaxplan drive --weights`` refuses, before any work, a file naming
+    a param the planner does not have."""
+    from jaxplan.cli import main
+
+    recs = _records()
+    base = drive_mod.drive(recs, ["idm"], str(tmp_path / "a"), CFG, progress=False)
+    gentle = drive_mod.drive(recs, ["idm"], str(tmp_path / "b"), CFG, progress=False,
+                             planner_params={"idm": {"a_max": 0.5, "time_gap": 3.0}})
+    route = lambda res: [r["progress.route_m"] for r in res.rows["idm"]]  # noqa: E731
+    assert sum(route(gentle)) < sum(route(base)) - 1.0
+    with pytest.raises(RunMismatch):
+        drive_mod.drive(recs, ["idm"], str(tmp_path / "a"), CFG, progress=False,
+                        planner_params={"idm": {"a_max": 0.5}})
+    w = tmp_path / "w.json"
+    w.write_text(json.dumps({"weights": {"alpha": 1.0, "beta": 5.0}}))
+    assert main(["drive", "--builtin", "--quick", "--planner", "idm", "--weights", str(w), "--out",
+                 str(tmp_path / "c")]) == 2
+    err = capsys.readouterr().err
+    assert "planner idm" in err and "alpha" in err and not (tmp_path / "c").exists()

@@ -353,7 +353,8 @@ def test_lazy_policy_sees_a_conflict_on_the_installed_plan():
     recs, _ = _brake_case()
     scene = jax.tree_util.tree_map(jnp.asarray, recs[0].scene)  # a stopped car 9 m ahead
     ego = EgoState.from_box_centre(scene.start, CAR)
-    cruise = IDMPlanner().plan(scene, dataclasses.replace(ego, v=jnp.asarray(0.0)), 0).trajectory
+    idm = IDMPlanner()
+    cruise = idm.plan(idm.init_params(), scene, dataclasses.replace(ego, v=jnp.asarray(0.0)), 0).trajectory
     through = dataclasses.replace(cruise, x=cruise.x + jnp.cos(ego.heading) * jnp.arange(51) * 1.5,
                                   y=cruise.y + jnp.sin(ego.heading) * jnp.arange(51) * 1.5)
     assert bool(plan_conflicts(through, 0, scene, 0, CAR, 0.2))
@@ -459,7 +460,7 @@ np.savez(sys.argv[1], x=log.x, y=log.y, v=log.v, collided=m["overlap.collided"],
 
 def test_sharded_drives_equal_single_device(tmp_path):
     """The drives of ``_idm_records`` sharded over one more (forced host) device in a child process
-    equal this process's drives (on one device under ``make test``: the rollout that ``drive``
+    equal this process's drives (to float32 rounding) (on one device under ``make test``: the rollout that ``drive``
     compiles above, no new compile)."""
     import os
     import subprocess
@@ -481,5 +482,8 @@ def test_sharded_drives_equal_single_device(tmp_path):
     more = np.load(tmp_path / "d.npz")
     assert int(more["devices"]) == n
     assert np.asarray(here["collided"]).shape == (2,) and np.isfinite(here["x"]).any()
-    for k in ("x", "y", "v", "collided"):
-        np.testing.assert_array_equal(here[k], more[k])
+    # the same drives up to float32 rounding (the params are runtime values, so the two programs
+    # may order an operation differently: a few 1-ulp differences)
+    np.testing.assert_array_equal(here["collided"], more["collided"])
+    for k in ("x", "y", "v"):
+        np.testing.assert_allclose(here[k], more[k], rtol=1e-6, atol=1e-5)

@@ -87,7 +87,7 @@ def _plans():
 
     @jax.jit
     def one(s, e):  # one scene at a time: compiles faster than the vmapped plan (the rollout checks batching)
-        c = planner.speed_plan(s, e, 0)
+        c = planner.speed_plan(planner.init_params(), s, e, 0)
         return planner.output(c), c, compose_profile(c["ref"], c["s0"], c["profile"])
 
     stack = lambda xs: jax.tree_util.tree_map(lambda *x: jnp.stack(x), *xs)
@@ -215,14 +215,17 @@ def test_route_path_join_from_a_turning_car_stays_between_the_car_and_the_route(
 def test_config_checks_and_nonblocking_switch():
     with pytest.raises(ValueError, match="horizon"):
         PathSpeedPlanner(horizon=5.0)
-    with pytest.raises(ValueError, match="weights"):
-        PathSpeedPlanner(weights=(1.0, 2.0))
+    with pytest.raises(ValueError, match="w_blind"):
+        PathSpeedPlanner().init_params({"w_blind": -1.0})
+    with pytest.raises(TypeError, match="w_blinds"):
+        PathSpeedPlanner().init_params({"w_blinds": 1.0})
     with pytest.raises(ValueError, match="qp_dt"):
         PathSpeedPlanner(speed=SpeedConfig(qp_dt=0.3))
     from jaxplan.bounds.path_planner import PathConfig
     with pytest.raises(ValueError, match="a_lat_max"):
         PathSpeedPlanner(path=PathConfig(a_lat_max=0.0))
-    w = PathSpeedPlanner(nonblocking=False).cost_weights(jnp.float32(10.0))
+    p = PathSpeedPlanner(nonblocking=False)
+    w = p.cost_weights(p.init_params(), jnp.float32(10.0))
     assert float(w.w_blind) == 0.0 and float(w.w_no_bypass) == 0.0 and float(w.v_cruise) == 10.0
-    w = PathSpeedPlanner().cost_weights(jnp.float32(10.0))
+    w = PathSpeedPlanner().cost_weights(p.init_params(), jnp.float32(10.0))
     assert float(w.w_blind) > 0.0 and float(w.w_no_bypass) > 0.0

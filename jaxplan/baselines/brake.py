@@ -7,6 +7,7 @@ another planner in it is then that planner's fault.
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Mapping
 
 import jax.numpy as jnp
 
@@ -34,7 +35,13 @@ class BrakePlanner:
     def horizon_steps(self) -> int:
         return int(round(self.horizon / self.dt)) + 1
 
-    def plan(self, scene, ego: EgoState, step) -> PlanOutput:
+    def init_params(self, values: Mapping | None = None) -> dict:
+        """No tunable params (an empty pytree); ``values`` must be empty."""
+        if values:
+            raise ValueError(f"BrakePlanner has no params, got {sorted(values)}")
+        return {}
+
+    def plan(self, params: dict, scene, ego: EgoState, step) -> PlanOutput:
         f = scene.route.xy.dtype
         t = jnp.arange(self.horizon_steps, dtype=f) * self.dt
         ds, v, a = braking_profile(ego.v, -self.decel, t)

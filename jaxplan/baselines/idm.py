@@ -8,6 +8,9 @@ one (``jaxplan.models.idm``) with this planner's parameters (``IDMParams``).
 from __future__ import annotations
 
 import dataclasses
+import math
+from collections.abc import Mapping
+from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -19,20 +22,21 @@ from jaxplan.geometry.frenet import ref_state
 from jaxplan.models.idm import idm_accel as idm_model
 from jaxplan.plan_context import NO_LEADER, road_context
 from jaxplan.planner import EgoState, PlanOutput
-from jaxplan.types import VehicleParams
+from jaxplan.types import VehicleParams, _pytree
 
 
-@dataclasses.dataclass(frozen=True)
+@_pytree(data_fields=("time_gap", "min_gap", "a_max", "b_comf", "delta", "b_max"))
 class IDMParams:
-    """IDM parameters: desired time gap (s), minimum gap (m), maximum acceleration and
-    comfortable deceleration (m/s^2), acceleration exponent, and the braking limit (m/s^2)."""
+    """IDM parameters (a pytree; each ``()``): desired time gap (s), minimum gap (m), maximum
+    acceleration and comfortable deceleration (m/s^2), acceleration exponent, and the braking
+    limit (m/s^2)."""
 
-    time_gap: float = 1.5
-    min_gap: float = 2.0
-    a_max: float = 1.5
-    b_comf: float = 2.0
-    delta: float = 4.0
-    b_max: float = 8.0
+    time_gap: Any = 1.5
+    min_gap: Any = 2.0
+    a_max: Any = 1.5
+    b_comf: Any = 2.0
+    delta: Any = 4.0
+    b_max: Any = 8.0
 
 
 def idm_accel(v, v_set, gap, dv, p: IDMParams = IDMParams()):
@@ -54,18 +58,29 @@ def _extents(boxes, route_heading):
 
 @dataclasses.dataclass(frozen=True)
 class IDMPlanner:
-    """Lane-keeping IDM over ``horizon`` seconds (see the module docstring)."""
+    """Lane-keeping IDM over ``horizon`` seconds (see the module docstring); its params are the
+    ``IDMParams``."""
 
     vehicle: VehicleParams = SIM_VEHICLE
     dt: float = 0.1
     horizon: float = 5.0
-    params: IDMParams = IDMParams()
 
     @property
     def horizon_steps(self) -> int:
         return int(round(self.horizon / self.dt)) + 1
 
-    def plan(self, scene, ego: EgoState, step) -> PlanOutput:
+    def init_params(self, values: Mapping | None = None) -> IDMParams:
+        """``IDMParams`` as float arrays: the defaults, with ``values`` (``{field: value}``) in their
+        place (an unknown name is a ``TypeError`` naming it)."""
+        p = IDMParams(**dict(values or {}))
+        for k in ("time_gap", "min_gap", "a_max", "b_comf", "delta", "b_max"):
+            v = getattr(p, k)
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
+                raise ValueError(f"IDMParams.{k}: must be a finite number >= 0, got {v!r}")
+        f = jnp.result_type(float)
+        return jax.tree_util.tree_map(lambda x: jnp.asarray(x, f), p)
+
+    def plan(self, params: IDMParams, scene, ego: EgoState, step) -> PlanOutput:
         H = self.horizon_steps
         ctx = road_context(scene, ego, step, H, self.vehicle)
         f = scene.route.xy.dtype
@@ -93,7 +108,7 @@ class IDMPlanner:
             end_gap = ctx.route_end_s - (s + front)  # the road's end: a stopped leader
             use_end = end_gap < g
             g, vl = jnp.where(use_end, end_gap, g), jnp.where(use_end, 0.0, vl)
-            a = idm_accel(v, ctx.v_set, g, v - vl, self.params)
+            a = idm_accel(v, ctx.v_set, g, v - vl, params)
             a = jnp.maximum(a, -v / dt)  # stop, never reverse
             v1 = v + a * dt
             s1 = s + 0.5 * (v + v1) * dt

@@ -22,8 +22,10 @@ from which the car slows gently (``CURVE_DECEL``) to the route's curvature limit
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Mapping
 from typing import ClassVar
 
+import jax
 import jax.numpy as jnp
 
 from jaxplan.baselines.brake import SIM_VEHICLE
@@ -74,14 +76,12 @@ LANE_LOOKAHEAD = 2.5  # s: the lanes are read this far ahead (15-60 m)
 
 @dataclasses.dataclass(frozen=True)
 class LatticePlanner:
-    """The lattice planner (static config; ``weights``: ``CostWeights`` values as a hashable tuple of
-    ``(name, value)`` pairs, e.g. from ``jaxplan tune``; unnamed fields keep their defaults;
-    ``options`` as a tuple of ``(LatticeConfig field, value)`` pairs overriding ``LatticeConfig.road()``)."""
+    """The lattice planner (static config: ``options`` as a tuple of ``(LatticeConfig field, value)``
+    pairs overriding ``LatticeConfig.road()``). Its params are the ``CostWeights`` (``init_params``)."""
 
     vehicle: VehicleParams = SIM_VEHICLE
     dt: float = 0.1
     horizon: float = 5.0
-    weights: tuple | None = None
     options: tuple = ()
     # the simulator compiles a drive with these (not a field: the same for every lattice planner);
     # ``jaxplan.compile_options`` says what they gain in the plan, ``jaxplan.sim.rollout`` in a drive
@@ -101,7 +101,14 @@ class LatticePlanner:
         m = min(n_lanes, self.config.max_lanes)
         return dataclasses.replace(self.config, lanes=tuple(range(-(m // 2), m - m // 2)), target_lane=0)
 
-    def plan_result(self, scene, ego: EgoState, step) -> LatticeResult:
+    def init_params(self, weights: Mapping | None = None) -> CostWeights:
+        """The cost weights as a pytree of float arrays: the defaults, with the values of
+        ``weights`` (``{field: value}``, e.g. a ``jaxplan tune`` file's) in their place."""
+        w = CostWeights(**dict(weights or {})).validate()
+        f = jnp.result_type(float)
+        return jax.tree_util.tree_map(lambda x: jnp.asarray(x, f), w)
+
+    def plan_result(self, params: CostWeights, scene, ego: EgoState, step) -> LatticeResult:
         """The whole ``LatticeResult`` of one plan (every candidate, why each was rejected, the
         choice): what ``plan`` returns the chosen trajectory of; for plots and diagnostics."""
         cfg = self.scene_config(scene.lane_offset.shape[-2])
@@ -130,8 +137,7 @@ class LatticePlanner:
                               ctx.route_end_s, ctx.goal_s, ctx.goal_l, ctx.goal_t, ctx.goal_v,
                               jnp.stack([ctx.obstacle_s, ctx.obstacle_l], -1), borrow[idx],
                               jnp.stack([scene.road_left, scene.road_right], -1))
-        w = CostWeights() if self.weights is None else CostWeights(**dict(self.weights))
-        return _plan(state, scene.route, ctx.obstacles, cfg, w, targets)
+        return _plan(state, scene.route, ctx.obstacles, cfg, params, targets)
 
     def describe(self, info: dict) -> str:
         """Words for the ``info`` of a few consecutive plans (numpy ``(C,)`` each): their modes."""
@@ -139,8 +145,8 @@ class LatticePlanner:
         counts = {n: names.count(n) for n in dict.fromkeys(names)}
         return f"modes of the last {len(names)} plans: " + ", ".join(f"{n} x{c}" for n, c in counts.items())
 
-    def plan(self, scene, ego: EgoState, step) -> PlanOutput:
-        res = self.plan_result(scene, ego, step)
+    def plan(self, params: CostWeights, scene, ego: EgoState, step) -> PlanOutput:
+        res = self.plan_result(params, scene, ego, step)
         traj = res.chosen_trajectory()
         rejected = jnp.sum(res.candidates.available & ~res.feasible)
         return PlanOutput(traj, (res.mode != RISK) & (res.mode != INVALID) & res.ok,

@@ -60,7 +60,7 @@ def _fail(msg: str) -> int:
 
 
 def run(args) -> int:
-    from jaxplan.planner import get_factory, loadable_planners
+    from jaxplan.planner import get_factory, loadable_planners, make_planner
     from jaxplan.scenarios.files import expand_paths, sample_files
     from jaxplan.sim.drive import DEFAULT_BATCH, DEFAULT_MAX_STEPS, drive
 
@@ -82,19 +82,17 @@ def run(args) -> int:
         if not files:
             return _fail("--sample: give scenario files or folders to sample from")
         files = sample_files(files, args.sample, args.seed)
-    options = {}
+    options, params = {}, {}
     if args.weights:
-        from jaxplan.tuning.lattice_tuning import WEIGHT_NAMES
         from jaxplan.tuning.train import load_weights
 
-        takes = [n for n in names if "weights" in _fields(get_factory(n))]
-        if len(takes) < len(names):
-            return _fail(f"--weights: planner {next(n for n in names if n not in takes)} takes no cost weights")
-        try:  # the lattice's weight names only (the planners with weights take CostWeights)
-            w = load_weights(args.weights, allowed=WEIGHT_NAMES, planner="lattice")
-        except (OSError, ValueError) as e:
-            return _fail(f"--weights {args.weights}: {e}")
-        options = {n: {"weights": tuple(sorted(w.items()))} for n in takes}
+        for n in names:  # every planner takes them as its params, or the run is refused
+            try:
+                w = load_weights(args.weights, planner=n)
+                make_planner(n).init_params(w)
+            except (OSError, ValueError, TypeError) as e:
+                return _fail(f"--weights {args.weights}: planner {n}: {e}")
+            params[n] = w
     from jaxplan.scenarios.cache import enable_compilation_cache, load_many
     from jaxplan.scenarios.scene import unique_names
     from jaxplan.sim.drive import run_settings
@@ -108,7 +106,7 @@ def run(args) -> int:
                 "seed": args.seed, "weights": args.weights and _digest(args.weights)}
     if not args.fresh:  # a run of other settings in --out: refused before any file is read
         try:
-            check_settings(args.out, run_settings(names, config, options, run_info))
+            check_settings(args.out, run_settings(names, config, options, run_info, params))
         except RunMismatch as e:
             return _fail(str(e))
     if not args.no_cache:
@@ -129,7 +127,7 @@ def run(args) -> int:
         return _fail("no scenario could be loaded")
     records = unique_names(records)
     try:
-        res = drive(records, names, args.out, config, animate=args.animate, planner_options=options, skipped=skipped,
+        res = drive(records, names, args.out, config, animate=args.animate, planner_options=options, planner_params=params, skipped=skipped,
                     batch_size=args.batch or DEFAULT_BATCH, plots=args.plots, fresh=args.fresh, run_info=run_info,
                     parse_s=loaded.parse_s)
     except RunMismatch as e:
@@ -147,8 +145,3 @@ def _digest(path: str) -> str:
 
     return file_digest(path)[:16]
 
-
-def _fields(factory) -> set:
-    import dataclasses
-
-    return {f.name for f in dataclasses.fields(factory)} if dataclasses.is_dataclass(factory) else set()

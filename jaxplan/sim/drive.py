@@ -42,7 +42,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxplan.planner import make_planner
+from jaxplan.planner import check_params, make_planner
 from jaxplan.scenarios.files import location, scenario_format
 from jaxplan.sim import sizes, verdict
 from jaxplan.sim.devices import place, sharded_map
@@ -130,37 +130,39 @@ def n_steps_for(records, dt: float, cap: int) -> int:
     return max(scene_steps(r, dt, cap) for r in records)
 
 
-def time_plans(planner, batch, n: int) -> dict:
+def time_plans(planner, batch, n: int, params=None) -> dict:
     """Wall time of one planning call on one scene (batch 1, compile excluded), median and
     90th percentile over the first ``n`` scenes at their start states (ms)."""
     from jaxplan.planner import EgoState
 
+    params = check_params(planner, params)
     times = []
     for i in range(n):
         sc = jax.tree_util.tree_map(lambda x: x[i], batch)
         ego = EgoState.from_box_centre(sc.start, planner.vehicle)
-        jax.block_until_ready(_plan_once(planner, sc, ego))  # compiles once (same shapes), then warm
+        jax.block_until_ready(_plan_once(planner, params, sc, ego))  # compiles once (same shapes), then warm
         t = time.perf_counter()
-        jax.block_until_ready(_plan_once(planner, sc, ego))
+        jax.block_until_ready(_plan_once(planner, params, sc, ego))
         times.append(1e3 * (time.perf_counter() - t))
     return {"plan_ms_median": float(np.median(times)), "plan_ms_p90": float(np.percentile(times, 90))}
 
 
-def _plan(planner, scene, ego):
-    return planner.plan(scene, ego, 0)
+def _plan(planner, params, scene, ego):
+    return planner.plan(params, scene, ego, 0)
 
 
-def _plan_once(planner, scene, ego):
+def _plan_once(planner, params, scene, ego):
     """One planning call at step 0, compiled as ``rollout`` compiles the drive (the planner's options)."""
-    return planner_program(planner, _plan, ("planner",))(planner, scene, ego)
+    return planner_program(planner, _plan, ("planner",))(planner, params, scene, ego)
 
 
-def run_planner(planner, batch, config: SimConfig, chunk: int | None = None) -> tuple:
+def run_planner(planner, batch, config: SimConfig, chunk: int | None = None, params=None) -> tuple:
     """Drive every scene of an in-memory ``batch`` (sharded over local devices, in chunks of
-    ``chunk`` scenes); returns (numpy ``DriveLog``, numpy metrics, timing figures)."""
+    ``chunk`` scenes) with the planner's ``params`` (default its own); returns (numpy ``DriveLog``,
+    numpy metrics, timing figures)."""
     B = int(batch.start.shape[0])
     chunk = chunk or B
-    fn = lambda sc: rollout(planner, sc, config)  # noqa: E731  (rollout is jitted: cached)
+    fn = lambda sc: rollout(planner, sc, config, params)  # noqa: E731  (rollout is jitted: cached)
     take = lambda a, lo, hi: jax.tree_util.tree_map(lambda x: x[lo:hi], a)  # noqa: E731
     t0 = time.perf_counter()
     parts = [sharded_map(fn, take(batch, lo, min(B, lo + chunk)), pad_to=chunk) for lo in range(0, B, chunk)]
@@ -265,12 +267,16 @@ def _code_fingerprint() -> str:
 
 
 def run_settings(planners: list, config: SimConfig, planner_options: dict | None = None,
-                 run_info: dict | None = None) -> dict:
+                 run_info: dict | None = None, planner_params: dict | None = None) -> dict:
     """Everything that decides a run's drives (``jaxplan.sim.store.RunStore`` matches it on resume):
-    the planners and their options, the simulation settings, the library's code, the caller's settings."""
-    return {"planners": list(planners), "sim": dataclasses.asdict(config),
-            "planner_options": {k: repr(sorted(v.items())) for k, v in (planner_options or {}).items()},
-            "code": _code_fingerprint(), **(run_info or {})}
+    the planners, their options and params, the simulation settings, the library's code, the
+    caller's settings."""
+    out = {"planners": list(planners), "sim": dataclasses.asdict(config),
+           "planner_options": {k: repr(sorted(v.items())) for k, v in (planner_options or {}).items()},
+           "code": _code_fingerprint(), **(run_info or {})}
+    if planner_params:
+        out["planner_params"] = {k: repr(sorted(v.items())) for k, v in planner_params.items()}
+    return out
 
 
 def _judge(log: DriveLog, records, run: dict, vehicle, batch_size: int):
@@ -328,7 +334,8 @@ def _describe(planner, info: dict, end_step: int, every: int) -> str:
 
 def drive(records, planners: list, out: str, config: SimConfig, animate: bool = False, planner_options=None,
           progress: bool = True, batch_size: int = DEFAULT_BATCH, plots: str = "auto", fresh: bool = False,
-          skipped: list = (), run_info: dict | None = None, parse_s: float = 0.0) -> DriveResult:
+          skipped: list = (), run_info: dict | None = None, parse_s: float = 0.0,
+          planner_params: dict | None = None) -> DriveResult:
     """Drive ``records`` (``SceneRecord``s) with each planner name; write the outputs under ``out``.
 
     Args:
@@ -339,6 +346,8 @@ def drive(records, planners: list, out: str, config: SimConfig, animate: bool = 
             its goal's time interval, at most that.
         animate: also a GIF per drive.
         planner_options: ``{planner name: {option: value}}`` for ``make_planner``.
+        planner_params: ``{planner name: {param: value}}`` for the planner's ``init_params`` (e.g.
+            cost weights from ``jaxplan tune``); the others drive with their defaults.
         progress: show a progress bar on stderr.
         batch_size: scenes per batch (per compiled program call).
         plots: ``auto``, ``all``, ``failed`` or ``none`` (per-drive PNGs).
@@ -359,9 +368,11 @@ def drive(records, planners: list, out: str, config: SimConfig, animate: bool = 
     t_wall = time.perf_counter()
     opts = planner_options or {}
     made = {name: make_planner(name, **opts.get(name, {})) for name in planners}
+    values = planner_params or {}
+    params = {name: p.init_params(values[name]) if name in values else p.init_params() for name, p in made.items()}
     for p in made.values():
         config.validate(p)
-    settings = run_settings(planners, config, opts, run_info)
+    settings = run_settings(planners, config, opts, run_info, values)
     store = RunStore(out, settings, {r.name: record_digest(r) for r in records}, fresh=fresh)
     folder_of = (lambda name, rec: os.path.join(out, rec.name)) if len(planners) == 1 else \
         (lambda name, rec: os.path.join(out, name, rec.name))
@@ -375,7 +386,7 @@ def drive(records, planners: list, out: str, config: SimConfig, animate: bool = 
     run = sizes.run_sizes([r.scene for r in records])
     try:
         for name, planner in made.items():
-            driver = ChunkedRollout(planner, config, CHUNK_CYCLES)
+            driver = ChunkedRollout(planner, config, CHUNK_CYCLES, params[name])
             groups: dict = {}
             for r in pending[name]:
                 groups.setdefault(sizes.obstacle_class(r.scene), []).append(r)

@@ -30,7 +30,7 @@ from jax import lax
 
 from jaxplan.compile_options import jit, options_key
 from jaxplan.geometry.frenet import to_frenet
-from jaxplan.planner import EgoState, Planner, planner_compiler_options
+from jaxplan.planner import EgoState, Planner, check_params, planner_compiler_options
 from jaxplan.sim.agents import AgentParams, agent_boxes, agent_paths, agents_step, init_agents
 from jaxplan.sim.metrics.goal import goal_reached
 from jaxplan.sim.prediction import PREDICTIONS, lane_cache, planner_view
@@ -254,9 +254,9 @@ class DriveChunk:
 class _Drive:
     """One scene's closed loop (unbatched): what every cycle shares, and the cycle itself."""
 
-    def __init__(self, planner: Planner, scene, config: SimConfig):
+    def __init__(self, planner: Planner, params, scene, config: SimConfig):
         config.validate(planner)  # host-side, when traced: before anything compiles
-        self.planner, self.scene, self.config = planner, scene, config
+        self.planner, self.params, self.scene, self.config = planner, params, scene, config
         self.veh = planner.vehicle
         self.K = config.replan_every
         self.C = config.n_cycles
@@ -290,7 +290,7 @@ class _Drive:
     def start(self) -> DriveState:
         ego0 = self.ego0()
         done0 = (self.config.stop_at_goal & self.reached(ego0, 0.0)) | (self.t_end <= 1e-6)
-        plan0 = jax.eval_shape(lambda: self.planner.plan(self.scene, ego0, 0)).trajectory
+        plan0 = jax.eval_shape(lambda: self.planner.plan(self.params, self.scene, ego0, 0)).trajectory
         plan0 = jax.tree_util.tree_map(lambda a: jnp.zeros(a.shape, a.dtype), plan0)
         agents0 = init_agents(self.paths) if self.idm else None
         return DriveState(ego0, done0, plan0, jnp.asarray(0), jnp.asarray(False), agents0)
@@ -300,7 +300,7 @@ class _Drive:
         ego, done, plan, idx, plan_ok, agents = st.ego, st.done, st.plan, st.idx, st.plan_ok, st.agents
         step = c * K
         seen = self.view(step, agents)
-        out = self.planner.plan(seen, ego, step)
+        out = self.planner.plan(self.params, seen, ego, step)
         if config.replan == "lazy":  # keep the installed plan unless it is short, abnormal or in conflict
             need = (c == 0) | ~plan_ok | (H - 1 - idx < max(self.min_left, K)) | \
                 plan_conflicts(plan, idx, seen, step, veh, config.lazy_margin)
@@ -357,34 +357,35 @@ class _Drive:
                         chunk.ok, chunk.fallback, chunk.replanned, chunk.info, traffic)
 
 
-def drive_start(planner: Planner, scene, config: SimConfig) -> DriveState:
-    """A drive's state before its first cycle (one scene)."""
-    return _Drive(planner, scene, config).start()
+def drive_start(planner: Planner, params, scene, config: SimConfig) -> DriveState:
+    """A drive's state before its first cycle (one scene; ``params`` the planner's)."""
+    return _Drive(planner, params, scene, config).start()
 
 
-def drive_cycles(planner: Planner, scene, state: DriveState, c0, n: int, config: SimConfig):
+def drive_cycles(planner: Planner, params, scene, state: DriveState, c0, n: int, config: SimConfig):
     """Planning cycles ``c0 .. c0 + n - 1`` of a drive (one scene; ``c0`` may be traced, ``n`` static).
 
     Returns:
         ``(DriveState after them, DriveChunk of them)``.
     """
-    d = _Drive(planner, scene, config)
+    d = _Drive(planner, params, scene, config)
     return lax.scan(d.cycle, state, jnp.asarray(c0) + jnp.arange(n))
 
 
-def drive_log(planner: Planner, scene, chunk: DriveChunk, config: SimConfig) -> DriveLog:
+def drive_log(planner: Planner, params, scene, chunk: DriveChunk, config: SimConfig) -> DriveLog:
     """The ``DriveLog`` of a drive from all its cycles' ``DriveChunk`` (``config.n_cycles`` of them)."""
-    return _Drive(planner, scene, config).log(chunk)
+    return _Drive(planner, params, scene, config).log(chunk)
 
 
-def drive_one(planner: Planner, scene, config: SimConfig) -> DriveLog:
+def drive_one(planner: Planner, params, scene, config: SimConfig) -> DriveLog:
     """One scene's drive (unbatched; ``rollout`` batches it): every cycle in one ``lax.scan``."""
-    _, chunk = drive_cycles(planner, scene, drive_start(planner, scene, config), 0, config.n_cycles, config)
-    return drive_log(planner, scene, chunk, config)
+    _, chunk = drive_cycles(planner, params, scene, drive_start(planner, params, scene, config), 0,
+                            config.n_cycles, config)
+    return drive_log(planner, params, scene, chunk, config)
 
 
-def _rollout(planner: Planner, scenes, config: SimConfig) -> DriveLog:
-    return jax.vmap(lambda s: drive_one(planner, s, config))(scenes)
+def _rollout(planner: Planner, params, scenes, config: SimConfig) -> DriveLog:
+    return jax.vmap(lambda s: drive_one(planner, params, s, config))(scenes)
 
 
 def compiled_with(options: tuple, fun=_rollout, static=("planner", "config")):
@@ -403,35 +404,41 @@ def planner_program(planner: Planner, fun=_rollout, static=("planner", "config")
     return compiled_with(options_key(planner_compiler_options(planner)), fun, static)
 
 
-def rollout(planner: Planner, scenes, config: SimConfig = SimConfig()) -> DriveLog:
+def rollout(planner: Planner, scenes, config: SimConfig = SimConfig(), params=None) -> DriveLog:
     """Drive every scene of a batch (leading axis) with ``planner``; jitted (``planner`` and
-    ``config`` static) with the planner's XLA options (``planner_compiler_options``): the lattice
-    planner's drives run 1.15-1.47x faster with its options (``jaxplan.compile_options``).
+    ``config`` static, ``params`` traced: new params never recompile) with the planner's XLA
+    options (``planner_compiler_options``): the lattice planner's drives run 1.15-1.47x faster
+    with its options (``jaxplan.compile_options``).
 
     Args:
         planner: a ``Planner`` (hashable; static).
         scenes: a batched ``Scene`` (``jaxplan.scenarios.scene.stack_scenes``).
         config: ``SimConfig``.
+        params: the planner's params (a pytree shaped as ``planner.init_params()``, shared by every
+            scene; default those). Inside a caller's ``jit`` or ``grad``, ``drive_one`` under
+            ``jax.vmap`` is the same drive without this function's own ``jit``.
 
     Returns:
         ``DriveLog`` with a leading scene axis.
 
     Raises:
-        ValueError: a setting of ``config`` is out of range (when traced, before anything compiles).
+        ValueError: a setting of ``config`` is out of range, or ``params`` are not shaped as the
+            planner's (when traced, before anything compiles).
     """
-    return planner_program(planner)(planner, scenes, config=config)
+    params = check_params(planner, params)
+    return planner_program(planner)(planner, params, scenes, config=config)
 
 
-def _starts(planner: Planner, scenes, config: SimConfig) -> DriveState:
-    return jax.vmap(lambda s: drive_start(planner, s, config))(scenes)
+def _starts(planner: Planner, params, scenes, config: SimConfig) -> DriveState:
+    return jax.vmap(lambda s: drive_start(planner, params, s, config))(scenes)
 
 
-def _advance(planner: Planner, scenes, state: DriveState, c0, config: SimConfig, n: int):
-    return jax.vmap(lambda s, st: drive_cycles(planner, s, st, c0, n, config))(scenes, state)
+def _advance(planner: Planner, params, scenes, state: DriveState, c0, config: SimConfig, n: int):
+    return jax.vmap(lambda s, st: drive_cycles(planner, params, s, st, c0, n, config))(scenes, state)
 
 
-def _logs(planner: Planner, scenes, chunk: DriveChunk, config: SimConfig) -> DriveLog:
-    return jax.vmap(lambda s, ch: drive_log(planner, s, ch, config))(scenes, chunk)
+def _logs(planner: Planner, params, scenes, chunk: DriveChunk, config: SimConfig) -> DriveLog:
+    return jax.vmap(lambda s, ch: drive_log(planner, params, s, ch, config))(scenes, chunk)
 
 
 class ChunkedRollout:
@@ -449,12 +456,15 @@ class ChunkedRollout:
         planner: the ``Planner`` (static).
         config: ``SimConfig``; ``n_steps`` is the longest drive.
         chunk_cycles: cycles per compiled call.
+        params: the planner's params (default ``planner.init_params()``); traced, as in ``rollout``:
+            a call with other params runs the same compiled programs.
     """
 
-    def __init__(self, planner: Planner, config: SimConfig, chunk_cycles: int = 6):
+    def __init__(self, planner: Planner, config: SimConfig, chunk_cycles: int = 6, params=None):
         if chunk_cycles < 1:
             raise ValueError(f"ChunkedRollout: chunk_cycles must be >= 1, got {chunk_cycles}")
         self.planner, self.config = planner, config
+        self.params = check_params(planner, params)
         self.n = min(chunk_cycles, config.n_cycles)
         self._programs: dict = {}
 
@@ -470,20 +480,23 @@ class ChunkedRollout:
         if key in self._programs:
             return 0.0
         t = time.perf_counter()
-        p, cfg = self.planner, self.config
-        start = planner_program(p, _starts, ("planner", "config")).lower(p, scenes, config=cfg).compile()
-        state = jax.eval_shape(functools.partial(_starts, p, config=cfg), scenes)
+        p, w, cfg = self.planner, self.params, self.config
+        start = planner_program(p, _starts, ("planner", "config")).lower(p, w, scenes, config=cfg).compile()
+        state = jax.eval_shape(functools.partial(_starts, p, config=cfg), w, scenes)
         adv = planner_program(p, _advance, ("planner", "config", "n")).lower(
-            p, scenes, state, jnp.asarray(0), config=cfg, n=self.n).compile()
-        _, chunk = jax.eval_shape(functools.partial(_advance, p, config=cfg, n=self.n), scenes, state, jnp.asarray(0))
+            p, w, scenes, state, jnp.asarray(0), config=cfg, n=self.n).compile()
+        _, chunk = jax.eval_shape(functools.partial(_advance, p, config=cfg, n=self.n), w, scenes, state,
+                                  jnp.asarray(0))
         full = jax.tree_util.tree_map(
             lambda a: jax.ShapeDtypeStruct((a.shape[0], cfg.n_cycles) + a.shape[2:], a.dtype), chunk)
-        logs = planner_program(p, _logs, ("planner", "config")).lower(p, scenes, full, config=cfg).compile()
+        logs = planner_program(p, _logs, ("planner", "config")).lower(p, w, scenes, full, config=cfg).compile()
         self._programs[key] = (start, adv, logs)
         return time.perf_counter() - t
 
-    def __call__(self, scenes, cycles: int | None = None) -> DriveLog:
-        """Drive a batch (leading scene axis); ``cycles``: at most this many cycles (default all).
+    def __call__(self, scenes, cycles: int | None = None, params=None) -> DriveLog:
+        """Drive a batch (leading scene axis); ``cycles``: at most this many cycles (default all);
+        ``params``: the planner's params for these drives (default the driver's), run by the same
+        compiled programs.
 
         Returns:
             ``DriveLog`` of numpy arrays with a leading scene axis.
@@ -494,10 +507,11 @@ class ChunkedRollout:
         start, adv, logs = self._programs[self._key(scenes)]
         C = self.config.n_cycles
         limit = C if cycles is None else max(1, min(C, cycles))
-        state = start(scenes)
+        w = self.params if params is None else check_params(self.planner, params)
+        state = start(w, scenes)
         parts, c0 = [], 0
         while c0 < limit:
-            state, chunk = adv(scenes, state, jnp.asarray(c0))
+            state, chunk = adv(w, scenes, state, jnp.asarray(c0))
             parts.append(jax.tree_util.tree_map(np.asarray, chunk))
             c0 += self.n
             if bool(np.all(np.asarray(state.done))):
@@ -516,4 +530,4 @@ class ChunkedRollout:
                              None if got.moved is None else jax.tree_util.tree_map(fill, got.moved))
         elif ran > C:
             got = jax.tree_util.tree_map(lambda a: a[:, :C], got)
-        return jax.tree_util.tree_map(np.asarray, logs(scenes, got))
+        return jax.tree_util.tree_map(np.asarray, logs(w, scenes, got))

@@ -29,6 +29,7 @@ seed-001 comparison).
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Mapping
 from typing import Any
 
 import jax
@@ -226,7 +227,6 @@ class PathSpeedPlanner:
         vehicle, dt, horizon: the car, the trajectory's step and length (s).
         nonblocking: plan with the non-blocking boundaries (no-bypass, blind zone, keep clear).
         speed: the DP's grid and limits (its horizon must equal ``horizon``, its ``qp_dt`` ``dt``).
-        weights: ``CostWeights`` field values as a tuple (``v_cruise`` is set each cycle), or None.
         smooth: the smoothing QP's weights.
         path: the bounds path's ``PathConfig`` (its ``vehicle`` is set to ``vehicle``), or None
             to plan the speed on the route path (``route_path``) only.
@@ -239,7 +239,6 @@ class PathSpeedPlanner:
     horizon: float = 7.0
     nonblocking: bool = True
     speed: SpeedConfig = SpeedConfig()
-    weights: tuple | None = None
     smooth: SmoothWeights = SmoothWeights()
     path: PathConfig | None = PathConfig()
     path_points: int = 96
@@ -255,18 +254,22 @@ class PathSpeedPlanner:
         if abs(self.speed.horizon - self.horizon) > 1e-9 or abs(self.speed.qp_dt - self.dt) > 1e-9:
             raise ValueError(f"PathSpeedPlanner: speed.horizon ({self.speed.horizon}) and speed.qp_dt "
                              f"({self.speed.qp_dt}) must equal horizon ({self.horizon}) and dt ({self.dt})")
-        if self.weights is not None and len(self.weights) != len(dataclasses.fields(CostWeights)):
-            raise ValueError(f"PathSpeedPlanner.weights: expected {len(dataclasses.fields(CostWeights))} values "
-                             f"(CostWeights fields), got {len(self.weights)}")
 
     @property
     def horizon_steps(self) -> int:
         return int(round(self.horizon / self.dt)) + 1
 
-    def cost_weights(self, v_cruise) -> CostWeights:
+    def init_params(self, weights: Mapping | None = None) -> CostWeights:
+        """The speed DP's ``CostWeights`` as a pytree of float arrays: the defaults, with the values
+        of ``weights`` (``{field: value}``) in their place (``v_cruise`` is set every cycle)."""
+        w = CostWeights(**dict(weights or {})).validate()
+        f = jnp.result_type(float)
+        return jax.tree_util.tree_map(lambda x: jnp.asarray(x, f), w)
+
+    def cost_weights(self, params: CostWeights, v_cruise) -> CostWeights:
+        """``params`` for one cycle: ``v_cruise`` set, the non-blocking weights zero without them."""
         f = jnp.result_type(v_cruise)
-        w = CostWeights() if self.weights is None else CostWeights(*self.weights)
-        w = jax.tree_util.tree_map(lambda x: jnp.asarray(x, f), w)
+        w = jax.tree_util.tree_map(lambda x: jnp.asarray(x, f), params)
         w = dataclasses.replace(w, v_cruise=v_cruise)
         if not self.nonblocking:
             z = jnp.zeros((), f)
@@ -292,7 +295,7 @@ class PathSpeedPlanner:
         rp = dataclasses.replace(rp, blocked_s=jnp.where(blocked, stop_r, rp.blocked_s))
         return bp, rp, pp, pp.ok & ~blocked
 
-    def speed_plan(self, scene, ego: EgoState, step) -> dict:
+    def speed_plan(self, params: CostWeights, scene, ego: EgoState, step) -> dict:
         """One cycle up to the speed profile, as a dict: ``ctx`` (the ``RoadContext``),
         ``path`` (the ``RoutePath`` the speed is planned on), ``bounds`` (the bounds
         ``PathPlan`` or None), ``use_bounds`` (``()`` bool, ``path`` is the bounds path),
@@ -304,7 +307,7 @@ class PathSpeedPlanner:
         bp, rp, pp, use = self.plan_path(scene, ctx, ego)
         v0 = jnp.maximum(jnp.asarray(ego.v, f), 0.0)
         a0 = jnp.asarray(ego.a, f)
-        w = self.cost_weights(cruise_speed(ctx, self.vehicle, self.horizon).astype(f))
+        w = self.cost_weights(params, cruise_speed(ctx, self.vehicle, self.horizon).astype(f))
         obs = ctx.obstacles
         obs = Obstacles(obs.boxes, obs.valid, obs.t - obs.t[0], obs.static)
 
@@ -329,8 +332,8 @@ class PathSpeedPlanner:
         prof = smooth_plan(plan, v0, a0, self.speed, self.smooth)
         return dict(ctx=ctx, path=path, bounds=pp, use_bounds=use, ref=ref, s0=s0, plan=plan, profile=prof)
 
-    def plan(self, scene, ego: EgoState, step) -> PlanOutput:
-        return self.output(self.speed_plan(scene, ego, step))
+    def plan(self, params: CostWeights, scene, ego: EgoState, step) -> PlanOutput:
+        return self.output(self.speed_plan(params, scene, ego, step))
 
     def output(self, c: dict) -> PlanOutput:
         """The ``PlanOutput`` of a cycle (``speed_plan``'s dict): the profile composed along
@@ -355,7 +358,8 @@ class PathSpeedPlanner:
         return PlanOutput(traj, ok, info)
 
 
-def plan_speed_for(planner: PathSpeedPlanner, scene, ego: EgoState, step):
-    """The DP plan and the executed profile of one cycle (for pictures): ``(plan, profile)``."""
-    c = planner.speed_plan(scene, ego, step)
+def plan_speed_for(planner: PathSpeedPlanner, scene, ego: EgoState, step, params: CostWeights | None = None):
+    """The DP plan and the executed profile of one cycle (for pictures): ``(plan, profile)``
+    (``params``: default ``planner.init_params()``)."""
+    c = planner.speed_plan(planner.init_params() if params is None else params, scene, ego, step)
     return c["plan"], c["profile"]

@@ -10,12 +10,14 @@ import numpy as np
 
 @functools.lru_cache(maxsize=None)
 def _cycle_fn(planner):
-    return jax.jit(lambda scene, ego, step: planner.speed_plan(scene, ego, step))
+    return jax.jit(planner.speed_plan)
 
 
-def cycle(planner, scene, ego, step: int = 0) -> dict:
-    """``planner.speed_plan`` of one scene at ``step`` as numpy arrays (jitted once per planner)."""
-    return jax.tree_util.tree_map(np.asarray, _cycle_fn(planner)(scene, ego, step))
+def cycle(planner, scene, ego, step: int = 0, params=None) -> dict:
+    """``planner.speed_plan`` of one scene at ``step`` as numpy arrays (jitted once per planner;
+    ``params``: default ``planner.init_params()``)."""
+    params = planner.init_params() if params is None else params
+    return jax.tree_util.tree_map(np.asarray, _cycle_fn(planner)(params, scene, ego, step))
 
 
 def draw_st(ax, planner, plan, prof) -> None:
