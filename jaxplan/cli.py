@@ -51,10 +51,21 @@ def parser() -> argparse.ArgumentParser:
     e.add_argument("--quick", action="store_true", help="small sizes, for a demo or a smoke test")
     e.add_argument("--weights", type=ca.weights_file("lattice"),
                    help="cost weights JSON written by `jaxplan tune lattice` (suites that use them)")
-    t = sub.add_parser("tune", help="learn cost weights from demonstrations and write them as JSON")
-    t.add_argument("planner", choices=("lattice", "speed"))
-    t.add_argument("--scenarios", type=ca.scenario_dir,
-                   help="directory of recorded scenarios (default: synthetic demonstrations)")
+    t = sub.add_parser("tune", help="learn cost weights from demonstrations, or by gradient through closed-loop "
+                                    "drives (--closed-loop), and write them as JSON")
+    t.add_argument("planner", choices=("lattice", "speed", "idm"))
+    t.add_argument("--scenarios", type=ca.existing_path,
+                   help="directory of recorded scenarios (default: synthetic demonstrations); with --closed-loop, "
+                        "scenario files or a folder of any format `drive` reads")
+    t.add_argument("--closed-loop", action="store_true",
+                   help="tune by gradient (optax) through closed-loop drives of --scenarios, split by location, with "
+                        "random search and CMA-ES in the same number of drives (lattice, idm)")
+    t.add_argument("--scenes", type=ca.positive_int, default=24, help="--closed-loop: scenes sampled (default 24)")
+    t.add_argument("--drive-steps", type=ca.positive_int, default=80,
+                   help="--closed-loop: steps of each drive, 0.1 s each (default 80)")
+    t.add_argument("--batch", type=ca.positive_int, default=8, help="--closed-loop: training scenes per step")
+    t.add_argument("--temperature", type=ca.positive_float, default=1.0,
+                   help="--closed-loop: the lattice's soft-selection temperature (cost units, default 1)")
     t.add_argument("--out", type=ca.output_file, default="weights.json",
                    help="weights file to write (default: weights.json)")
     t.add_argument("--steps", type=ca.positive_int, help="optimiser steps (default: 800 lattice on recorded scenarios, 400 synthetic; 40 speed)")
@@ -109,6 +120,23 @@ def main(argv=None) -> int:
 
 def _tune(args) -> int:
     import dataclasses
+
+    if args.closed_loop:
+        if not args.scenarios:
+            raise ValueError("--closed-loop: give --scenarios (files or a folder of them)")
+        from jaxplan.tuning.closed_loop import tune_files
+
+        figures = tune_files([args.scenarios], args.planner, args.out, scenes=args.scenes,
+                             drive_steps=args.drive_steps, steps=args.steps or 20, batch=args.batch,
+                             temperature=args.temperature, seed=args.seed)
+        json.dump(figures, sys.stdout, indent=1, sort_keys=True)
+        print(f"\nwrote {args.out} (`jaxplan drive --weights {args.out}` drives them) and "
+              f"{os.path.splitext(args.out)[0]}.png")
+        return 0
+    if args.planner == "idm":
+        raise ValueError("tune idm: only with --closed-loop (demonstrations tune lattice and speed)")
+    if args.scenarios:
+        ca.scenario_dir(args.scenarios)
 
     from jaxplan.tuning.baselines import IDM_GRID
     from jaxplan.tuning.run import (RECORDED_LR, RECORDED_STEPS, SMALL_IDM_GRID, compare_lattice, demonstrations,

@@ -79,6 +79,25 @@ def existing_file(text) -> str:
     return path
 
 
+def positive_float(text) -> float:
+    """A finite number > 0."""
+    try:
+        v = float(text)
+    except (TypeError, ValueError):
+        raise BadArgument(f"must be a positive number, got {text!r}") from None
+    if not (v > 0 and v < float("inf")):
+        raise BadArgument(f"must be a positive number, got {text!r}")
+    return v
+
+
+def existing_path(text) -> str:
+    """A path to an existing file or folder."""
+    path = str(text)
+    if not os.path.exists(path):
+        raise BadArgument(f"{path}: no such file or folder")
+    return path
+
+
 def existing_dir(text) -> str:
     """A path to an existing folder."""
     path = str(text)

@@ -91,7 +91,7 @@ BAD = [  # (argv, words the one error line must contain)
     (["tune", "lattice", "--steps", "-3"], ["--steps", "-3"]),
     (["tune", "lattice", "--steps", "0"], ["--steps", "0"]),
     (["tune", "lattice", "--out", "{root}"], ["--out", "{root}", "is a folder"]),
-    (["tune", "lattice", "--scenarios", "{missing}"], ["--scenarios", "no such folder"]),
+    (["tune", "lattice", "--scenarios", "{missing}"], ["--scenarios", "no such file or folder"]),
     (["tune", "boat"], ["planner", "boat"]),
     (["report", "{missing}"], ["results_dir", "{missing}", "no such folder"]),
     (["report", "{file}"], ["results_dir", "is a file"]),

@@ -103,6 +103,10 @@ class LatticeConfig:
             (``RoadTargets.lane_borrow``: borrowed to pass what blocks the car's lane, as
             Apollo's lane borrow; oncoming traffic is checked like any obstacle).
         max_lanes: the road planner plans over at most this many lanes about the car's.
+        select_temperature: 0 (default): the plan is the exact choice. > 0: the plan is the
+            softmin-weighted mean of the candidates the exact rule considers (``cost.soft_choice``
+            of the selection cost at this temperature, in cost units), smooth in the cost
+            weights for gradients through a drive; its limit at 0 is the exact choice.
         near_k: collision broad phase keeping the ``near_k`` nearest obstacles per lateral group
             and step for the exact test (0: ``near_budget``'s exact broad phase); conservative:
             the bounding-circle distance stands in for the others (never a missed collision); used
@@ -168,6 +172,7 @@ class LatticeConfig:
     near_k: int = 0
     max_lanes: int = 5
     goal_weight_time: float = 1.0
+    select_temperature: float = 0.0
 
     @property
     def n_steps(self) -> int:
@@ -247,6 +252,8 @@ class LatticeConfig:
             raise ValueError(f"LatticeConfig.end_times must be positive (and given for follow), got {self.end_times}")
         if not self.borrow_gain >= 0:
             raise ValueError(f"LatticeConfig.borrow_gain must be >= 0 m (inf: never borrow), got {self.borrow_gain}")
+        if not (self.select_temperature >= 0 and self.select_temperature < float("inf")):
+            raise ValueError(f"LatticeConfig.select_temperature must be finite and >= 0, got {self.select_temperature}")
         if self.all_collide not in ("harm", "seed"):
             raise ValueError(f"LatticeConfig.all_collide must be 'harm' or 'seed', got {self.all_collide!r}")
         if not (self.emergency_a_min < 0 < self.emergency_a_max and self.fallback_decel > 0 and self.emergency_jerk > 0):

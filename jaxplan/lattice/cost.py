@@ -208,6 +208,21 @@ def soft_select(weights: CostWeights, features, temperature):
     return jax.nn.softmax(-costs(weights, features) / temperature, axis=-1)
 
 
+def soft_choice(selection_cost, chosen, temperature: float):
+    """``(..., N)`` weights of a smooth selection: the softmin of the exact rule's selection cost
+    (``choose``; inf for the candidates it excluded, which get weight 0) at ``temperature`` (cost
+    units, > 0). As the temperature goes to 0 it tends to the one-hot of the exact choice; where
+    the rule excluded every candidate it is the one-hot of ``chosen (...)``. Differentiable in
+    the weights through the finite costs."""
+    finite = jnp.isfinite(selection_cost)
+    c = jnp.where(finite, selection_cost, 0.0)
+    m = jnp.min(jnp.where(finite, c, jnp.inf), axis=-1, keepdims=True)
+    z = jnp.where(finite, -(c - jax.lax.stop_gradient(jnp.where(jnp.isfinite(m), m, 0.0))) / temperature, -jnp.inf)
+    p = jax.nn.softmax(jnp.where(jnp.any(finite, axis=-1, keepdims=True), z, 0.0), axis=-1)
+    one = jax.nn.one_hot(chosen, selection_cost.shape[-1], dtype=p.dtype)
+    return jnp.where(jnp.any(finite, axis=-1, keepdims=True), p, one)
+
+
 def road_features(base, traj, dt, min_sep, v_set, goal_err, feasible, terminal_ok, collided):
     """The seed's features ``base (..., N, 6)`` followed by the road terms (module docstring).
 

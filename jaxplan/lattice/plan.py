@@ -8,12 +8,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxplan.geometry.frenet import ReferenceLine
-from jaxplan.geometry.frenet import to_frenet
+from jaxplan.geometry.frenet import ReferenceLine, to_frenet, wrap_angle
 from jaxplan.lattice.candidates import (Candidates, LatticeConfig, PlanState, candidate_trajectory, generate_from,
                                        lattice_parts, stations_finite)
 from jaxplan.lattice.cost import (INVALID, CostWeights, choose, costs, goal_error, motion_terms, obstacle_term,
-                                  road_features_from, seed_features)
+                                  road_features_from, seed_features, soft_choice)
 from jaxplan.lattice.crossroad import with_stop_target
 from jaxplan.lattice.feasibility import feasibility, usable, violation
 from jaxplan.lattice.risk import (BIG, Risk, align_obstacles, car_parts, first_contact, inflate, min_separation_axes,
@@ -211,12 +210,24 @@ def _plan(state: PlanState, ref: ReferenceLine, obstacles: Obstacles, config: La
                             impact, first_t, risk_cost, n_comfort, config.all_collide)
     mode = jnp.where(jnp.any(avail), mode, INVALID)
     ok_plan = jnp.take(finite, idx)
+    if config.select_temperature > 0:  # the smooth selection: the softmin-weighted mean candidate
+        w_soft = soft_choice(sel, idx, config.select_temperature)
+        use_w = (w_soft > 0)[:, None]
+        exact = candidate_trajectory(parts, idx)
+        mean = lambda a: jnp.sum(jnp.where(use_w, w_soft[:, None] * a, 0.0), axis=0)  # noqa: E731
+        # headings averaged about the exact choice's (no wrap at +-pi)
+        theta = exact.theta + mean(wrap_angle(cand.traj.theta - exact.theta))
+        chosen_traj = dataclasses.replace(exact, x=mean(cand.traj.x), y=mean(cand.traj.y), theta=theta,
+                                          kappa=mean(cand.traj.kappa), v=mean(cand.traj.v), a=mean(cand.traj.a),
+                                          s=mean(cand.traj.s))
+    else:
+        chosen_traj = candidate_trajectory(parts, idx)
     if not keep_candidates:  # the per-candidate figures and the choice, not every trajectory
         cand = dataclasses.replace(cand, traj=None, axis=None, s=None, l=None, dl=None, s_rel=None)
         sep = None
     return LatticeResult(cand, feats, costs(weights, feats), sel, risk.collided | ~finite, risk.first_t, risk.ttc,
                          sep, idx, mode, obs, finite, ok_plan, feasible, reasons, collided_m, terminal_ok, impact,
-                         l_target, off_road, candidate_trajectory(parts, idx))
+                         l_target, off_road, chosen_traj)
 
 
 def _collisions(cand: Candidates, obs: Obstacles, t, config: LatticeConfig) -> dict:

@@ -58,8 +58,8 @@ class SimConfig:
             ``replan_every`` steps the installed plan is checked and replaced only when it is
             abnormal (the planner's ``ok`` was False), has less than ``lazy_min_remaining``
             seconds left, or its remaining part comes within ``lazy_margin`` m of a predicted
-            obstacle (seed 003's rule for road driving; the planner still runs every cycle
-            inside the batched scan, so this saves planning work on a car, not here).
+            obstacle (a collision-point check of the installed plan; the planner still runs every
+            cycle inside the batched scan, so this saves planning work on a car, not here).
         agents: ``"log"`` (the traffic replays its recording) or ``"idm"`` (every dynamic obstacle
             follows its recorded path with an IDM gap to what is ahead of it, the car included:
             ``jaxplan.sim.agents``).
@@ -67,6 +67,9 @@ class SimConfig:
             IDM agents re-anchored where they are) or ``"cv"`` (the present, extrapolated at
             constant speed along each obstacle's lane: ``jaxplan.sim.prediction``).
         agent_params: ``AgentParams`` of the IDM agents.
+        remat: recompute each planning cycle in the backward pass (``jax.checkpoint``) instead of
+            storing its intermediates: memory for a gradient through a drive grows with the cycles'
+            states only (no effect on a drive without a gradient).
     """
 
     n_steps: int = 150
@@ -85,6 +88,7 @@ class SimConfig:
     agents: str = "log"
     prediction: str = "oracle"
     agent_params: AgentParams = AgentParams()
+    remat: bool = False
 
     def validate(self, planner: Planner | None = None) -> "SimConfig":
         if self.n_steps < 1 or self.replan_every < 1:
@@ -369,7 +373,8 @@ def drive_cycles(planner: Planner, params, scene, state: DriveState, c0, n: int,
         ``(DriveState after them, DriveChunk of them)``.
     """
     d = _Drive(planner, params, scene, config)
-    return lax.scan(d.cycle, state, jnp.asarray(c0) + jnp.arange(n))
+    cycle = jax.checkpoint(d.cycle) if config.remat else d.cycle
+    return lax.scan(cycle, state, jnp.asarray(c0) + jnp.arange(n))
 
 
 def drive_log(planner: Planner, params, scene, chunk: DriveChunk, config: SimConfig) -> DriveLog:

@@ -36,8 +36,8 @@ import jax
 import jax.numpy as jnp
 
 from jaxplan.baselines.brake import SIM_VEHICLE
-from jaxplan.bounds.path_planner import PathConfig, PathPlan, plan_path
-from jaxplan.geometry.frenet import ReferenceLine, frenet_to_cartesian_state, ref_state, to_frenet, wrap_angle
+from jaxplan.bounds.path_planner import PathConfig, plan_path
+from jaxplan.geometry.frenet import ReferenceLine, frenet_to_cartesian_state, ref_state, wrap_angle
 from jaxplan.lattice.quintic import quintic_coeffs, quintic_eval
 from jaxplan.plan_context import RoadContext, road_context, route_sample
 from jaxplan.planner import EgoState, PlanOutput
