@@ -1,7 +1,7 @@
 """Gradient of a closed-loop objective by the lattice's cost weights, through ``rollout`` with the
 soft selection, against central finite differences of the same smooth rollout (float64).
 
-    python experiments/grad_check_lattice.py --scenes 20 --steps 60 --out grad_check.json
+    python experiments/grad_check_lattice.py --scenes 20 --steps 100 --out grad_check.json
 """
 from __future__ import annotations
 
@@ -21,10 +21,12 @@ import numpy as np  # noqa: E402
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--scenes", type=int, default=20, help="built-in scenes (survivable ones, round robin by kind)")
-    ap.add_argument("--steps", type=int, default=60, help="steps of each drive (0.1 s)")
+    ap.add_argument("--steps", type=int, default=100, help="steps of each drive (0.1 s)")
     ap.add_argument("--temperature", type=float, default=1.0, help="the soft selection's temperature")
-    ap.add_argument("--h", type=float, default=1e-4, help="relative finite-difference step")
-    ap.add_argument("--weights", default="alpha,delta,v_offset,jerk_lon", help="cost weights to check")
+    ap.add_argument("--h", type=float, default=1e-6,
+                    help="relative finite-difference step (a drive is smooth only piecewise: discrete events such as "
+                         "a filter flipping or the drive ending bound the step; at 1e-4 some weights straddle one)")
+    ap.add_argument("--weights", default="alpha,beta,delta,jerk_lon,obstacle,v_offset,goal", help="cost weights to check")
     ap.add_argument("--out", default=None, help="JSON of the figures")
     a = ap.parse_args(argv)
     from jaxplan.lattice.planner import LatticePlanner
