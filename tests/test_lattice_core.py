@@ -437,3 +437,29 @@ def test_lateral_time_reaches_the_offset_early():
     assert np.abs(np.asarray(slow.l)[:, k] - off).max() > 0.1  # the default spreads it over the horizon
     with pytest.raises(ValueError, match="lateral_time"):
         LatticeConfig(lateral_time=9.0).validate()
+
+
+def test_a_collision_is_avoided_at_the_emergency_limits_before_a_comfortable_plan_takes_it():
+    """``cost.choose``: when every comfortable (feasible) candidate collides, a collision-free one within
+    the emergency limits is taken (mode EMERGENCY); without that option, or when a comfortable
+    collision-free candidate exists, the rule is as before."""
+    from jaxplan.lattice.cost import EMERGENCY, FEATURES, choose
+
+    w = CostWeights()
+    feats = jnp.zeros((4, len(FEATURES))).at[:, 0].set(jnp.asarray([0.0, 1.0, 2.0, 3.0]))
+    level = jnp.zeros(4, jnp.int32)
+    avail = jnp.ones(4, bool)
+    comfort = jnp.asarray([True, True, False, False])  # 2 and 3 exceed the comfortable limits
+    free = jnp.asarray([False, False, True, True])  # 0 and 1 collide
+    emergency = jnp.asarray([True, True, False, True])  # 3 is within the emergency limits
+    args = (w, feats, level, avail, comfort, free, free, jnp.ones(4, bool), jnp.ones(4), jnp.ones(4))
+    idx, mode, _ = choose(*args, n_comfort=3, emergency_ok=emergency)
+    assert int(idx) == 3 and int(mode) == EMERGENCY
+    idx, mode, _ = choose(*args, n_comfort=3)
+    assert int(mode) == RISK and int(idx) in (0, 1)
+    idx, mode, _ = choose(*args, n_comfort=3, emergency_ok=jnp.asarray([True, True, False, False]))
+    assert int(mode) == RISK  # nothing collision-free within any limits
+    free2 = jnp.asarray([False, True, True, True])  # 1: comfortable and free
+    idx, mode, _ = choose(w, feats, level, avail, comfort, free2, free2, jnp.ones(4, bool), jnp.ones(4), jnp.ones(4),
+                          n_comfort=3, emergency_ok=emergency)
+    assert int(idx) == 1 and int(mode) == FREE

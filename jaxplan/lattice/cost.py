@@ -333,21 +333,26 @@ def goal_error(s, l, v, t, goal_s, goal_l, goal_t, goal_v, center_offset, time_w
 
 
 def choose(weights, features, level, available, feasible, free_margin, free, terminal_ok, impact, first_t,
-           risk_cost=None, n_comfort: int = 1, rule: str = "harm"):
+           risk_cost=None, n_comfort: int = 1, rule: str = "harm", emergency_ok=None):
     """The road lattice's exact selection.
 
     Among the available candidates, the feasible ones if any (else all): the candidates that
     are free of the inflated obstacles and pass the terminal condition; if none, those free
-    of the inflated obstacles; if none, those free of the plain obstacles. In the first
-    non-empty group: the lowest level that has one, then the least ``lambda``. If every
-    candidate collides: ``rule="harm"`` takes the least impact speed at first contact, then
-    the latest first contact, then the least ``lambda`` without the speed terms;
+    of the inflated obstacles; if none, those free of the plain obstacles. When every one of
+    them collides with a plain obstacle, the candidates within the emergency limits
+    (``emergency_ok``, any level) that do not are taken instead, in the same groups: a
+    collision is avoided at the emergency limits before a comfortable plan is taken into it.
+    In the first non-empty group: the lowest level that has one, then the least ``lambda``. If
+    every candidate collides: ``rule="harm"`` takes the least impact speed at first contact,
+    then the latest first contact, then the least ``lambda`` without the speed terms;
     ``rule="seed"`` the least ``lambda + gamma * risk`` (``risk_cost``).
 
     Args:
         features: ``(..., N, F)``; level: ``(..., N)`` int; available, feasible, free_margin,
         free, terminal_ok: ``(..., N)`` bool; impact, first_t: ``(..., N)``.
         n_comfort: the number of comfortable levels (the rest are emergency / fallback).
+        emergency_ok: ``(..., N)`` bool or None: candidates within the emergency limits (and on the
+            road) that may replace a pool whose every candidate collides.
 
     Returns:
         (index ``(...)``, mode ``(...)`` (``FREE``, ``ESCALATED``, ``EMERGENCY``, ``CONSTRAINED``,
@@ -355,6 +360,11 @@ def choose(weights, features, level, available, feasible, free_margin, free, ter
     """
     big = jnp.iinfo(jnp.int32).max
     pool = available & jnp.where(jnp.any(available & feasible, axis=-1, keepdims=True), feasible, True)
+    swap = jnp.zeros(pool.shape[:-1] + (1,), bool)
+    if emergency_ok is not None:
+        rescue = emergency_ok & available & free
+        swap = ~jnp.any(pool & free, axis=-1, keepdims=True) & jnp.any(rescue, axis=-1, keepdims=True)
+        pool = jnp.where(swap, rescue, pool)
     groups = [pool & free_margin & terminal_ok, pool & free_margin, pool & free]
     lam_c = lam(weights, features)
     chosen_set = jnp.zeros_like(pool)
@@ -384,4 +394,5 @@ def choose(weights, features, level, available, feasible, free_margin, free, ter
     lvl = jnp.take_along_axis(level, idx[..., None], axis=-1)[..., 0]
     mode = jnp.where(~found, RISK, jnp.where(tier > 0, CONSTRAINED,
                                              jnp.where(lvl == 0, FREE, jnp.where(lvl < n_comfort, ESCALATED, EMERGENCY))))
+    mode = jnp.where(found & swap[..., 0], EMERGENCY, mode)  # taken at the emergency limits
     return idx, mode, sel

@@ -124,6 +124,9 @@ def _kinematics(cand: Candidates, ref, targets, config, v_set, t, stations_ok):
     tr = cand.traj
     f = tr.x.dtype
     feasible, reasons = feasibility(tr, cand.level, config)
+    # within the emergency limits whatever the level: what the choice may take to avoid a collision
+    # that every comfortable candidate has
+    emergency_ok, _ = feasibility(tr, jnp.full_like(cand.level, len(config.escalation)), config)
     centres = targets.lane_centres.astype(f)
     # NaN / inf anywhere makes the sum non-finite. The positions, the heading and the arc length are
     # finite where l and the profile's points on the line are (x = x_r - l sin(theta_r), ...), so
@@ -131,7 +134,7 @@ def _kinematics(cand: Candidates, ref, targets, config, v_set, t, stations_ok):
     # written out (about 5 % of a kinematic plan at N = 994)
     total = jnp.sum(cand.l + tr.kappa + tr.v + tr.a, axis=-1)
     veh = config.vehicle
-    out = dict(feasible=feasible, reasons=reasons, viol=violation(tr, cand.level, config),
+    out = dict(feasible=feasible, reasons=reasons, emergency_ok=emergency_ok, viol=violation(tr, cand.level, config),
                rho=jnp.max(jnp.abs(tr.kappa), axis=-1),
                d_lane=jnp.mean(jnp.abs(cand.l[..., None] - centres), axis=-2),  # (N, Ln): d_lrp to each lane
                motion=motion_terms(tr, config.dt, v_set),
@@ -158,7 +161,7 @@ def _plan(state: PlanState, ref: ReferenceLine, obstacles: Obstacles, config: La
     sl = targets.obstacle_sl  # given: on the planner's grid (step k at k * dt), as road_context windows it
     sl = obstacle_frenet(ref, obs) if sl is None else jnp.asarray(sl, f)[..., :T, :]
     s_car, l_car = to_frenet(ref, jnp.stack([state.x, state.y]).astype(f))
-    front = jnp.asarray(veh.length - veh.rear_overhang if veh.reference == "rear_axle" else 0.5 * veh.length, f)
+    front = jnp.asarray(veh.front_offset, f)
     half_w = 0.5 * jnp.asarray(veh.width, f)
     K = obs.boxes.shape[-3]
     if K:
@@ -207,7 +210,8 @@ def _plan(state: PlanState, ref: ReferenceLine, obstacles: Obstacles, config: La
     n_comfort = len(config.escalation)
     risk_cost = weights.gamma * feats[:, 2]
     idx, mode, sel = choose(weights, feats, cand.level, avail, use, ~collided_m, ~risk.collided, terminal_ok,
-                            impact, first_t, risk_cost, n_comfort, config.all_collide)
+                            impact, first_t, risk_cost, n_comfort, config.all_collide,
+                            avail & kin["emergency_ok"] & ~off_road)
     mode = jnp.where(jnp.any(avail), mode, INVALID)
     ok_plan = jnp.take(finite, idx)
     if config.select_temperature > 0:  # the smooth selection: the softmin-weighted mean candidate
