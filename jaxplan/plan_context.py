@@ -103,8 +103,7 @@ class RoadContext:
 
 def front_offset(vehicle: VehicleParams, dtype):
     """``()`` metres from the car's reference point to its front bumper."""
-    return jnp.asarray(vehicle.length - vehicle.rear_overhang if vehicle.reference == "rear_axle"
-                       else 0.5 * vehicle.length, dtype)
+    return jnp.asarray(vehicle.front_offset, dtype)
 
 
 def light_targets(scene, s_front, v, step, horizon_steps: int):
@@ -176,8 +175,7 @@ def road_context(scene, ego: EgoState, step, horizon_steps: int, vehicle: Vehicl
                  + jnp.abs(b0[:, 3] * jnp.cos(b0[:, 4] - _heading_at(ref, os_[:, 0]))))
     ext_s = 0.5 * (jnp.abs(b0[:, 2] * jnp.cos(b0[:, 4] - _heading_at(ref, os_[:, 0])))
                    + jnp.abs(b0[:, 3] * jnp.sin(b0[:, 4] - _heading_at(ref, os_[:, 0]))))
-    front = s + jnp.asarray(vehicle.length - vehicle.rear_overhang if vehicle.reference == "rear_axle"
-                            else 0.5 * vehicle.length, f)
+    front = s + front_offset(vehicle, f)
     gap = os_[:, 0] - ext_s - front
     in_lane = jnp.abs(ol[:, 0] - l) < ext + half_w
     cand = obs.valid[:, 0] & in_lane & (os_[:, 0] > s)

@@ -161,6 +161,16 @@ class VehicleParams:
         return self.length - self.wheelbase - self.rear_overhang
 
     @property
+    def front_offset(self):
+        """Distance from the reference point forward to the front bumper."""
+        return 0.5 * self.length if self.reference == CENTER else self.length - self.rear_overhang
+
+    @property
+    def rear_offset(self):
+        """Signed distance from the reference point to the rear bumper (<= 0)."""
+        return -0.5 * self.length if self.reference == CENTER else -self.rear_overhang
+
+    @property
     def center_offset(self):
         """Distance from the reference point forward to the box centre."""
         if self.reference == CENTER:

@@ -85,7 +85,7 @@ class IDMPlanner:
         ctx = road_context(scene, ego, step, H, self.vehicle)
         f = scene.route.xy.dtype
         veh = self.vehicle
-        front = jnp.asarray(veh.length - veh.rear_overhang if veh.reference == "rear_axle" else 0.5 * veh.length, f)
+        front = jnp.asarray(veh.front_offset, f)
         half_w = 0.5 * jnp.asarray(veh.width, f)
         obs = ctx.obstacles
         hdg = ref_state(scene.route, ctx.obstacle_s)[1]

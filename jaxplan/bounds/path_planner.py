@@ -362,8 +362,8 @@ def _plan(scene, ctx, config, ego):
     _, dl0, ddl0 = _ego_frenet(ref, s0, l0, jnp.asarray(ego.heading, f), jnp.asarray(ego.kappa, f))
     boxes, blocking = blocking_footprints(ctx.obstacles, config.static_speed, dt)
     left_e, right_e = corridor_edges(scene, config.opposite_lanes)
-    front = veh.length - veh.rear_overhang if veh.reference == "rear_axle" else 0.5 * veh.length
-    rear = -veh.rear_overhang if veh.reference == "rear_axle" else -0.5 * veh.length
+    front = veh.front_offset
+    rear = veh.rear_offset
     edge_l = jnp.minimum(jnp.minimum(_sample(scene, left_e, st), _sample(scene, left_e, st + front)),
                          _sample(scene, left_e, st + rear))
     edge_r = jnp.maximum(jnp.maximum(_sample(scene, right_e, st), _sample(scene, right_e, st + front)),

@@ -159,8 +159,8 @@ def box_separation_axes(center_a, axis_a, half_a, center_b, axis_b, half_b):
 def car_reach(vehicle, dtheta):
     """Lateral reach of the car's body left / right of its reference point at relative
     heading ``dtheta (...)``: ``(left, right)`` both ``>= 0``-ish, ``(...)`` each."""
-    front = vehicle.length - vehicle.rear_overhang if vehicle.reference == "rear_axle" else 0.5 * vehicle.length
-    rear = -vehicle.rear_overhang if vehicle.reference == "rear_axle" else -0.5 * vehicle.length
+    front = vehicle.front_offset
+    rear = vehicle.rear_offset
     hw = 0.5 * vehicle.width
     sn, cs = jnp.sin(dtheta), jnp.cos(dtheta)
     offs = jnp.stack([x * sn + y * cs for x in (front, rear) for y in (hw, -hw)], -1)

@@ -126,8 +126,7 @@ def _strip_extent(s, l, l_lo, l_hi):
 
 def car_extent(vehicle: VehicleParams, dtype=jnp.float32):
     """(front, rear): the car's front and rear ahead of its reference point (m; rear < 0)."""
-    off = jnp.asarray(vehicle.center_offset, dtype)
-    return off + 0.5 * jnp.asarray(vehicle.length, dtype), off - 0.5 * jnp.asarray(vehicle.length, dtype)
+    return jnp.asarray(vehicle.front_offset, dtype), jnp.asarray(vehicle.rear_offset, dtype)
 
 
 def curvature_margin(kappa, vehicle: VehicleParams):
