@@ -55,3 +55,31 @@ def test_lane_change_takes_its_length_even_on_a_short_lanelet(short, x_car):
     assert np.all(np.diff(xy[:, 0]) > 0)
     assert abs(np.interp(LANE_CHANGE_LENGTH / 2, xy[:, 0], xy[:, 1]) - 1.75) < 0.05
     assert np.max(np.abs(_curvature(xy))) < 1.1 * 6 * 3.5 / LANE_CHANGE_LENGTH ** 2
+
+
+def _chain(n: int, goal=True):
+    """Lanelets 1..n of 50 m each along x, each the successor of the one before; the car at x = 5;
+    the goal (when given) on lanelet 1 at x = 40."""
+    lanes = [_lane(i, 50.0 * (i - 1), 50.0 * i, 0.0, succ=[i + 1] if i < n else [], pred=[i - 1] if i > 1 else [])
+             for i in range(1, n + 1)]
+    problem = {"id": 1, "initial_state": {"position": [5.0, 0.0], "orientation": 0.0, "velocity": 5.0, "t": 0.0},
+               "goals": [{"rectangle": {"center": [40.0, 0.0], "length": 6.0, "width": 3.0, "orientation": 0.0},
+                          "time": [0.0, 20.0]} if goal else {"time": [0.0, 20.0]}]}
+    return parse_scenario({"id": "TEST_chain-1", "dt": 0.1, "lanelets": lanes, "obstacles": [],
+                           "planning_problems": [problem]}, "test")
+
+
+def test_route_end_is_the_dead_end_of_the_road_not_where_the_route_stops_walking():
+    """``Route.end_s`` is where the road ends (a lanelet without successor), ``inf`` where it goes on
+    past the lanelets the route took; a goal without a position walks the road further."""
+    short = plan_route(_chain(3))  # 150 m of road: it ends within the walk
+    assert short.lanelets == (1, 2, 3)
+    np.testing.assert_allclose(short.end_s - short.start_s, 145.0, atol=1e-6)
+    long = plan_route(_chain(12))  # 600 m: the walk stops while the road goes on
+    assert not np.isfinite(long.end_s) and len(long.lanelets) < 12
+    survival = plan_route(_chain(12, goal=False))
+    assert len(survival.lanelets) > len(long.lanelets) and not np.isfinite(survival.end_s)
+    from jaxplan.scenarios.scene import build_scene
+
+    assert not np.isfinite(float(build_scene(_chain(12))[0].route_end_s))
+    assert float(build_scene(_chain(3))[0].route_end_s) < 200.0

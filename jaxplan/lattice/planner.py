@@ -14,7 +14,9 @@ the far end of the goal region when its time window opens, no slower than reachi
 near end when the window closes (at most ``GOAL_SPEEDUP`` times the limit); and, once the
 goal region is within the plan's reach, inside the goal's speed range; never above the speed
 from which the car slows gently (``CURVE_DECEL``) to the route's curvature limit
-(``CURVE_LAT_ACC`` of the comfortable lateral acceleration) on the reach ahead.
+(``CURVE_LAT_ACC`` of the comfortable lateral acceleration) on the reach ahead, nor, without
+a goal region ahead, above the speed from which it stops as gently before a dead end of the
+road (``Scene.route_end_s``).
 
 ``ok`` is False when every candidate collides (mode RISK) or the plan is not finite (INVALID);
 ``info`` has the mode, the candidates the feasibility filter rejected and the target lane.
@@ -34,7 +36,7 @@ from jaxplan.lattice.candidates import LatticeConfig, PlanState
 from jaxplan.lattice.cost import INVALID, MODE_NAMES, RISK, CostWeights
 from jaxplan.lattice.plan import LatticeResult, _plan
 from jaxplan.lattice.targets import RoadTargets
-from jaxplan.plan_context import curve_speed, road_context, route_sample
+from jaxplan.plan_context import curve_speed, front_offset, road_context, route_sample
 from jaxplan.planner import EgoState, PlanOutput
 from jaxplan.types import VehicleParams
 
@@ -119,6 +121,12 @@ class LatticePlanner:
         v_set = goal_speed(ctx.v_set, s_centre, ctx.goal_s, ctx.goal_t, ctx.goal_v, reach)
         # no faster than the route's curves allow (slowing gently before them)
         v_set = jnp.minimum(v_set, curve_speed(scene, ctx.s, reach, CURVE_LAT_ACC * cfg.lat_acc_max, CURVE_DECEL))
+        # without a goal region ahead, no faster than the car can stop from, as gently, before a dead end
+        # of the road (where the mapped road ends: beyond it is off road)
+        d_end = ctx.route_end_s - (ctx.s + front_offset(self.vehicle, f))
+        no_goal_ahead = ~jnp.all(jnp.isfinite(ctx.goal_s)) | (ctx.goal_s[1] < s_centre)
+        v_end = jnp.sqrt(2.0 * CURVE_DECEL * jnp.maximum(jnp.where(jnp.isfinite(d_end), d_end, 0.0), 0.0))
+        v_set = jnp.where(no_goal_ahead & jnp.isfinite(d_end), jnp.minimum(v_set, v_end), v_set)
         state = PlanState(ego.x, ego.y, ego.heading, ego.kappa, ego.v, ego.a, v_set, jnp.inf)
         # the max_lanes lanes about the car's current one (every lane on a road up to that wide), read
         # LANE_LOOKAHEAD s ahead, where the lateral manoeuvres end: where the route blends into another

@@ -17,8 +17,9 @@ shorter; a line that changes lane in 30 m at 33 m/s asks for 25 m/s^2 of lateral
 acceleration from whoever follows it), from the start of the lanelet (or from the car's
 position on its first lanelet). Behind the start and past the last lanelet the line is
 extended (``BACK`` metres behind along predecessors or straight; ``AHEAD_MIN`` metres past
-the goal lanelet along successors, straight where the map ends), so that a planner's
-horizon never runs off it; ``Route.end_s`` says where the mapped lanelets end.
+the goal lanelet along successors, ``SURVIVAL_AHEAD`` from the start lanelet when the goal has
+no position, then ``AHEAD_MIN`` straight), so that a planner's horizon never runs off it;
+``Route.end_s`` says where the mapped road ends (a dead end), ``inf`` where it goes on.
 """
 from __future__ import annotations
 
@@ -35,6 +36,7 @@ LANE_CHANGE_LENGTH = 30.0  # metres over which the reference line moves to the n
 LANE_CHANGE_TIME = 4.0  # seconds at the start speed over which it moves
 BACK = 30.0  # metres of reference line behind the start
 AHEAD_MIN = 80.0  # metres of reference line past the route's last lanelet (successors first)
+SURVIVAL_AHEAD = 300.0  # metres of successors walked from the start lanelet when the goal has no position
 HEADING_OK = math.cos(math.radians(60.0))  # a lanelet fits a heading within 60 degrees
 
 
@@ -51,7 +53,9 @@ class Route:
         xy: ``(P, 2)`` reference polyline (dense: the lanelets' own vertices, blends resampled).
         owner: ``(P,)`` the route lanelet each vertex belongs to.
         start_s: arc length of the start's projection on the line.
-        end_s: arc length where the route's lanelets end (the line continues straight after).
+        end_s: arc length where the mapped road ends on the route: the route's last lanelet has no
+            successor there (the line continues straight after). ``inf`` when the road goes on
+            past the lanelets the route took (a dead end is a stop target, the walk's end is not).
         reaches_goal: False when no lanelet path to the goal exists (the route then follows
             successors from the start; the goal may still be reachable off the route).
     """
@@ -307,21 +311,27 @@ def plan_route(scenario) -> Route:
     reaches = path is not None or not _has_position(scenario.goal)
     if path is None:  # survival goal, or no path: straight ahead along successors
         path = [(starts[0], "start")]
-    # continue past the last lanelet along successors for AHEAD_MIN metres
+    # continue past the last lanelet along successors for AHEAD_MIN metres (SURVIVAL_AHEAD without a
+    # goal position: the drive goes wherever the road leads until its time is up)
     seen = {i for i, _ in path}
     ahead, cur = 0.0, path[-1][0]
-    while ahead < AHEAD_MIN:
+    want = AHEAD_MIN if _has_position(scenario.goal) else SURVIVAL_AHEAD
+    dead_end = False
+    while True:
         nxt = _straight_successor(by_id, cur, seen)
         if nxt is None:
+            dead_end = not any(q in by_id for q in by_id[cur].successors)
+            break
+        if ahead >= want:
             break
         path.append((nxt, "succ"))
         seen.add(nxt)
         ahead += _length(by_id[nxt].center)
         cur = nxt
-    return _build(scenario, by_id, path, start, reaches)
+    return _build(scenario, by_id, path, start, reaches, dead_end)
 
 
-def _build(scenario, by_id, path, start, reaches) -> Route:
+def _build(scenario, by_id, path, start, reaches, dead_end: bool = True) -> Route:
     # runs of successor lanelets; a run after a lane change starts beside the point where the
     # change starts (the car's position on the first lanelet, else the start of the lanelet left)
     runs = [(None, [])]
@@ -395,8 +405,8 @@ def _build(scenario, by_id, path, start, reaches) -> Route:
         owner = np.concatenate([np.full(len(ext), -1), owner])
         s = arc_length(xy)
         start_s += float(s[len(ext)])
-    end_s = float(s[-1])
-    ext = resample_polyline(xy, s, end_s + np.linspace(0.0, AHEAD_MIN, 9)[1:])
+    last = float(s[-1])
+    ext = resample_polyline(xy, s, last + np.linspace(0.0, AHEAD_MIN, 9)[1:])
     xy = np.concatenate([xy, ext])
     owner = np.concatenate([owner, np.full(len(ext), -1)])
-    return Route(tuple(i for i, _ in path), xy, owner, start_s, end_s, reaches)
+    return Route(tuple(i for i, _ in path), xy, owner, start_s, last if dead_end else float("inf"), reaches)

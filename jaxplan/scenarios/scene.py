@@ -12,7 +12,8 @@ vertices, ``K`` obstacles over ``T`` steps, ``G`` goal polygons of ``W`` vertice
 - ``route``: the ``ReferenceLine`` of the route (``R`` points, uniform spacing), from
   ``jaxplan.scenarios.route.plan_route``, smoothed within ``SceneConfig.route_max_dev`` so that
   its curvature is continuous (lanelet centre lines are kinked polylines); ``route_start_s``: the start's arc length on it;
-  ``route_end_s``: where the mapped lanelets end (the line continues straight after).
+  ``route_end_s``: where the mapped road ends on the route (a lanelet without successor; the line
+  continues straight after); ``inf`` where the road goes on past the line's end.
 - lanes beside the route, per route point: ``lane_offset (L, R)`` Frenet ``l`` of each lane's
   centre, ``lane_width (L, R)``, ``lane_valid (L, R)``, ``lane_same_dir (L, R)``; lane ``n`` is
   the route's own lane, ``n + k`` the ``k``-th to its left, ``n - k`` to its right.
@@ -482,7 +483,7 @@ def trim_route(route: Route, goal_polygons: list, config: SceneConfig) -> Route:
     i_hi = min(len(s) - 1, int(np.searchsorted(s, hi, side="right")) - 1)
     owner = np.concatenate([route.owner[i_lo:i_lo + 1], route.owner[keep], route.owner[i_hi:i_hi + 1]])
     return dataclasses.replace(route, xy=xy, owner=owner, start_s=route.start_s - lo,
-                               end_s=min(route.end_s, hi) - lo)
+                               end_s=route.end_s - lo if route.end_s <= hi else float("inf"))
 
 
 def _ref_numpy(xy: np.ndarray) -> ReferenceLine:
