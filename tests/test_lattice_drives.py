@@ -1,6 +1,6 @@
 """The lattice in closed loop: it keeps moving when nothing asks it to stop, starts from a queue
-when the leader leaves, leaves room to a vehicle closing in from behind, and yields at a
-T-junction before turning (one compiled drive for the synthetic scenes)."""
+when the leader leaves, stops before a dead end, leaves room to a vehicle closing in from behind,
+and yields at a T-junction before turning (one compiled drive for the synthetic scenes)."""
 import dataclasses
 import glob
 import os
@@ -39,6 +39,16 @@ def _empty_time_goal():
     return dataclasses.replace(_record(d), name="EMPTY")
 
 
+def _dead_end():
+    """The road ends 120 m ahead of the car (15 m/s) and the goal is only a time (survive until 14 s):
+    driving on leaves the road."""
+    d = _road_dict(v0=15.0)
+    for lane in d["lanelets"]:
+        lane["left"], lane["right"] = lane["left"][:76], lane["right"][:76]  # 150 m of road
+    d["planning_problems"][0]["goals"][0] = {"time": [14.0, 14.0]}
+    return dataclasses.replace(_record(d), name="DEADEND")
+
+
 def _closing_in():
     """A car 12 m behind (bumper to bumper about 7.5 m) at 20 m/s while the car drives 15 m/s on a
     two-lane road: keeping the speed gets it rear-ended within 1.5 s."""
@@ -61,7 +71,7 @@ def _tjunction():
 @pytest.fixture(scope="module")
 def drives():
     """Every scene in one batch: one compiled drive."""
-    recs = [_queue(), _empty_time_goal(), _closing_in()]
+    recs = [_queue(), _empty_time_goal(), _closing_in(), _dead_end()]
     tj = _tjunction()
     recs += [tj] if tj is not None else []
     batch = stack_scenes([r.scene for r in recs])
@@ -87,6 +97,12 @@ def test_does_not_brake_on_an_empty_road_with_a_time_only_goal(drives):
     assert m["goal.reached"] and not m["overlap.collided"] and not m["offroad.offroad"]
     assert m["comfort.min_accel"] > -1.0  # no braking without a reason
     assert log.v[int(log.end_step)] > 13.0
+
+
+def test_stops_before_a_dead_end_when_the_goal_is_only_a_time(drives):
+    log, m, _ = drives["DEADEND"]
+    assert m["goal.reached"] and not m["overlap.collided"] and not m["offroad.offroad"]
+    assert log.v[int(log.end_step)] < 0.5 and m["comfort.min_accel"] > -5.0  # stopped, within the comfortable limits
 
 
 def test_leaves_room_to_a_car_closing_in_from_behind(drives):

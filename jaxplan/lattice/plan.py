@@ -50,7 +50,8 @@ class LatticeResult:
         terminal_ok: ``(..., N)`` the end state can stop behind what is ahead (True when off).
         impact: ``(..., N)`` relative speed at first contact (m/s; 0 without contact).
         l_target: ``(...)`` the target lane's centre the lane decision took (m).
-        off_road: ``(..., N)`` the candidate's box leaves the road (``RoadTargets.road_edges``;
+        off_road: ``(..., N)`` the candidate's box leaves the road (``RoadTargets.road_edges``, or
+            its front passes ``RoadTargets.stop_s`` without a goal region ahead;
             counted in ``collided_margin``: taken only when nothing on the road is free).
         trajectory: the chosen candidate's ``Trajectory`` ``(..., T)``, built on its own
             (``candidates.candidate_trajectory``), so that a caller who keeps only it (and the
@@ -146,6 +147,13 @@ def _kinematics(cand: Candidates, ref, targets, config, v_set, t, stations_ok):
         out["off_road"] = leaves_road(ref, cand, targets.road_edges, veh)
     else:
         out["off_road"] = jnp.zeros(feasible.shape, bool)
+    # so does driving on past the stop point (a dead end of the road: beyond it is no road) unless a goal
+    # region lies ahead (the drive ends there; the map often ends just past it)
+    front = jnp.asarray(veh.front_offset, f)
+    goal_s = jnp.asarray(targets.goal_s, f)
+    goal_ahead = jnp.all(jnp.isfinite(goal_s)) & (goal_s[1] > cand.s[0, 0] + jnp.asarray(veh.center_offset, f))
+    past = jnp.max(cand.s, axis=-1) + front > jnp.asarray(targets.stop_s, f) + 0.1
+    out["off_road"] = out["off_road"] | (past & ~goal_ahead)
     return out
 
 
