@@ -283,7 +283,7 @@ def tune_files(paths, planner_name: str, out: str, scenes: int = 24, drive_steps
 
     The files (``expand_paths``) are split by location (``jaxplan.scenarios.files.split_of``, a
     rule fixed before any tuning) into training and validation; a seeded sample of ``scenes`` of
-    them (stratified by folder) is driven. Writes ``out`` (the tuned weights for ``jaxplan drive
+    them is driven, a quarter (at least 2) from the validation split, each part stratified by folder. Writes ``out`` (the tuned weights for ``jaxplan drive
     --weights``, with the figures as ``meta``), ``<out stem>.png`` (the loss curves and the
     baselines), ``<out stem>.ckpt.json`` (after every step).
 
@@ -308,14 +308,18 @@ def tune_files(paths, planner_name: str, out: str, scenes: int = 24, drive_steps
         raise ValueError(f"closed-loop tuning takes a planner whose drives are smooth in its params "
                          f"({', '.join(CLOSED_LOOP_PLANNERS)}), got {planner_name!r}")
     files = expand_paths(list(paths))
-    if len(files) > scenes:
-        files = sample_files(files, scenes, seed)
     split = {"train": [f for f in files if split_of(os.path.basename(f)) == "train"],
              "validation": [f for f in files if split_of(os.path.basename(f)) == "validation"]}
     for k, v in split.items():
         if not v:
             raise ValueError(f"--scenarios: no {k} scenes among the {len(files)} files (the split is by location: "
                              f"give files of more locations)")
+    # three quarters of the sample for training, a quarter (at least 2) for validation, each stratified by folder
+    n_val = min(len(split["validation"]), max(2, scenes // 4))
+    for k, n in (("train", max(1, scenes - n_val)), ("validation", n_val)):
+        if len(split[k]) > n:
+            split[k] = sample_files(split[k], n, seed)
+    files = split["train"] + split["validation"]
     enable_compilation_cache()
     loaded = load_many(files, progress=progress)
     for path, reason in loaded.errors:
