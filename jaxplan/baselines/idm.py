@@ -75,7 +75,11 @@ class IDMPlanner:
         p = IDMParams(**dict(values or {}))
         for k in ("time_gap", "min_gap", "a_max", "b_comf", "delta", "b_max"):
             v = getattr(p, k)
-            if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
+            try:
+                ok = math.isfinite(float(v)) and float(v) >= 0
+            except (TypeError, ValueError):
+                ok = False
+            if not ok:
                 raise ValueError(f"IDMParams.{k}: must be a finite number >= 0, got {v!r}")
         f = jnp.result_type(float)
         return jax.tree_util.tree_map(lambda x: jnp.asarray(x, f), p)

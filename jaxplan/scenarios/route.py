@@ -255,7 +255,7 @@ def _straight_successor(by_id, lid, seen):
     return best
 
 
-def blend_lane_change(before: np.ndarray, after: np.ndarray, length: float) -> np.ndarray:
+def blend_lane_change(before: np.ndarray, after: np.ndarray, length: float) -> tuple[np.ndarray, np.ndarray]:
     """The reference line of a lane change: ``after (Q, 2)``, the target lane's line from beside
     the last point of ``before (P, 2)`` on (across as many lanelets as it runs), moved sideways
     towards that point and blended back onto itself over its first ``length`` metres.
