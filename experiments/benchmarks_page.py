@@ -104,7 +104,7 @@ def collect(args) -> dict:
         out["peers"] = {"verdict": p.get("verdict", {}), "agreement": {
             k: {"agree": v["agree"], "judged": v["judged"], "disagreements": v["disagreements"]}
             for k, v in p.get("agreement", {}).items()}, "settings": p.get("settings", {}),
-            "scenarios": len(p.get("scenarios", {}))}
+            "scenarios": len(p.get("scenarios", {})), "caveat": args.peers_caveat}
     if args.bench:
         out["bench"] = _load(args.bench)
     return out
@@ -174,6 +174,8 @@ def render(d: dict) -> str:
                   "the CommonRoad reactive planner and Frenetix drive in jaxplan's harness (same route, re-plan period, "
                   "tracking, step cap, vehicle; the settings that differ are listed in the peers' report), and every "
                   "planner's drives are judged by the same verdict code.", ""]
+        if peers.get("caveat"):
+            lines += [peers["caveat"], ""]
         rows = {k: v["summary"] for k, v in peers["verdict"].items()}
         lines += _table(rows, "planner") + [""]
         ag = peers.get("agreement", {})
@@ -211,6 +213,8 @@ def main(argv=None) -> int:
     ap.add_argument("--sample")
     ap.add_argument("--combo", nargs="*")
     ap.add_argument("--peers")
+    ap.add_argument("--peers-caveat", help="a sentence printed under the peers' table's introduction (e.g. where "
+                                           "their drives come from an earlier run)")
     ap.add_argument("--bench")
     ap.add_argument("--json", default="docs/benchmarks.json")
     ap.add_argument("--out", default="docs/benchmarks.md")
