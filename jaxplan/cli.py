@@ -60,15 +60,16 @@ def parser() -> argparse.ArgumentParser:
     t.add_argument("--closed-loop", action="store_true",
                    help="tune by gradient (optax) through closed-loop drives of --scenarios, split by location, with "
                         "random search and CMA-ES in the same number of drives (lattice, idm)")
-    t.add_argument("--scenes", type=ca.positive_int, default=24, help="--closed-loop: scenes sampled (default 24)")
-    t.add_argument("--drive-steps", type=ca.positive_int, default=80,
+    t.add_argument("--scenes", type=ca.positive_int, help="--closed-loop: scenes sampled (default 24)")
+    t.add_argument("--drive-steps", type=ca.positive_int,
                    help="--closed-loop: steps of each drive, 0.1 s each (default 80)")
-    t.add_argument("--batch", type=ca.positive_int, default=8, help="--closed-loop: training scenes per step")
-    t.add_argument("--temperature", type=ca.positive_float, default=1.0,
+    t.add_argument("--batch", type=ca.positive_int, help="--closed-loop: training scenes per step (default 8)")
+    t.add_argument("--temperature", type=ca.positive_float,
                    help="--closed-loop: the lattice's soft-selection temperature (cost units, default 1)")
     t.add_argument("--out", type=ca.output_file, default="weights.json",
                    help="weights file to write (default: weights.json)")
-    t.add_argument("--steps", type=ca.positive_int, help="optimiser steps (default: 800 lattice on recorded scenarios, 400 synthetic; 40 speed)")
+    t.add_argument("--steps", type=ca.positive_int, help="optimiser steps (default: 800 lattice on recorded scenarios, 400 synthetic; 40 speed; "
+                        "20 with --closed-loop)")
     t.add_argument("--seed", type=ca.nonnegative_int, default=0)
     r = sub.add_parser("report", help="write RESULTS_DIR/report.md from its metrics and plots")
     r.add_argument("results_dir", type=ca.existing_dir)
@@ -126,15 +127,19 @@ def _tune(args) -> int:
             raise ValueError("--closed-loop: give --scenarios (files or a folder of them)")
         from jaxplan.tuning.closed_loop import tune_files
 
-        figures = tune_files([args.scenarios], args.planner, args.out, scenes=args.scenes,
-                             drive_steps=args.drive_steps, steps=args.steps or 20, batch=args.batch,
-                             temperature=args.temperature, seed=args.seed)
+        figures = tune_files([args.scenarios], args.planner, args.out, scenes=args.scenes or 24,
+                             drive_steps=args.drive_steps or 80, steps=args.steps or 20, batch=args.batch or 8,
+                             temperature=args.temperature or 1.0, seed=args.seed)
         json.dump(figures, sys.stdout, indent=1, sort_keys=True)
         print(f"\nwrote {args.out} (`jaxplan drive --weights {args.out}` drives them) and "
               f"{os.path.splitext(args.out)[0]}.png")
         return 0
     if args.planner == "idm":
         raise ValueError("tune idm: only with --closed-loop (demonstrations tune lattice and speed)")
+    given = [f"--{k.replace('_', '-')}" for k in ("scenes", "drive_steps", "batch", "temperature")
+             if getattr(args, k) is not None]
+    if given:
+        raise ValueError(f"{', '.join(given)}: only with --closed-loop")
     if args.scenarios:
         ca.scenario_dir(args.scenarios)
 
