@@ -45,26 +45,25 @@ def parse(parser: argparse.ArgumentParser, argv, prog: str = "jaxplan"):
         return None, int(e.code or 0)
 
 
+def _number(text, cast, ok, what: str):
+    """``cast(text)`` when it parses and ``ok`` holds for it, else ``BadArgument("must be <what>")``."""
+    try:
+        v = cast(text)
+    except (TypeError, ValueError):
+        raise BadArgument(f"must be {what}, got {text!r}") from None
+    if not ok(v):
+        raise BadArgument(f"must be {what}, got {text!r}")
+    return v
+
+
 def positive_int(text) -> int:
     """An integer >= 1."""
-    try:
-        v = int(text)
-    except (TypeError, ValueError):
-        raise BadArgument(f"must be a positive integer, got {text!r}") from None
-    if v < 1:
-        raise BadArgument(f"must be a positive integer, got {text!r}")
-    return v
+    return _number(text, int, lambda v: v >= 1, "a positive integer")
 
 
 def nonnegative_int(text) -> int:
     """An integer >= 0."""
-    try:
-        v = int(text)
-    except (TypeError, ValueError):
-        raise BadArgument(f"must be an integer >= 0, got {text!r}") from None
-    if v < 0:
-        raise BadArgument(f"must be an integer >= 0, got {text!r}")
-    return v
+    return _number(text, int, lambda v: v >= 0, "an integer >= 0")
 
 
 def existing_file(text) -> str:
@@ -81,13 +80,7 @@ def existing_file(text) -> str:
 
 def positive_float(text) -> float:
     """A finite number > 0."""
-    try:
-        v = float(text)
-    except (TypeError, ValueError):
-        raise BadArgument(f"must be a positive number, got {text!r}") from None
-    if not (v > 0 and v < float("inf")):
-        raise BadArgument(f"must be a positive number, got {text!r}")
-    return v
+    return _number(text, float, lambda v: 0 < v < float("inf"), "a positive number")
 
 
 def existing_path(text) -> str:

@@ -134,6 +134,17 @@ def check_weights(weights) -> None:
             raise ValueError(f"{cls}.{f.name}: must be >= 0, got {v!r}")
 
 
+def weights_from(cls, values=None):
+    """A weights dataclass pytree ``cls`` with ``values`` (``{field: value}``; the defaults for the
+    fields not named, an unknown name a ``TypeError`` naming it) in its fields, checked
+    (``check_weights``) and each field a float array of the default float dtype: a planner's
+    ``init_params``."""
+    w = cls(**dict(values or {}))
+    check_weights(w)
+    f = jnp.result_type(float)
+    return jax.tree_util.tree_map(lambda x: jnp.asarray(x, f), w)
+
+
 def is_concrete(*xs) -> bool:
     """True when none of ``xs`` is a JAX tracer (so host-side checks can run)."""
     return not any(isinstance(x, jax.core.Tracer) for x in jax.tree_util.tree_leaves(xs))

@@ -8,11 +8,9 @@ one (``jaxplan.models.idm``) with this planner's parameters (``IDMParams``).
 from __future__ import annotations
 
 import dataclasses
-import math
 from collections.abc import Mapping
 from typing import Any
 
-import jax
 import jax.numpy as jnp
 from jax import lax
 
@@ -22,7 +20,7 @@ from jaxplan.geometry.frenet import ref_state
 from jaxplan.models.idm import idm_accel as idm_model
 from jaxplan.plan_context import NO_LEADER, road_context
 from jaxplan.planner import EgoState, PlanOutput
-from jaxplan.types import VehicleParams, _pytree
+from jaxplan.types import VehicleParams, _pytree, weights_from
 
 
 @_pytree(data_fields=("time_gap", "min_gap", "a_max", "b_comf", "delta", "b_max"))
@@ -71,18 +69,8 @@ class IDMPlanner:
 
     def init_params(self, values: Mapping | None = None) -> IDMParams:
         """``IDMParams`` as float arrays: the defaults, with ``values`` (``{field: value}``) in their
-        place (an unknown name is a ``TypeError`` naming it)."""
-        p = IDMParams(**dict(values or {}))
-        for k in ("time_gap", "min_gap", "a_max", "b_comf", "delta", "b_max"):
-            v = getattr(p, k)
-            try:
-                ok = math.isfinite(float(v)) and float(v) >= 0
-            except (TypeError, ValueError):
-                ok = False
-            if not ok:
-                raise ValueError(f"IDMParams.{k}: must be a finite number >= 0, got {v!r}")
-        f = jnp.result_type(float)
-        return jax.tree_util.tree_map(lambda x: jnp.asarray(x, f), p)
+        place (``jaxplan.types.weights_from``)."""
+        return weights_from(IDMParams, values)
 
     def plan(self, params: IDMParams, scene, ego: EgoState, step) -> PlanOutput:
         H = self.horizon_steps

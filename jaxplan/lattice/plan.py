@@ -18,7 +18,8 @@ from jaxplan.lattice.feasibility import feasibility, usable, violation
 from jaxplan.lattice.risk import (BIG, Risk, align_obstacles, car_parts, first_contact, inflate, min_separation_axes,
                                   min_separation_broad, min_separation_pair, min_separation_topk,
                                   risk_from_separation)
-from jaxplan.lattice.targets import RoadTargets, extents, lane_leader, obstacle_frenet, speed_along
+from jaxplan.lattice.targets import (RoadTargets, extents, goal_region_ahead, lane_leader, obstacle_frenet,
+                                     speed_along)
 from jaxplan.compile_options import NO_YNN, jit
 from jaxplan.geometry.boxes import car_reach
 from jaxplan.types import Obstacles, _pytree, is_concrete
@@ -149,10 +150,8 @@ def _kinematics(cand: Candidates, ref, targets, config, v_set, t, stations_ok):
         out["off_road"] = jnp.zeros(feasible.shape, bool)
     # so does driving on past the stop point (a dead end of the road: beyond it is no road) unless a goal
     # region lies ahead (the drive ends there; the map often ends just past it)
-    front = jnp.asarray(veh.front_offset, f)
-    goal_s = jnp.asarray(targets.goal_s, f)
-    goal_ahead = jnp.all(jnp.isfinite(goal_s)) & (goal_s[1] > cand.s[0, 0] + jnp.asarray(veh.center_offset, f))
-    past = jnp.max(cand.s, axis=-1) + front > jnp.asarray(targets.stop_s, f) + 0.1
+    goal_ahead = goal_region_ahead(jnp.asarray(targets.goal_s, f), cand.s[0, 0] + jnp.asarray(veh.center_offset, f))
+    past = jnp.max(cand.s, axis=-1) + jnp.asarray(veh.front_offset, f) > jnp.asarray(targets.stop_s, f) + 0.1
     out["off_road"] = out["off_road"] | (past & ~goal_ahead)
     return out
 
@@ -222,18 +221,16 @@ def _plan(state: PlanState, ref: ReferenceLine, obstacles: Obstacles, config: La
                             avail & kin["emergency_ok"] & ~off_road)
     mode = jnp.where(jnp.any(avail), mode, INVALID)
     ok_plan = jnp.take(finite, idx)
+    chosen_traj = candidate_trajectory(parts, idx)
     if config.select_temperature > 0:  # the smooth selection: the softmin-weighted mean candidate
         w_soft = soft_choice(sel, idx, config.select_temperature)
         use_w = (w_soft > 0)[:, None]
-        exact = candidate_trajectory(parts, idx)
         mean = lambda a: jnp.sum(jnp.where(use_w, w_soft[:, None] * a, 0.0), axis=0)  # noqa: E731
         # headings averaged about the exact choice's (no wrap at +-pi)
-        theta = exact.theta + mean(wrap_angle(cand.traj.theta - exact.theta))
-        chosen_traj = dataclasses.replace(exact, x=mean(cand.traj.x), y=mean(cand.traj.y), theta=theta,
+        theta = chosen_traj.theta + mean(wrap_angle(cand.traj.theta - chosen_traj.theta))
+        chosen_traj = dataclasses.replace(chosen_traj, x=mean(cand.traj.x), y=mean(cand.traj.y), theta=theta,
                                           kappa=mean(cand.traj.kappa), v=mean(cand.traj.v), a=mean(cand.traj.a),
                                           s=mean(cand.traj.s))
-    else:
-        chosen_traj = candidate_trajectory(parts, idx)
     if not keep_candidates:  # the per-candidate figures and the choice, not every trajectory
         cand = dataclasses.replace(cand, traj=None, axis=None, s=None, l=None, dl=None, s_rel=None)
         sep = None

@@ -27,7 +27,6 @@ import dataclasses
 from collections.abc import Mapping
 from typing import ClassVar
 
-import jax
 import jax.numpy as jnp
 
 from jaxplan.baselines.brake import SIM_VEHICLE
@@ -35,10 +34,10 @@ from jaxplan.compile_options import NO_YNN
 from jaxplan.lattice.candidates import LatticeConfig, PlanState
 from jaxplan.lattice.cost import INVALID, MODE_NAMES, RISK, CostWeights
 from jaxplan.lattice.plan import LatticeResult, _plan
-from jaxplan.lattice.targets import RoadTargets
+from jaxplan.lattice.targets import RoadTargets, goal_region_ahead
 from jaxplan.plan_context import curve_speed, front_offset, road_context, route_sample
 from jaxplan.planner import EgoState, PlanOutput
-from jaxplan.types import VehicleParams
+from jaxplan.types import VehicleParams, weights_from
 
 GOAL_SPEEDUP = 1.2
 
@@ -106,9 +105,7 @@ class LatticePlanner:
     def init_params(self, weights: Mapping | None = None) -> CostWeights:
         """The cost weights as a pytree of float arrays: the defaults, with the values of
         ``weights`` (``{field: value}``, e.g. a ``jaxplan tune`` file's) in their place."""
-        w = CostWeights(**dict(weights or {})).validate()
-        f = jnp.result_type(float)
-        return jax.tree_util.tree_map(lambda x: jnp.asarray(x, f), w)
+        return weights_from(CostWeights, weights)
 
     def plan_result(self, params: CostWeights, scene, ego: EgoState, step) -> LatticeResult:
         """The whole ``LatticeResult`` of one plan (every candidate, why each was rejected, the
@@ -124,7 +121,7 @@ class LatticePlanner:
         # without a goal region ahead, no faster than the car can stop from, as gently, before a dead end
         # of the road (where the mapped road ends: beyond it is off road)
         d_end = ctx.route_end_s - (ctx.s + front_offset(self.vehicle, f))
-        no_goal_ahead = ~jnp.all(jnp.isfinite(ctx.goal_s)) | (ctx.goal_s[1] < s_centre)
+        no_goal_ahead = ~goal_region_ahead(ctx.goal_s, s_centre)
         v_end = jnp.sqrt(2.0 * CURVE_DECEL * jnp.maximum(jnp.where(jnp.isfinite(d_end), d_end, 0.0), 0.0))
         v_set = jnp.where(no_goal_ahead & jnp.isfinite(d_end), jnp.minimum(v_set, v_end), v_set)
         state = PlanState(ego.x, ego.y, ego.heading, ego.kappa, ego.v, ego.a, v_set, jnp.inf)

@@ -368,7 +368,7 @@ def drive(records, planners: list, out: str, config: SimConfig, animate: bool = 
     opts = planner_options or {}
     made = {name: make_planner(name, **opts.get(name, {})) for name in planners}
     values = planner_params or {}
-    params = {name: p.init_params(values[name]) if name in values else p.init_params() for name, p in made.items()}
+    params = {name: p.init_params(values.get(name)) for name, p in made.items()}
     for p in made.values():
         config.validate(p)
     settings = run_settings(planners, config, opts, run_info, values)

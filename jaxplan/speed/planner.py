@@ -45,7 +45,7 @@ from jaxplan.speed.compose import compose_profile
 from jaxplan.speed.dp import CostWeights, SpeedConfig, SpeedRoad, _plan_one
 from jaxplan.speed.st_boundary import car_extent
 from jaxplan.speed.smooth import SmoothWeights, smooth_plan
-from jaxplan.types import Obstacles, VehicleParams, _pytree
+from jaxplan.types import Obstacles, VehicleParams, _pytree, weights_from
 
 
 @_pytree(data_fields=("s", "xy", "theta", "kappa", "l", "route_s", "valid", "blocked_s", "ok"))
@@ -262,9 +262,7 @@ class PathSpeedPlanner:
     def init_params(self, weights: Mapping | None = None) -> CostWeights:
         """The speed DP's ``CostWeights`` as a pytree of float arrays: the defaults, with the values
         of ``weights`` (``{field: value}``) in their place (``v_cruise`` is set every cycle)."""
-        w = CostWeights(**dict(weights or {})).validate()
-        f = jnp.result_type(float)
-        return jax.tree_util.tree_map(lambda x: jnp.asarray(x, f), w)
+        return weights_from(CostWeights, weights)
 
     def cost_weights(self, params: CostWeights, v_cruise) -> CostWeights:
         """``params`` for one cycle: ``v_cruise`` set, the non-blocking weights zero without them."""
