@@ -331,12 +331,43 @@ def test_margins_a_car_closing_in_from_behind_and_terminal_condition():
         assert 150 - 2.25 - CFG.buffer_lon - end >= v_end ** 2 / (2 * CFG.terminal_decel) + CFG.terminal_gap - 1e-3
 
 
-def test_road_edge_check_matches_shapely(rng):
+def test_a_plan_keeps_its_margin_from_the_road_edge():
+    """A left road edge that leaves the car's box 0.15 m at its lane's centre (inside
+    ``edge_margin``, still on the road) and the car 0.3 m right of that centre: candidates that
+    go to the centre count as touching a buffer, and the chosen plan keeps the margin; a car
+    already inside the margin may stay there (the candidates that hold its offset do not count)."""
+    ref = straight_ref()
+    R = ref.s.shape[0]
+    half = 0.5 * CFG.vehicle.width
+    edge = half + 0.15
+    edges = np.stack([np.full(R, edge), np.full(R, -5.0)], -1)
+    assert 0.15 < CFG.edge_margin
+    res = plan_cfg(PlanState.make(0.0, -0.3, 0.0, 15.0, v_set=15.0), ref, obstacles([]), road_edges=edges)
+    l_end = np.asarray(res.candidates.l)[:, -1]
+    centre = np.abs(l_end) < 1e-3
+    assert centre.any() and np.asarray(res.collided_margin)[centre].all()
+    assert not np.asarray(res.off_road)[centre].any()  # on the road, only inside the margin
+    i = int(res.chosen)
+    assert not bool(res.collided_margin[i]) and int(res.mode) == FREE
+    assert float(np.max(np.asarray(res.candidates.l)[i])) < edge - half - CFG.edge_margin + 1e-3
+    # already inside the margin (at the centre): holding the lane is no violation
+    res = plan_cfg(PlanState.make(0.0, 0.0, 0.0, 15.0, v_set=15.0), ref, obstacles([]), road_edges=edges)
+    straight = np.asarray(res.candidates.kind == 0) & (np.abs(np.asarray(res.candidates.l)).max(-1) < 1e-3)
+    assert straight.any() and not np.asarray(res.collided_margin)[straight].any()
+    assert int(res.mode) == FREE
+
+
+@pytest.mark.parametrize("margin", [False, True], ids=["edge", "edge_margin"])
+def test_road_edge_check_matches_shapely(rng, margin):
     """``leaves_road`` against shapely on a straight line (where its lateral reach is exact):
-    the car's box at random offsets and headings, the corridor's edges random per point."""
+    the car's box at random offsets and headings, the corridor's edges random per point; at the
+    plain edge (``ROAD_TOL`` past it) and at the road lattice's ``edge_margin`` inside it."""
     from shapely.geometry import Polygon, box as sbox
 
     from jaxplan.lattice.plan import ROAD_TOL, leaves_road
+
+    tol = -LatticeConfig.road().edge_margin if margin else ROAD_TOL
+    assert not margin or tol < 0
 
     ref = straight_ref()
     veh = CFG.vehicle
@@ -354,8 +385,8 @@ def test_road_edge_check_matches_shapely(rng):
 
     c = Cand()
     c.s, c.l, c.dl = jnp.asarray(s), jnp.asarray(l), jnp.asarray(dl)
-    got = np.asarray(leaves_road(ref, c, edges, veh))
-    strip = sbox(-1e4, right - ROAD_TOL, 1e4, left + ROAD_TOL).buffer(1e-4)
+    got = np.asarray(leaves_road(ref, c, edges, veh, tol))
+    strip = sbox(-1e4, right - tol, 1e4, left + tol).buffer(1e-4)
     d = np.arctan(dl)
     cy = l + veh.center_offset * np.sin(d)
     boxes = np.stack([s + veh.center_offset * np.cos(d), cy, np.full_like(s, veh.length), np.full_like(s, veh.width), d], -1)
@@ -363,7 +394,7 @@ def test_road_edge_check_matches_shapely(rng):
     want = np.array([any(not strip.contains(Polygon(corners[i, k])) for k in range(T_)) for i in range(n)])
     # poses within 1 mm of an edge: float32 may go either way
     reach = 0.5 * veh.width * np.abs(np.cos(d)) + 0.5 * veh.length * np.abs(np.sin(d))
-    near = (np.minimum(np.abs(cy + reach - left - ROAD_TOL), np.abs(cy - reach - right + ROAD_TOL)) < 1e-3).any(-1)
+    near = (np.minimum(np.abs(cy + reach - left - tol), np.abs(cy - reach - right + tol)) < 1e-3).any(-1)
     assert 0.2 < want.mean() < 0.9  # both outcomes are well represented
     assert np.all(got[~near] == want[~near])
 

@@ -92,6 +92,9 @@ class LatticeConfig:
     Safety:
         buffer_lon, buffer_lat: obstacles are inflated by these (m) along and across their
             heading for the "free" test (``collided`` stays the plain overlap).
+        edge_margin: the road's edges are moved in by this (m) for the same test: a candidate
+            whose box comes closer to an edge is taken only when none keeps the margin (beyond
+            the edge it leaves the road, ``plan.leaves_road``).
         terminal: the end state must be able to stop behind whatever is ahead in its corridor,
             decelerating at ``terminal_decel`` (m/s^2) with ``terminal_gap`` (m) left, the
             obstacle braking as hard.
@@ -163,6 +166,7 @@ class LatticeConfig:
     emergency_lat_acc_max: float = 6.0
     buffer_lon: float = 0.0
     buffer_lat: float = 0.0
+    edge_margin: float = 0.0
     terminal: bool = False
     terminal_decel: float = 6.0
     terminal_gap: float = 1.0
@@ -225,7 +229,7 @@ class LatticeConfig:
         (the road planner gives the lanes' offsets in ``RoadTargets``, ``max_lanes`` of them)."""
         base = dict(modes=("follow", "stop", "goal"), emergency=True, fallback=True,
                     lateral_times=(2.0, 3.0, 4.5), hold_offset=True, goal_offset=True, lanes=(-2, -1, 0, 1, 2),
-                    n_offsets=3, offset_span=0.6, buffer_lon=1.0, buffer_lat=0.3, terminal=True,
+                    n_offsets=3, offset_span=0.6, buffer_lon=1.0, buffer_lat=0.3, edge_margin=0.25, terminal=True,
                     near_budget=0.0, near_k=6, d_threshold=150.0)
         base.update(overrides)
         return cls(**base)
@@ -263,7 +267,7 @@ class LatticeConfig:
         if not (lo < 0 < hi) or self.lon_jerk_max <= 0 or self.lat_acc_max <= 0 or self.kappa_max < 0:
             raise ValueError("LatticeConfig: need lon_acc_limits (lo < 0 < hi), positive jerk, lateral "
                              "acceleration limits and kappa_max >= 0")
-        if self.buffer_lon < 0 or self.buffer_lat < 0 or self.terminal_decel <= 0 or self.near_k < 0:
+        if min(self.buffer_lon, self.buffer_lat, self.edge_margin) < 0 or self.terminal_decel <= 0 or self.near_k < 0:
             raise ValueError("LatticeConfig: buffers and near_k must be >= 0, terminal_decel > 0")
         self.vehicle.validate()
         return self

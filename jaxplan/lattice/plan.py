@@ -144,15 +144,18 @@ def _kinematics(cand: Candidates, ref, targets, config, v_set, t, stations_ok):
                                targets.goal_v, jnp.asarray(veh.center_offset, f), config.goal_weight_time),
                finite=jnp.isfinite(total) & stations_ok,
                s_end=cand.s[:, -1], l_end=cand.l[:, -1], v_last=tr.v[:, -1], s_rel_end=cand.s_rel[:, -1])
-    if targets.road_edges is not None:  # leaving the road counts as touching an obstacle's buffer
+    if targets.road_edges is not None:  # coming within edge_margin of the road's edge counts as touching an
+        # obstacle's buffer; leaving the road as touching it
         out["off_road"] = leaves_road(ref, cand, targets.road_edges, veh)
+        out["near_edge"] = enters_edge_margin(ref, cand, targets.road_edges, veh, config.edge_margin)
     else:
-        out["off_road"] = jnp.zeros(feasible.shape, bool)
+        out["off_road"] = out["near_edge"] = jnp.zeros(feasible.shape, bool)
     # so does driving on past the stop point (a dead end of the road: beyond it is no road) unless a goal
     # region lies ahead (the drive ends there; the map often ends just past it)
     goal_ahead = goal_region_ahead(jnp.asarray(targets.goal_s, f), cand.s[0, 0] + jnp.asarray(veh.center_offset, f))
     past = jnp.max(cand.s, axis=-1) + jnp.asarray(veh.front_offset, f) > jnp.asarray(targets.stop_s, f) + 0.1
     out["off_road"] = out["off_road"] | (past & ~goal_ahead)
+    out["near_edge"] = out["near_edge"] | out["off_road"]
     return out
 
 
@@ -192,7 +195,7 @@ def _plan(state: PlanState, ref: ReferenceLine, obstacles: Obstacles, config: La
         # again inside the branch (so that without it no candidate's trajectory is written out)
         hits = jax.lax.cond(jnp.any(obs.valid), lambda: _collisions(generate_from(parts, config), obs, t, config),
                             lambda: _no_collisions(cand.level.shape[0], T, f))
-    sep, risk, collided_m = hits["sep"], hits["risk"], hits["collided_margin"] | kin["off_road"]
+    sep, risk, collided_m = hits["sep"], hits["risk"], hits["collided_margin"] | kin["near_edge"]
     first_t, impact = hits["first_t"], hits["impact"]
     off_road = kin["off_road"]
     feasible, reasons = kin["feasible"], kin["reasons"]
@@ -281,11 +284,12 @@ def _no_collisions(N: int, T: int, f) -> dict:
 
 
 ROAD_TOL = 0.1  # m: a candidate's box may reach this far past a road edge (map seams, edge sampling)
+MARGIN_TOL = 0.01  # m: how much closer to an edge than the car is now a candidate inside the margin may come
 
 
-def leaves_road(ref, cand, road_edges, vehicle):
-    """``(N,)``: some sample of the candidate's box reaches more than ``ROAD_TOL`` past the
-    road's left or right edge (``road_edges (R, 2)`` at ``ref``'s points, interpolated in s).
+def edge_clearance(ref, cand, road_edges, vehicle):
+    """``(N, T)`` twice: how far (m) each sample of the candidate's box stays inside the road's left
+    and right edge (negative: past it); ``road_edges (R, 2)`` at ``ref``'s points, interpolated in s.
 
     The body's lateral reach is ``geometry.car_reach`` at the heading relative to the line
     (``atan(dl/ds)``, the line's curvature neglected).
@@ -297,8 +301,24 @@ def leaves_road(ref, cand, road_edges, vehicle):
     left = jnp.interp(cand.s, ref.s, road_edges[:, 0].astype(f))
     right = jnp.interp(cand.s, ref.s, road_edges[:, 1].astype(f))
     reach_l, reach_r = car_reach(vehicle, jnp.arctan(cand.dl))
-    out = (cand.l + reach_l > left + ROAD_TOL) | (cand.l - reach_r < right - ROAD_TOL)
-    return jnp.any(out, axis=-1)
+    return left - (cand.l + reach_l), (cand.l - reach_r) - right
+
+
+def leaves_road(ref, cand, road_edges, vehicle, tol=ROAD_TOL):
+    """``(N,)``: some sample of the candidate's box reaches more than ``tol`` (m) past the road's
+    left or right edge (``edge_clearance``)."""
+    cl, cr = edge_clearance(ref, cand, road_edges, vehicle)
+    return jnp.any((cl < -tol) | (cr < -tol), axis=-1)
+
+
+def enters_edge_margin(ref, cand, road_edges, vehicle, margin):
+    """``(N,)``: some sample of the candidate's box comes closer than ``margin`` (m) to the road's
+    left or right edge, and closer than the car is now (``edge_clearance`` at the first sample): a
+    car already inside the margin may stay there or move away, not closer."""
+    cl, cr = edge_clearance(ref, cand, road_edges, vehicle)
+    lim_l = jnp.minimum(margin, cl[:, :1]) - MARGIN_TOL
+    lim_r = jnp.minimum(margin, cr[:, :1]) - MARGIN_TOL
+    return jnp.any((cl < lim_l) | (cr < lim_r), axis=-1)
 
 
 def _terminal(ref, s_e, l_e, v_e, obs, sl, ext, v_along, front, half_w, config):
