@@ -10,7 +10,9 @@ Reads what the runs wrote and nothing else:
   ``--agents`` / ``--prediction`` settings (their ``metrics.json``);
 - ``--peers DIR``: ``experiments/compare_peers.py``'s output (``compare_peers.json``: the peers and
   jaxplan's planners on the same sample, judged by jaxplan's verdict and by the referee);
-- ``--bench FILE``: ``experiments/bench_drive.py``'s JSON (cold, warm and single-file timings).
+- ``--bench FILE``: ``experiments/bench_drive.py``'s JSON (cold, warm and single-file timings);
+- ``--brake DIR``: a ``jaxplan drive --planner brake`` folder over the ``--dev`` scenes: the scenes
+  where braking in lane from t = 0 touches nothing, and every ``--dev`` planner's collisions there.
 
 Writes ``--json`` (the figures the page shows, so the page can be made again) and ``--out``.
 
@@ -88,11 +90,37 @@ def _split_summary(folder: str) -> dict:
     return out
 
 
+def _rows(folder: str) -> list:
+    with open(os.path.join(folder, "rows.jsonl")) as f:
+        return [json.loads(line) for line in f]
+
+
+def _brake_survivable(dev: str, brake: str) -> dict:
+    """The scenes of ``brake``'s drives without a collision, and per planner of ``dev`` its drives,
+    successes, collisions and at-fault collisions on them."""
+    safe = {r["scenario"] for r in _rows(brake) if r["planner"] == "brake" and not r["overlap.collided"]}
+    out: dict = {"brake_drives": sum(r["planner"] == "brake" for r in _rows(brake)), "survivable": len(safe),
+                 "planners": {}}
+    for r in _rows(dev):
+        if r["scenario"] in safe:
+            p = out["planners"].setdefault(r["planner"], {"scenes": 0, "success": 0, "collisions": 0, "at_fault": 0,
+                                                          "at_fault_scenarios": []})
+            p["scenes"] += 1
+            p["success"] += bool(r["success"])
+            p["collisions"] += bool(r["overlap.collided"])
+            if r["overlap.at_fault"]:
+                p["at_fault"] += 1
+                p["at_fault_scenarios"].append(r["scenario"])
+    return out
+
+
 def collect(args) -> dict:
     out: dict = {}
     if args.dev:
         out["dev"] = _drive_summary(args.dev)
         out["dev"]["by_split"] = _split_summary(args.dev)
+        if args.brake:
+            out["dev"]["brake_survivable"] = _brake_survivable(args.dev, args.brake)
     if args.sample:
         out["sample"] = _drive_summary(args.sample)
     out["combos"] = {}
@@ -132,6 +160,15 @@ def render(d: dict) -> str:
                 lines += [f"Per part of the location split (`jaxplan.scenarios.files.split_of`: whole locations held "
                           f"out as validation by a salted hash of the location's name), `{p}`:", ""]
                 lines += _table(dev["by_split"][p], "part") + [""]
+        bs = dev.get("brake_survivable")
+        if bs:
+            lines += [f"Scenes where braking in lane from t = 0 (`--planner brake`, the same settings) touches nothing: "
+                      f"{bs['survivable']} of {bs['brake_drives']} (in the others the recorded traffic, which does not "
+                      "react, runs into a braking car). Each planner's drives on those scenes:", "",
+                      "| planner | scenes | success | collisions | at fault | at fault in |", "| --- | --- | --- | --- | --- | --- |"]
+            lines += [f"| {p} | {v['scenes']} | {v['success'] / max(v['scenes'], 1):.1%} | {v['collisions']} | "
+                      f"{v['at_fault']} | {', '.join(v['at_fault_scenarios']) or '-'} |" for p, v in bs["planners"].items()]
+            lines.append("")
         t = dev.get("timing", {})
         if t and t.get("drives"):
             lines += [f"Wall time of that run ({', '.join(dev['planners'])}, one after another): {t.get('wall_s', 0):.0f} s "
@@ -216,6 +253,7 @@ def main(argv=None) -> int:
     ap.add_argument("--peers-caveat", help="a sentence printed under the peers' table's introduction (e.g. where "
                                            "their drives come from an earlier run)")
     ap.add_argument("--bench")
+    ap.add_argument("--brake", help="a jaxplan drive --planner brake folder over the --dev scenes")
     ap.add_argument("--json", default="docs/benchmarks.json")
     ap.add_argument("--out", default="docs/benchmarks.md")
     ap.add_argument("--from-json", action="store_true", help="render --out from --json alone (no runs needed)")

@@ -1,0 +1,42 @@
+"""The benchmarks page counts each planner's drives on the scenes plain braking survives."""
+import importlib.util
+import json
+import os
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+
+
+def _page():
+    spec = importlib.util.spec_from_file_location("benchmarks_page", os.path.join(ROOT, "experiments",
+                                                                                "benchmarks_page.py"))
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def _write(folder, rows):
+    os.makedirs(folder)
+    with open(os.path.join(folder, "rows.jsonl"), "w") as f:
+        for r in rows:
+            f.write(json.dumps(r) + "\n")
+
+
+def _row(planner, scenario, collided=False, at_fault=False, success=True):
+    return {"planner": planner, "scenario": scenario, "overlap.collided": collided, "overlap.at_fault": at_fault,
+            "success": success}
+
+
+def test_brake_survivable_scenes_and_the_planners_collisions_there(tmp_path):
+    brake = [_row("brake", "A"), _row("brake", "B", collided=True), _row("brake", "C"), _row("brake", "D")]
+    dev = [_row("lattice", "A"), _row("lattice", "B", collided=True, at_fault=True, success=False),
+           _row("lattice", "C", collided=True, at_fault=True, success=False),
+           _row("lattice", "D", collided=True, success=False), _row("idm", "A", success=False)]
+    _write(tmp_path / "brake", brake)
+    _write(tmp_path / "dev", dev)
+    got = _page()._brake_survivable(str(tmp_path / "dev"), str(tmp_path / "brake"))
+    assert got["survivable"] == 3 and got["brake_drives"] == 4
+    lat = got["planners"]["lattice"]
+    # B is not survivable by braking: its at-fault collision is not counted here
+    assert (lat["scenes"], lat["success"], lat["collisions"], lat["at_fault"]) == (3, 1, 2, 1)
+    assert lat["at_fault_scenarios"] == ["C"]
+    assert got["planners"]["idm"]["scenes"] == 1 and got["planners"]["idm"]["success"] == 0
