@@ -43,3 +43,11 @@ from jaxplan.geometry.polygons import (
     polygon_edges,
     separation,
 )
+
+__all__ = ["CORNER_OF_A", "CORNER_OF_B", "EDGE_CROSSING", "OverlapPolygon", "ReferenceLine", "box_corners",
+           "box_has_overlap", "box_separation", "cross2", "dot2", "frenet_to_cartesian_state", "has_overlap",
+           "headings_from_path", "line_intersection", "normalize", "overlap_area", "overlap_polygon",
+           "overlap_polygon_tagged", "perpendicular", "point_on_segment", "points_in_polygon",
+           "points_in_simple_polygon", "polygon_area", "polygon_edges", "poses_to_boxes", "project_point", "ref_state",
+           "reference_line", "safe_norm", "safe_sqrt", "segment_point_distance", "separation", "to_cartesian",
+           "to_frenet", "vehicle_corners", "wrap_angle"]

@@ -21,3 +21,17 @@ from jaxplan.replan.tracking import TrackingPoint, find_tracking_point, find_tra
 from jaxplan.replan.trajectory import (BRAKE_STOP, COLLISION, END, GEAR_SHIFT, NORMAL, START, arc_length,
                                        gear_shift_points, index_at_s, interpolate_pose, point_types,
                                        split_at_gear_shifts, sub_trajectories)
+
+__all__ = ["BRAKE_STOP", "COLLISION", "END", "GEAR_SHIFT", "GOAL", "IMMEDIATE", "LAZY", "LOST", "NORMAL", "NO_REPLAN",
+           "OBSTACLE", "PERIOD", "PERIODIC", "REASON_NAMES", "REJECT_COLLISION", "REJECT_GEAR", "REJECT_NAMES",
+           "REJECT_STALE", "START", "STRATEGY_NAMES", "ApproachPlanner", "BrakeStop", "CarState", "CollisionQueue",
+           "Decision", "DubinsPath", "MotionLimits", "ObstacleMemory", "Perception", "Plan", "PlanRequest", "Scenario",
+           "SimConfig", "StepLog", "SupervisorConfig", "SupervisorState", "TrackingPoint", "WorldState", "advance",
+           "arc_length", "arrival_times", "brake_init", "check_new_plan", "collision_arc_length",
+           "find_tracking_point", "find_tracking_point_directional", "finish_plan", "first_collision_point",
+           "first_contact", "gear_shift_points", "goal_moved", "index_at_s", "init_state", "interpolate_pose",
+           "max_curvature", "memory_init", "memory_update", "nominal_forward_path", "plan_separation", "point_types",
+           "profile_speed", "profile_times", "queue_clear", "queue_expire", "queue_init", "queue_nearest",
+           "queue_push", "queue_reanchor", "queue_size", "replan_decision", "run_summary", "sample_scenarios",
+           "simulate", "simulate_host", "speed_step", "split_at_gear_shifts", "step_post", "step_pre",
+           "sub_trajectories", "submit", "supervise", "swept_boxes", "update_brake_stop"]

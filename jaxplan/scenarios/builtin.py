@@ -216,6 +216,26 @@ def builtin_records(quick: bool = False, seed: int = 0) -> list:
     return [r for _, r in _generate(4 if quick else 16, seed)]
 
 
+def builtin_scenes(n_per_kind: int = 1, seed: int = 0, kinds=KINDS, check: bool = True) -> list:
+    """``n_per_kind`` built-in scenes of each of ``kinds``, as unbatched numpy ``Scene``s (give them
+    to ``jaxplan.scenarios.scene.stack_scenes`` for a batch); deterministic in ``seed``.
+
+    Args:
+        check: keep only scenes that braking survives, as ``builtin_records`` (and ``jaxplan drive
+            --builtin``) do: this drives the ``brake`` planner over the candidates once (a compile
+            of some seconds). False: the first ``n_per_kind`` draws of each kind, unchecked (other
+            scenes than the checked ones of the same seed; a collision in them may be unavoidable).
+    """
+    if not check:
+        from jaxplan.scenarios.loader import parse_scenario
+        from jaxplan.scenarios.scene import build_scene
+
+        rng = np.random.default_rng(seed)
+        dicts = [scene_dict(k, rng, i) for k in kinds for i in range(n_per_kind)]
+        return [build_scene(parse_scenario(d, d["id"]))[0] for d in dicts]
+    return [r.scene for _, r in _generate(n_per_kind, seed, kinds)]
+
+
 def write_builtin(out: str, n_per_kind: int = 16, seed: int = 0) -> list:
     """Write the built-in scenes as shared-JSON files ``out/<id>.json``; returns the paths."""
     import json

@@ -616,6 +616,24 @@ def load_records(paths: list, config: SceneConfig = SceneConfig(), horizon: floa
     return recs
 
 
+def load_scenes(paths: list, config: SceneConfig = SceneConfig(), horizon: float | None = None) -> list:
+    """The ``Scene`` of each scenario file, in order: ``[r.scene for r in load_records(paths, ...)]``
+    (``load_records`` also keeps the scenario, its route and a name).
+
+    Args:
+        paths: scenario files (``.json`` shared format, ``.xml`` CommonRoad, either gzip-compressed).
+        config: ``SceneConfig``; horizon: seconds of obstacle recording kept (default all).
+
+    Returns:
+        unbatched numpy ``Scene``s of their own sizes (obstacles ``(K, T, 5)``, ``drivable (M, V, 2)``,
+        ...; the module docstring); ``stack_scenes`` pads them into one batch with a leading scene axis.
+
+    Raises:
+        ValueError naming the file (as ``load_records``).
+    """
+    return [r.scene for r in load_records(paths, config, horizon)]
+
+
 def unique_names(records: list) -> list:
     """The records renamed as ``jaxplan.scenarios.files.scenario_keys`` keys files: the first of
     each id keeps it, later ones become ``<id>@<file name>``."""

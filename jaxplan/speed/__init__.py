@@ -49,3 +49,11 @@ from jaxplan.speed.st_boundary import (
     station_intervals,
     strip_extent,
 )
+
+__all__ = ["LEFT", "NONE", "RIGHT", "Classified", "CostWeights", "DPCosts", "ObstaclesSL", "PathProfile", "STBoundary",
+           "SmoothWeights", "SpeedConfig", "SpeedCostWeights", "SpeedPlan", "SpeedProfile", "SpeedRoad", "SpeedScene",
+           "band_widths", "blocking_boundaries", "build_scene", "car_probes", "classify", "compose", "compose_plan",
+           "compose_profile", "dp_from_costs", "expected_speed_profile", "first_trajectory", "keep_clear_intervals",
+           "make_scene", "obstacle_speed", "path_from_polyline", "path_from_trajectory", "path_profile", "plan_speed",
+           "profile_at", "profile_cost", "project_obstacles", "resample_obstacles", "side_boundaries", "smooth_plan",
+           "soft_value", "stage_costs", "station_intervals", "strip_boundaries", "strip_extent"]
