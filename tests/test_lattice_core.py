@@ -463,3 +463,34 @@ def test_a_collision_is_avoided_at_the_emergency_limits_before_a_comfortable_pla
     idx, mode, _ = choose(w, feats, level, avail, comfort, free2, free2, jnp.ones(4, bool), jnp.ones(4), jnp.ones(4),
                           n_comfort=3, emergency_ok=emergency)
     assert int(idx) == 1 and int(mode) == FREE
+
+
+def test_a_free_plan_on_the_road_is_taken_before_a_free_plan_off_it():
+    """``cost.choose``: when no candidate keeps the buffers, a collision-free candidate on the road
+    (``on_road``) is taken before a cheaper collision-free one that leaves it; where every free
+    candidate leaves the road, the one that leaves it least counts as on it
+    (``plan._least_off_road``)."""
+    from jaxplan.lattice.cost import CONSTRAINED, FEATURES, choose
+    from jaxplan.lattice.plan import LEAST_OFF_ROAD_TOL, _least_off_road
+
+    w = CostWeights()
+    feats = jnp.zeros((4, len(FEATURES))).at[:, 0].set(jnp.asarray([0.0, 1.0, 2.0, 3.0]))
+    level = jnp.zeros(4, jnp.int32)
+    ones = jnp.ones(4, bool)
+    no_margin = jnp.zeros(4, bool)  # every candidate touches a buffer or the edge margin
+    free = jnp.asarray([False, True, True, True])  # 0 collides
+    on_road = jnp.asarray([True, False, False, True])
+    args = (w, feats, level, ones, ones, no_margin, free, ones, jnp.ones(4), jnp.ones(4))
+    idx, mode, _ = choose(*args, on_road=on_road)
+    assert int(idx) == 3 and int(mode) == CONSTRAINED
+    idx, _, _ = choose(*args)
+    assert int(idx) == 1  # without the road's verdict: the cheapest free candidate
+    # every free candidate leaves the road: those within the tolerance of the least excess count as on it
+    off = jnp.asarray([False, True, True, True])
+    excess = jnp.asarray([0.0, 0.4, 0.1 + 0.5 * LEAST_OFF_ROAD_TOL, 0.1])
+    got = np.asarray(_least_off_road(off, excess, free))
+    assert got.tolist() == [True, False, True, True]
+    idx, _, _ = choose(*args, on_road=jnp.asarray(got))
+    assert int(idx) == 2
+    # nothing free: every candidate counts (the choice then goes by harm)
+    assert np.asarray(_least_off_road(off, excess, jnp.zeros(4, bool))).all()

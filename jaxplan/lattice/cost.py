@@ -333,12 +333,13 @@ def goal_error(s, l, v, t, goal_s, goal_l, goal_t, goal_v, center_offset, time_w
 
 
 def choose(weights, features, level, available, feasible, free_margin, free, terminal_ok, impact, first_t,
-           risk_cost=None, n_comfort: int = 1, rule: str = "harm", emergency_ok=None):
+           risk_cost=None, n_comfort: int = 1, rule: str = "harm", emergency_ok=None, on_road=None):
     """The road lattice's exact selection.
 
     Among the available candidates, the feasible ones if any (else all): the candidates that
     are free of the inflated obstacles and pass the terminal condition; if none, those free
-    of the inflated obstacles; if none, those free of the plain obstacles. When every one of
+    of the inflated obstacles; if none, those free of the plain obstacles and on the road
+    (``on_road``); if none, those free of the plain obstacles. When every one of
     them collides with a plain obstacle, the candidates within the emergency limits
     (``emergency_ok``, any level) that do not are taken instead, in the same groups: a
     collision is avoided at the emergency limits before a comfortable plan is taken into it.
@@ -353,6 +354,8 @@ def choose(weights, features, level, available, feasible, free_margin, free, ter
         n_comfort: the number of comfortable levels (the rest are emergency / fallback).
         emergency_ok: ``(..., N)`` bool or None: candidates within the emergency limits (and on the
             road) that may replace a pool whose every candidate collides.
+        on_road: ``(..., N)`` bool or None (every candidate): the candidate stays on the road (or,
+            where none does, leaves it least: ``plan._least_off_road``).
 
     Returns:
         (index ``(...)``, mode ``(...)`` (``FREE``, ``ESCALATED``, ``EMERGENCY``, ``CONSTRAINED``,
@@ -365,11 +368,12 @@ def choose(weights, features, level, available, feasible, free_margin, free, ter
         rescue = emergency_ok & available & free
         swap = ~jnp.any(pool & free, axis=-1, keepdims=True) & jnp.any(rescue, axis=-1, keepdims=True)
         pool = jnp.where(swap, rescue, pool)
-    groups = [pool & free_margin & terminal_ok, pool & free_margin, pool & free]
+    road = True if on_road is None else on_road
+    groups = [pool & free_margin & terminal_ok, pool & free_margin, pool & free & road, pool & free]
     lam_c = lam(weights, features)
     chosen_set = jnp.zeros_like(pool)
     found = jnp.zeros(pool.shape[:-1], bool)
-    tier = jnp.full(pool.shape[:-1], 3)
+    tier = jnp.full(pool.shape[:-1], len(groups))
     for i, g in enumerate(groups):
         lvl = jnp.min(jnp.where(g, level, big), axis=-1, keepdims=True)
         here = g & (level == lvl) & ~found[..., None]

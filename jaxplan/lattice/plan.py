@@ -148,8 +148,11 @@ def _kinematics(cand: Candidates, ref, targets, config, v_set, t, stations_ok):
         # obstacle's buffer; leaving the road as touching it
         out["off_road"] = leaves_road(ref, cand, targets.road_edges, veh)
         out["near_edge"] = enters_edge_margin(ref, cand, targets.road_edges, veh, config.edge_margin)
+        cl, cr = edge_clearance(ref, cand, targets.road_edges, veh)
+        out["edge_excess"] = jnp.maximum(-jnp.min(jnp.minimum(cl, cr), axis=-1), 0.0)  # (N,) m past an edge
     else:
         out["off_road"] = out["near_edge"] = jnp.zeros(feasible.shape, bool)
+        out["edge_excess"] = jnp.zeros(feasible.shape, f)
     # so does driving on past the stop point (a dead end of the road: beyond it is no road) unless a goal
     # region lies ahead (the drive ends there; the map often ends just past it)
     goal_ahead = goal_region_ahead(jnp.asarray(targets.goal_s, f), cand.s[0, 0] + jnp.asarray(veh.center_offset, f))
@@ -219,9 +222,10 @@ def _plan(state: PlanState, ref: ReferenceLine, obstacles: Obstacles, config: La
     feats = feats.at[:, 0].set(kin["d_lane"][:, lane])
     n_comfort = len(config.escalation)
     risk_cost = weights.gamma * feats[:, 2]
+    on_road = _least_off_road(off_road, kin["edge_excess"], pool & ~risk.collided)
     idx, mode, sel = choose(weights, feats, cand.level, avail, use, ~collided_m, ~risk.collided, terminal_ok,
                             impact, first_t, risk_cost, n_comfort, config.all_collide,
-                            avail & kin["emergency_ok"] & ~off_road)
+                            avail & kin["emergency_ok"] & ~off_road, on_road)
     mode = jnp.where(jnp.any(avail), mode, INVALID)
     ok_plan = jnp.take(finite, idx)
     chosen_traj = candidate_trajectory(parts, idx)
@@ -285,6 +289,17 @@ def _no_collisions(N: int, T: int, f) -> dict:
 
 ROAD_TOL = 0.1  # m: a candidate's box may reach this far past a road edge (map seams, edge sampling)
 MARGIN_TOL = 0.01  # m: how much closer to an edge than the car is now a candidate inside the margin may come
+
+
+LEAST_OFF_ROAD_TOL = 0.05  # m: candidates within this of the least excess past an edge count as leaving it least
+
+
+def _least_off_road(off_road, edge_excess, pool):
+    """``(N,)``: the candidate stays on the road, or, where every candidate of ``pool`` leaves it
+    (the route's corridor can be narrower than the road, e.g. in a junction), leaves it about as
+    little as any does (``edge_excess`` within ``LEAST_OFF_ROAD_TOL`` of the least)."""
+    least = jnp.min(jnp.where(pool, edge_excess, jnp.inf))
+    return ~off_road | (edge_excess <= least + LEAST_OFF_ROAD_TOL)
 
 
 def edge_clearance(ref, cand, road_edges, vehicle):
