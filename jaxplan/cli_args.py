@@ -178,6 +178,19 @@ def output_file(text) -> str:
     return path
 
 
+HANDSET = "handset"  # ``jaxplan.tuning.train.HANDSET`` (not imported here: that module imports JAX)
+
+
+def weights_file_or_handset(text) -> str:
+    """``jaxplan drive --weights``: an existing weights file, or the name ``handset`` (every planner's
+    built-in, hand-set weights); the file's content is checked per planner by the command."""
+    if str(text) == HANDSET:
+        return HANDSET
+    if not os.path.exists(str(text)):
+        raise BadArgument(f"{text}: no such file, and not the name {HANDSET!r} (every planner's built-in weights)")
+    return existing_file(text)
+
+
 def weights_file(planner: str):
     """Type for ``--weights``: an existing weights file of ``planner`` with only its weight names."""
 

@@ -96,6 +96,9 @@ BAD = [  # (argv, words the one error line must contain)
     (["tune", "lattice", "--batch", "3"], ["--batch", "only with --closed-loop"]),
     (["tune", "idm"], ["tune idm", "only with --closed-loop"]),
     (["tune", "lattice", "--closed-loop"], ["--closed-loop", "--scenarios"]),
+    (["drive", "--builtin", "--out", "{root}/d", "--weights", "{missing}"],
+     ["--weights", "{missing}", "no such file", "'handset'"]),
+    (["drive", "--builtin", "--out", "{root}/d", "--weights", "hand-set"], ["--weights", "hand-set", "'handset'"]),
     (["report", "{missing}"], ["results_dir", "{missing}", "no such folder"]),
     (["report", "{file}"], ["results_dir", "is a file"]),
     (["eval"], ["suite"]),
@@ -132,6 +135,39 @@ def test_item11_good_arguments_reach_the_work(paths, monkeypatch):
     with pytest.raises(Reached):
         main(["tune", "speed", "--steps", "2", "--scenarios", paths["good"], "--out", paths["root"] + "/w2.json"])
     assert calls[-1][0] == "tune"
+
+
+def test_drive_weights_handset_drives_every_planners_built_in_weights(paths, monkeypatch):
+    """``jaxplan drive --weights handset``: the library's ``load_weights`` reads the name as no weights
+    (``{}``: ``init_params`` keeps every planner's defaults), and the command hands every planner driven
+    empty params and records the name with the run (drives stubbed: nothing is driven)."""
+    import jax
+    import numpy as np
+
+    import jaxplan.sim.drive as drive_mod
+    from jaxplan import cli_args
+    from jaxplan.planner import make_planner
+    from jaxplan.tuning.train import HANDSET, load_weights
+
+    assert HANDSET == cli_args.HANDSET == "handset"
+    for name in ("lattice", "idm", "brake"):
+        assert load_weights(HANDSET, planner=name) == {}
+        planner = make_planner(name)
+        same = jax.tree_util.tree_map(lambda a, b: bool(np.array_equal(a, b)), planner.init_params({}),
+                                      planner.init_params())
+        assert all(jax.tree_util.tree_leaves(same))
+    calls = []
+
+    def stub(*a, **k):
+        calls.append(k)
+        raise Reached("drive")
+
+    monkeypatch.setattr(drive_mod, "drive", stub)
+    with pytest.raises(Reached):
+        main(["drive", os.path.join(paths["good"], "a.json"), "--planner", "lattice,idm,brake", "--weights", "handset",
+              "--out", os.path.join(paths["root"], "handset"), "--no-cache", "--workers", "1"])
+    assert calls[-1]["planner_params"] == {"lattice": {}, "idm": {}, "brake": {}}
+    assert calls[-1]["run_info"]["weights"] == "handset"
 
 
 def test_item11_missing_scenario_file_or_folder_given_as_file(paths):

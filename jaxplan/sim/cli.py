@@ -46,7 +46,9 @@ def add_parser(sub) -> None:
     d.add_argument("--animate", action="store_true", help="also write a GIF per drive")
     d.add_argument("--quick", action="store_true", help="fewer built-in scenes")
     d.add_argument("--seed", type=ca.nonnegative_int, default=0, help="seed of the built-in scenes and of --sample")
-    d.add_argument("--weights", help="cost weights JSON (jaxplan tune) for the planners that take them")
+    d.add_argument("--weights", type=ca.weights_file_or_handset,
+                   help="the planners' params: a weights JSON (jaxplan tune) every planner driven takes, or "
+                        "'handset': every planner's built-in, hand-set weights (to compare with a tuned file)")
     d.add_argument("--fresh", action="store_true", help="discard an earlier run in --out instead of resuming it")
     d.add_argument("--workers", type=ca.positive_int, default=None,
                    help="processes that parse scenario files (default: the CPU count, at most 8)")
@@ -141,6 +143,8 @@ def run(args) -> int:
 
 
 def _digest(path: str) -> str:
+    if path == ca.HANDSET:  # a name, not a file
+        return path
     from jaxplan.scenarios.cache import file_digest
 
     return file_digest(path)[:16]

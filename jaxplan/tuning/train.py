@@ -121,11 +121,15 @@ def save_weights(path: str, weights: dict, meta: dict | None = None) -> None:
     os.replace(path + ".tmp", path)
 
 
+HANDSET = "handset"  # the name (not a file) of every planner's built-in, hand-set weights
+
+
 def load_weights(path: str, allowed=None, planner: str | None = None) -> dict:
     """Read weights written by ``save_weights``; a clear ``ValueError`` names a bad file.
 
     Args:
-        path: the JSON file.
+        path: the JSON file, or ``HANDSET`` (``"handset"``): no file, ``{}``, so that every planner
+            keeps its built-in (hand-set) weights (``init_params({})``), to compare with a tuned file.
         allowed: the weight names the caller's planner has (e.g.
             ``jaxplan.tuning.lattice_tuning.WEIGHT_NAMES``); any other key, a misspelling
             like ``alhpa`` included, is refused with the list of allowed names.
@@ -135,6 +139,8 @@ def load_weights(path: str, allowed=None, planner: str | None = None) -> dict:
     Returns:
         ``{name: weight}``, every weight finite and positive.
     """
+    if path == HANDSET:
+        return {}
     try:
         with open(path) as f:
             d = json.load(f)
