@@ -123,6 +123,7 @@ def collect(args) -> dict:
             out["dev"]["brake_survivable"] = _brake_survivable(args.dev, args.brake)
     if args.sample:
         out["sample"] = _drive_summary(args.sample)
+        out["sample"]["caveat"] = args.sample_caveat
     out["combos"] = {}
     for item in args.combo or []:
         label, folder = item.split("=", 1)
@@ -156,6 +157,9 @@ def render(d: dict) -> str:
         lines += _table(dev["summary"], "planner") + [""]
         for p in dev["planners"]:
             lines += [f"Per folder, `{p}`:", ""] + _table(dev["by_folder"].get(p, {}), "folder") + [""]
+            if dev.get("by_location", {}).get(p):
+                lines += [f"<details><summary>Per location, <code>{p}</code></summary>", ""]
+                lines += _table(dev["by_location"][p], "location") + ["", "</details>", ""]
             if dev.get("by_split", {}).get(p):
                 lines += [f"Per part of the location split (`jaxplan.scenarios.files.split_of`: whole locations held "
                           f"out as validation by a salted hash of the location's name), `{p}`:", ""]
@@ -181,6 +185,8 @@ def render(d: dict) -> str:
         lines += ["## Every planner on a seeded sample", "",
                   f"{sample['scenes']} scenarios sampled from the development set (`--sample {sample['scenes']} --seed 0`, "
                   f"stratified by folder), the same settings.", ""]
+        if sample.get("caveat"):
+            lines += [sample["caveat"], ""]
         lines += _table(sample["summary"], "planner") + [""]
         t = sample.get("timing", {})
         if t and t.get("drives"):
@@ -189,14 +195,16 @@ def render(d: dict) -> str:
                       f"metrics {t.get('metrics_s', 0):.0f}, writing {t.get('write_s', 0):.0f}).", ""]
     if d.get("combos"):
         rows = {}
-        base = sample if sample else dev
+        # the run over the same scenes as the combos (the sample's or the development set's)
+        n = {c["scenes"] for c in d["combos"].values()}
+        base = next((r for r in (sample, dev) if r and {r["scenes"]} == n), None)
         if base and "lattice" in base["summary"]:
             s = base["settings"]
             rows[f"{s.get('agents')} + {s.get('prediction')}"] = base["summary"]["lattice"]
         for label, c in d.get("combos", {}).items():
             if "lattice" in c["summary"]:
                 rows[label] = c["summary"]["lattice"]
-        if len(rows) > 1:
+        if base and len(rows) > 1:
             lines += ["## The lattice with reactive traffic and without the recorded future", "",
                       f"The same {base['scenes']} scenes in each row.", "",
                       "`--agents log` replays the recording (traffic drives through the car); `--agents idm` moves every "
@@ -252,6 +260,8 @@ def main(argv=None) -> int:
     ap.add_argument("--peers")
     ap.add_argument("--peers-caveat", help="a sentence printed under the peers' table's introduction (e.g. where "
                                            "their drives come from an earlier run)")
+    ap.add_argument("--sample-caveat", help="a sentence printed under the sample's table's introduction (e.g. "
+                                            "which version of the planners drove it)")
     ap.add_argument("--bench")
     ap.add_argument("--brake", help="a jaxplan drive --planner brake folder over the --dev scenes")
     ap.add_argument("--json", default="docs/benchmarks.json")
