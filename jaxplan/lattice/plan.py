@@ -144,11 +144,11 @@ def _kinematics(cand: Candidates, ref, targets, config, v_set, t, stations_ok):
                                targets.goal_v, jnp.asarray(veh.center_offset, f), config.goal_weight_time),
                finite=jnp.isfinite(total) & stations_ok,
                s_end=cand.s[:, -1], l_end=cand.l[:, -1], v_last=tr.v[:, -1], s_rel_end=cand.s_rel[:, -1])
-    if targets.road_edges is not None:  # coming within edge_margin of the road's edge counts as touching an
-        # obstacle's buffer; leaving the road as touching it
-        out["off_road"] = leaves_road(ref, cand, targets.road_edges, veh)
-        out["near_edge"] = enters_edge_margin(ref, cand, targets.road_edges, veh, config.edge_margin)
+    if targets.road_edges is not None:  # coming closer to a road edge than edge_margin, or leaving the road,
+        # counts as touching an obstacle's buffer
         cl, cr = edge_clearance(ref, cand, targets.road_edges, veh)
+        out["off_road"] = past_edge(cl, cr)
+        out["near_edge"] = in_edge_margin(cl, cr, config.edge_margin)
         out["edge_excess"] = jnp.maximum(-jnp.min(jnp.minimum(cl, cr), axis=-1), 0.0)  # (N,) m past an edge
     else:
         out["off_road"] = out["near_edge"] = jnp.zeros(feasible.shape, bool)
@@ -289,8 +289,6 @@ def _no_collisions(N: int, T: int, f) -> dict:
 
 ROAD_TOL = 0.1  # m: a candidate's box may reach this far past a road edge (map seams, edge sampling)
 MARGIN_TOL = 0.01  # m: how much closer to an edge than the car is now a candidate inside the margin may come
-
-
 LEAST_OFF_ROAD_TOL = 0.05  # m: candidates within this of the least excess past an edge count as leaving it least
 
 
@@ -319,21 +317,25 @@ def edge_clearance(ref, cand, road_edges, vehicle):
     return left - (cand.l + reach_l), (cand.l - reach_r) - right
 
 
-def leaves_road(ref, cand, road_edges, vehicle, tol=ROAD_TOL):
-    """``(N,)``: some sample of the candidate's box reaches more than ``tol`` (m) past the road's
-    left or right edge (``edge_clearance``)."""
-    cl, cr = edge_clearance(ref, cand, road_edges, vehicle)
+def past_edge(cl, cr, tol=ROAD_TOL):
+    """``(N,)``: some sample reaches more than ``tol`` (m) past the left or right edge, from the
+    clearances ``cl, cr (N, T)`` (``edge_clearance``)."""
     return jnp.any((cl < -tol) | (cr < -tol), axis=-1)
 
 
-def enters_edge_margin(ref, cand, road_edges, vehicle, margin):
-    """``(N,)``: some sample of the candidate's box comes closer than ``margin`` (m) to the road's
-    left or right edge, and closer than the car is now (``edge_clearance`` at the first sample): a
-    car already inside the margin may stay there or move away, not closer."""
-    cl, cr = edge_clearance(ref, cand, road_edges, vehicle)
+def in_edge_margin(cl, cr, margin):
+    """``(N,)``: some sample comes closer than ``margin`` (m) to the left or right edge, and closer
+    than the car is now (the clearances' first sample): a car already inside the margin may stay
+    there or move away, not closer. ``cl, cr (N, T)``: ``edge_clearance``."""
     lim_l = jnp.minimum(margin, cl[:, :1]) - MARGIN_TOL
     lim_r = jnp.minimum(margin, cr[:, :1]) - MARGIN_TOL
     return jnp.any((cl < lim_l) | (cr < lim_r), axis=-1)
+
+
+def leaves_road(ref, cand, road_edges, vehicle, tol=ROAD_TOL):
+    """``(N,)``: some sample of the candidate's box reaches more than ``tol`` (m) past the road's
+    left or right edge (``edge_clearance``, ``past_edge``)."""
+    return past_edge(*edge_clearance(ref, cand, road_edges, vehicle), tol)
 
 
 def _terminal(ref, s_e, l_e, v_e, obs, sl, ext, v_along, front, half_w, config):
