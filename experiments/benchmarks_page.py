@@ -63,6 +63,11 @@ def _drive_summary(folder: str) -> dict:
             "scenes": len(m["run"].get("scenarios", []))}
 
 
+def _rows(folder: str) -> list:
+    with open(os.path.join(folder, "rows.jsonl")) as f:
+        return [json.loads(line) for line in f]
+
+
 def _split_summary(folder: str) -> dict:
     """``{planner: {split: summary}}`` of a run's drives over the location split (``files.split_of``)."""
     import sys
@@ -71,10 +76,8 @@ def _split_summary(folder: str) -> dict:
     from jaxplan.scenarios.files import split_of
 
     groups: dict = {}
-    with open(os.path.join(folder, "rows.jsonl")) as f:
-        for line in f:
-            r = json.loads(line)
-            groups.setdefault(r["planner"], {}).setdefault(split_of(r["location"]), []).append(r)
+    for r in _rows(folder):
+        groups.setdefault(r["planner"], {}).setdefault(split_of(r["location"]), []).append(r)
     out: dict = {}
     for p, splits in groups.items():
         for name, rs in sorted(splits.items()):
@@ -90,17 +93,12 @@ def _split_summary(folder: str) -> dict:
     return out
 
 
-def _rows(folder: str) -> list:
-    with open(os.path.join(folder, "rows.jsonl")) as f:
-        return [json.loads(line) for line in f]
-
-
 def _brake_survivable(dev: str, brake: str) -> dict:
     """The scenes of ``brake``'s drives without a collision, and per planner of ``dev`` its drives,
     successes, collisions and at-fault collisions on them."""
-    safe = {r["scenario"] for r in _rows(brake) if r["planner"] == "brake" and not r["overlap.collided"]}
-    out: dict = {"brake_drives": sum(r["planner"] == "brake" for r in _rows(brake)), "survivable": len(safe),
-                 "planners": {}}
+    braked = [r for r in _rows(brake) if r["planner"] == "brake"]
+    safe = {r["scenario"] for r in braked if not r["overlap.collided"]}
+    out: dict = {"brake_drives": len(braked), "survivable": len(safe), "planners": {}}
     for r in _rows(dev):
         if r["scenario"] in safe:
             p = out["planners"].setdefault(r["planner"], {"scenes": 0, "success": 0, "collisions": 0, "at_fault": 0,

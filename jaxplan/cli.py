@@ -68,7 +68,8 @@ def parser() -> argparse.ArgumentParser:
                    help="--closed-loop: the lattice's soft-selection temperature (cost units, default 1)")
     t.add_argument("--out", type=ca.output_file, default="weights.json",
                    help="weights file to write (default: weights.json)")
-    t.add_argument("--steps", type=ca.positive_int, help="optimiser steps (default: 800 lattice on recorded scenarios, 400 synthetic; 40 speed; "
+    t.add_argument("--steps", type=ca.positive_int,
+                   help="optimiser steps (default: 800 lattice on recorded scenarios, 400 synthetic; 40 speed; "
                         "20 with --closed-loop)")
     t.add_argument("--seed", type=ca.nonnegative_int, default=0)
     r = sub.add_parser("report", help="write RESULTS_DIR/report.md from its metrics and plots")
@@ -127,9 +128,9 @@ def _tune(args) -> int:
             raise ValueError("--closed-loop: give --scenarios (files or a folder of them)")
         from jaxplan.tuning.closed_loop import tune_files
 
-        figures = tune_files([args.scenarios], args.planner, args.out, scenes=args.scenes or 24,
-                             drive_steps=args.drive_steps or 80, steps=args.steps or 20, batch=args.batch or 8,
-                             temperature=args.temperature or 1.0, seed=args.seed)
+        given = {k: getattr(args, k) for k in ("scenes", "drive_steps", "steps", "batch", "temperature")
+                 if getattr(args, k) is not None}  # the rest: tune_files' defaults
+        figures = tune_files([args.scenarios], args.planner, args.out, seed=args.seed, **given)
         json.dump(figures, sys.stdout, indent=1, sort_keys=True)
         print(f"\nwrote {args.out} (`jaxplan drive --weights {args.out}` drives them) and "
               f"{os.path.splitext(args.out)[0]}.png")

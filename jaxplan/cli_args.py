@@ -178,7 +178,7 @@ def output_file(text) -> str:
     return path
 
 
-HANDSET = "handset"  # ``jaxplan.tuning.train.HANDSET`` (not imported here: that module imports JAX)
+HANDSET = "handset"  # the name (not a file) of every planner's built-in, hand-set weights (``--weights``)
 
 
 def weights_file_or_handset(text) -> str:

@@ -170,11 +170,19 @@ def survivable(records) -> np.ndarray:
     return ~np.asarray(metrics["overlap.collided"])
 
 
-def _generate(n_per_kind: int, seed: int, kinds=KINDS) -> list:
-    """``[(scenario object, SceneRecord)]``: ``n_per_kind`` survivable scenes of each kind."""
+def _draw(kind: str, rng, i: int):
+    """``(scenario dict, SceneRecord)`` of one scene of ``kind`` drawn from ``rng`` (``scene_dict``)."""
     from jaxplan.scenarios.loader import parse_scenario
     from jaxplan.scenarios.scene import SceneRecord, build_scene
 
+    d = scene_dict(kind, rng, i)
+    sc = parse_scenario(d, d["id"])
+    scene, route = build_scene(sc)
+    return d, SceneRecord(d["id"], scene, sc, route)
+
+
+def _generate(n_per_kind: int, seed: int, kinds=KINDS) -> list:
+    """``[(scenario object, SceneRecord)]``: ``n_per_kind`` survivable scenes of each kind."""
     rng = np.random.default_rng(seed)
     kept = {k: [] for k in kinds}
     for _attempt in range(10):
@@ -182,10 +190,7 @@ def _generate(n_per_kind: int, seed: int, kinds=KINDS) -> list:
         for k in kinds:
             need = n_per_kind - len(kept[k])
             for _ in range(2 * need if need else 0):
-                d = scene_dict(k, rng, 0)
-                sc = parse_scenario(d, d["id"])
-                scene, route = build_scene(sc)
-                cand.append((k, d, SceneRecord(d["id"], scene, sc, route)))
+                cand.append((k, *_draw(k, rng, 0)))
         if not cand:
             break
         ok = survivable([r for _, _, r in cand])
@@ -227,12 +232,8 @@ def builtin_scenes(n_per_kind: int = 1, seed: int = 0, kinds=KINDS, check: bool 
             scenes than the checked ones of the same seed; a collision in them may be unavoidable).
     """
     if not check:
-        from jaxplan.scenarios.loader import parse_scenario
-        from jaxplan.scenarios.scene import build_scene
-
         rng = np.random.default_rng(seed)
-        dicts = [scene_dict(k, rng, i) for k in kinds for i in range(n_per_kind)]
-        return [build_scene(parse_scenario(d, d["id"]))[0] for d in dicts]
+        return [_draw(k, rng, i)[1].scene for k in kinds for i in range(n_per_kind)]
     return [r.scene for _, r in _generate(n_per_kind, seed, kinds)]
 
 

@@ -283,9 +283,10 @@ def tune_files(paths, planner_name: str, out: str, scenes: int = 24, drive_steps
 
     The files (``expand_paths``) are split by location (``jaxplan.scenarios.files.split_of``, a
     rule fixed before any tuning) into training and validation; a seeded sample of ``scenes`` of
-    them is driven, a quarter (at least 2) from the validation split, each part stratified by folder. Writes ``out`` (the tuned weights for ``jaxplan drive
-    --weights``, with the figures as ``meta``), ``<out stem>.png`` (the loss curves and the
-    baselines), ``<out stem>.ckpt.json`` (after every step).
+    them is driven, a quarter (at least 2) from the validation split, each part stratified by
+    folder. Writes ``out`` (the tuned weights for ``jaxplan drive --weights``, with the figures as
+    ``meta``), ``<out stem>.png`` (the loss curves and the baselines), ``<out stem>.ckpt.json``
+    (after every step).
 
     Returns:
         the figures: validation objective of the defaults, of the tuned weights, of random search and

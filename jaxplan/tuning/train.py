@@ -17,6 +17,8 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
+from jaxplan.cli_args import HANDSET  # the name, not a file, of every planner's built-in weights
+
 
 def to_log(weights: dict) -> dict:
     """``{name: w}`` (positive) to the trainable ``{name: log w}``."""
@@ -119,9 +121,6 @@ def save_weights(path: str, weights: dict, meta: dict | None = None) -> None:
     with open(path + ".tmp", "w") as f:
         json.dump(d, f, indent=1, sort_keys=True)
     os.replace(path + ".tmp", path)
-
-
-HANDSET = "handset"  # the name (not a file) of every planner's built-in, hand-set weights
 
 
 def load_weights(path: str, allowed=None, planner: str | None = None) -> dict:
