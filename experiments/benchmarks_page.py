@@ -64,7 +64,10 @@ def _drive_summary(folder: str) -> dict:
 
 
 def _rows(folder: str) -> list:
-    with open(os.path.join(folder, "rows.jsonl")) as f:
+    path = os.path.join(folder, "rows.jsonl")
+    if not os.path.isfile(path):
+        raise SystemExit(f"benchmarks_page: {path} not found (give the folder a run wrote)")
+    with open(path) as f:
         return [json.loads(line) for line in f]
 
 

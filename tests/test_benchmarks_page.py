@@ -40,3 +40,10 @@ def test_brake_survivable_scenes_and_the_planners_collisions_there(tmp_path):
     assert (lat["scenes"], lat["success"], lat["collisions"], lat["at_fault"]) == (3, 1, 2, 1)
     assert lat["at_fault_scenarios"] == ["C"]
     assert got["planners"]["idm"]["scenes"] == 1 and got["planners"]["idm"]["success"] == 0
+
+
+def test_a_missing_run_folder_is_one_line(tmp_path):
+    import pytest
+
+    with pytest.raises(SystemExit, match="rows.jsonl not found"):
+        _page()._brake_survivable(str(tmp_path / "dev"), str(tmp_path / "nowhere"))
