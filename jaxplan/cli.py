@@ -145,8 +145,14 @@ def _tune(args) -> int:
         ca.scenario_dir(args.scenarios)
 
     from jaxplan.tuning.baselines import IDM_GRID
-    from jaxplan.tuning.run import (RECORDED_LR, RECORDED_STEPS, SMALL_IDM_GRID, compare_lattice, demonstrations,
-                                    tune_speed)
+    from jaxplan.tuning.run import (
+        RECORDED_LR,
+        RECORDED_STEPS,
+        SMALL_IDM_GRID,
+        compare_lattice,
+        demonstrations,
+        tune_speed,
+    )
     from jaxplan.tuning.train import save_weights
 
     folder = None

@@ -29,7 +29,7 @@ import jax.numpy as jnp
 from jaxplan.geometry.frenet import ref_state, to_frenet
 from jaxplan.planner import EgoState
 from jaxplan.scenarios.lights import YELLOW, colors_at, must_stop
-from jaxplan.types import Obstacles, VehicleParams, _pytree
+from jaxplan.types import Obstacles, VehicleParams, pytree_dataclass
 
 SPEED_LOOKAHEAD = 3.0  # s
 NO_LEADER = 1e4  # gap (m) reported when nothing is ahead
@@ -55,7 +55,7 @@ def route_sample(scene, values, s):
     return jnp.vectorize(lambda v, q: jnp.interp(q, scene.route.s, v), signature="(r),()->()")(values, s)
 
 
-@_pytree(data_fields=("obstacles", "obstacle_s", "obstacle_l", "s", "l", "v_set", "lane_offset", "lane_width",
+@pytree_dataclass(data_fields=("obstacles", "obstacle_s", "obstacle_l", "s", "l", "v_set", "lane_offset", "lane_width",
                       "lane_valid", "lane_same_dir", "road_left", "road_right", "t_now", "goal_t", "goal_s",
                       "goal_l", "goal_v", "route_end_s", "leader_gap", "leader_v", "leader_index", "ego"))
 class RoadContext:

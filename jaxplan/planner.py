@@ -29,16 +29,16 @@ from __future__ import annotations
 
 import importlib
 import importlib.util
-from collections.abc import Mapping
-from typing import Any, Callable, Protocol
+from collections.abc import Callable, Mapping
+from typing import Any, Protocol
 
 import jax
 import jax.numpy as jnp
 
-from jaxplan.types import Trajectory, VehicleParams, _pytree
+from jaxplan.types import Trajectory, VehicleParams, pytree_dataclass
 
 
-@_pytree(data_fields=("x", "y", "heading", "v", "a", "kappa"))
+@pytree_dataclass(data_fields=("x", "y", "heading", "v", "a", "kappa"))
 class EgoState:
     """The car's state, each field ``(...)``: position of its reference point (m), heading
     (rad), speed (m/s, >= 0 forward), acceleration (m/s^2), curvature (1/m)."""
@@ -51,7 +51,7 @@ class EgoState:
     kappa: Any = 0.0
 
     @classmethod
-    def from_box_centre(cls, start, vehicle: VehicleParams) -> "EgoState":
+    def from_box_centre(cls, start, vehicle: VehicleParams) -> EgoState:
         """From a box-centre state ``start (..., 5)`` = [x, y, heading, v, a] (a ``Scene``'s start)."""
         start = jnp.asarray(start)
         h = start[..., 2]
@@ -65,13 +65,13 @@ class EgoState:
         return jnp.stack([self.x + off * jnp.cos(self.heading), self.y + off * jnp.sin(self.heading)], -1)
 
     @classmethod
-    def at(cls, traj: Trajectory, k) -> "EgoState":
+    def at(cls, traj: Trajectory, k) -> EgoState:
         """The state at index ``k`` of a trajectory ``(..., T)``."""
         f = lambda a: jnp.take(a, k, axis=-1)
         return cls(f(traj.x), f(traj.y), f(traj.theta), f(traj.v), f(traj.a), f(traj.kappa))
 
 
-@_pytree(data_fields=("trajectory", "ok", "info"))
+@pytree_dataclass(data_fields=("trajectory", "ok", "info"))
 class PlanOutput:
     """A plan: ``trajectory`` (``Trajectory`` with fields ``(..., H)``, t from now), ``ok (...)``
     bool, ``info``: a dict of ``(...)`` arrays (e.g. mode, candidates rejected)."""

@@ -7,7 +7,7 @@ at the API boundary, before ``jax.jit``.
 from __future__ import annotations
 
 import dataclasses
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import jax
 import jax.numpy as jnp
@@ -17,7 +17,18 @@ REAR_AXLE = "rear_axle"
 CENTER = "center"
 
 
-def _pytree(data_fields, meta_fields=()):
+if TYPE_CHECKING:
+    from typing_extensions import dataclass_transform
+else:
+    def dataclass_transform(**_):
+        return lambda f: f
+
+
+@dataclass_transform(frozen_default=True)
+def pytree_dataclass(data_fields, meta_fields=()):
+    """Class decorator: a frozen dataclass registered as a JAX pytree whose ``data_fields`` are
+    its leaves (traced under ``jit``) and ``meta_fields`` its static part."""
+
     def wrap(cls):
         cls = dataclasses.dataclass(frozen=True)(cls)
         return jax.tree_util.register_dataclass(
@@ -150,7 +161,7 @@ def is_concrete(*xs) -> bool:
     return not any(isinstance(x, jax.core.Tracer) for x in jax.tree_util.tree_leaves(xs))
 
 
-@_pytree(data_fields=("length", "width", "wheelbase", "rear_overhang", "max_steer"),
+@pytree_dataclass(data_fields=("length", "width", "wheelbase", "rear_overhang", "max_steer"),
          meta_fields=("reference",))
 class VehicleParams:
     """Car geometry. Lengths in metres, ``max_steer`` in radians (front wheel).
@@ -188,7 +199,7 @@ class VehicleParams:
             return 0.0 * self.length
         return 0.5 * self.length - self.rear_overhang
 
-    def validate(self) -> "VehicleParams":
+    def validate(self) -> VehicleParams:
         if self.reference not in (REAR_AXLE, CENTER):
             raise ValueError(f"VehicleParams.reference must be '{REAR_AXLE}' or '{CENTER}', got {self.reference!r}")
         for f in ("length", "width", "wheelbase", "max_steer"):
@@ -205,7 +216,7 @@ class VehicleParams:
         return self
 
 
-@_pytree(data_fields=("vertices", "valid"))
+@pytree_dataclass(data_fields=("vertices", "valid"))
 class Polygon:
     """Convex polygons, counter-clockwise, padded to a fixed vertex count.
 
@@ -218,16 +229,16 @@ class Polygon:
     valid: Any
 
     @classmethod
-    def from_vertices(cls, vertices, valid=None, reorient: bool = True) -> "Polygon":
+    def from_vertices(cls, vertices, valid=None, reorient: bool = True) -> Polygon:
         v, m = check_polygons(vertices, valid, reorient=reorient)
         return cls(jnp.asarray(v, dtype=jnp.result_type(float)), jnp.asarray(m))
 
-    def validate(self) -> "Polygon":
+    def validate(self) -> Polygon:
         check_polygons(self.vertices, self.valid)
         return self
 
 
-@_pytree(data_fields=("x", "y", "theta", "kappa", "v", "a", "t", "s", "gear"))
+@pytree_dataclass(data_fields=("x", "y", "theta", "kappa", "v", "a", "t", "s", "gear"))
 class Trajectory:
     """Time-stamped trajectory, every field ``(..., T)``.
 
@@ -248,7 +259,7 @@ class Trajectory:
     def xy(self):
         return jnp.stack([self.x, self.y], axis=-1)
 
-    def validate(self) -> "Trajectory":
+    def validate(self) -> Trajectory:
         shape = np.shape(self.x)
         if len(shape) < 1 or shape[-1] < 1:
             raise ValueError(f"Trajectory: fields must have shape (..., T) with T >= 1, got {shape}")
@@ -261,7 +272,7 @@ class Trajectory:
         return self
 
 
-@_pytree(data_fields=("boxes", "valid", "t", "static"))
+@pytree_dataclass(data_fields=("boxes", "valid", "t", "static"))
 class Obstacles:
     """Moving and static box obstacles padded to a fixed count.
 
@@ -289,12 +300,12 @@ class Obstacles:
             object.__setattr__(self, "static", jnp.zeros(self.boxes.shape[:-2], bool))
 
     @classmethod
-    def empty(cls, t) -> "Obstacles":
+    def empty(cls, t) -> Obstacles:
         t = jnp.asarray(t)
         return cls(jnp.zeros(t.shape[:-1] + (0, t.shape[-1], 5)), jnp.zeros(t.shape[:-1] + (0, t.shape[-1]), bool), t)
 
     @classmethod
-    def held(cls, boxes, t, valid=None) -> "Obstacles":
+    def held(cls, boxes, t, valid=None) -> Obstacles:
         """Static obstacles ``(..., K, 5)`` held over times ``(T,)`` (and beyond)."""
         boxes = jnp.asarray(boxes)
         t = jnp.asarray(t)
@@ -302,7 +313,7 @@ class Obstacles:
         m = jnp.ones(boxes.shape[:-1], bool) if valid is None else jnp.asarray(valid, bool)
         return cls(b, jnp.broadcast_to(m[..., None], b.shape[:-1]), t, m)
 
-    def window(self, start, n_steps: int) -> "Obstacles":
+    def window(self, start, n_steps: int) -> Obstacles:
         """Predictions for steps ``start .. start + n_steps - 1`` (jittable; ``start`` may be traced).
 
         Steps past the end of the recording are invalid for dynamic obstacles and
@@ -343,7 +354,7 @@ class Obstacles:
         st = jnp.asarray(self.static, bool).reshape(self.static.shape + (1,) * (extra + 1))
         return jnp.where(st, held, moving)
 
-    def at_times(self, t) -> "Obstacles":
+    def at_times(self, t) -> Obstacles:
         """Predictions at times ``t`` ``(T2,)`` (jittable): what the planners see at their own time grid.
 
         Poses and sizes are interpolated linearly between the two neighbouring stamps of
@@ -394,11 +405,11 @@ class Obstacles:
             ok = jnp.where(static[..., None], jnp.any(self.valid, axis=-1, keepdims=True), ok)
         return Obstacles(b, ok, t, static)
 
-    def aligned(self, n_steps: int) -> "Obstacles":
+    def aligned(self, n_steps: int) -> Obstacles:
         """The first ``n_steps`` predictions (``window(0, n_steps)``): cut, or padded past the end."""
         return self.window(0, n_steps)
 
-    def validate(self) -> "Obstacles":
+    def validate(self) -> Obstacles:
         b = check_trailing("Obstacles.boxes", self.boxes, (5,), coords=2)
         if b.ndim < 3:
             raise ValueError(f"Obstacles.boxes: expected shape (..., K, T, 5), got {b.shape}")
@@ -417,7 +428,7 @@ class Obstacles:
             raise ValueError("Obstacles.t: time stamps must increase strictly")
         return self
 
-    def check_time_grid(self, dt: float, name: str = "obstacles") -> "Obstacles":
+    def check_time_grid(self, dt: float, name: str = "obstacles") -> Obstacles:
         """Host-side: refuse predictions not sampled at ``t[k] = k * dt`` (the planner's grid).
 
         Resample them first (``jaxplan.speed.path_profile.resample_obstacles``) when they are

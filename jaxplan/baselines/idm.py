@@ -20,10 +20,10 @@ from jaxplan.geometry.frenet import ref_state
 from jaxplan.models.idm import idm_accel as idm_model
 from jaxplan.plan_context import NO_LEADER, road_context
 from jaxplan.planner import EgoState, PlanOutput
-from jaxplan.types import VehicleParams, _pytree, weights_from
+from jaxplan.types import VehicleParams, pytree_dataclass, weights_from
 
 
-@_pytree(data_fields=("time_gap", "min_gap", "a_max", "b_comf", "delta", "b_max"))
+@pytree_dataclass(data_fields=("time_gap", "min_gap", "a_max", "b_comf", "delta", "b_max"))
 class IDMParams:
     """IDM parameters (a pytree; each ``()``): desired time gap (s), minimum gap (m), maximum
     acceleration and comfortable deceleration (m/s^2), acceleration exponent, and the braking

@@ -44,8 +44,14 @@ import jax.numpy as jnp
 
 from jaxplan.bounds.distance import exact_avoid_distance
 from jaxplan.geometry.lines import dot2, line_intersection
-from jaxplan.geometry.polygons import (CORNER_OF_A, CORNER_OF_B, EDGE_CROSSING, has_overlap,
-                                       overlap_polygon_tagged, polygon_edges)
+from jaxplan.geometry.polygons import (
+    CORNER_OF_A,
+    CORNER_OF_B,
+    EDGE_CROSSING,
+    has_overlap,
+    overlap_polygon_tagged,
+    polygon_edges,
+)
 from jaxplan.types import check_polygons, check_trailing, is_concrete
 
 CASE_NONE = 0  # no overlap: distance 0

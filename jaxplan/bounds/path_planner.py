@@ -53,8 +53,7 @@ from jaxplan.bounds.decision import NONE, car_reach, decide_corridor, obstacle_i
 from jaxplan.bounds.optimize import PathQPConfig, PathWeights, curvature_bounds, optimize_path
 from jaxplan.geometry.boxes import box_has_overlap, poses_to_boxes
 from jaxplan.geometry.frenet import frenet_to_cartesian_state, ref_state
-from jaxplan.types import VehicleParams, _pytree
-
+from jaxplan.types import VehicleParams, pytree_dataclass
 
 RANGE_MARGIN = 0.01  # m: the car's reach at headings between the sampled ones of a heading range
 
@@ -110,7 +109,7 @@ class PathConfig:
     qp: PathQPConfig = PathQPConfig(jerk_max=0.2, max_iter=2000)
 
 
-@_pytree(data_fields=("s", "xy", "theta", "kappa", "l", "route_s", "lower", "upper", "valid", "blocked_s", "ok",
+@pytree_dataclass(data_fields=("s", "xy", "theta", "kappa", "l", "route_s", "lower", "upper", "valid", "blocked_s", "ok",
                       "side", "blocking", "rounds", "qp_ok", "collision_free", "ds"))
 class PathPlan:
     """The path of one scene on a uniform arc-length grid from the car (``N`` points, ``K`` obstacles).

@@ -29,11 +29,11 @@ import inspect
 import json
 import os
 import time
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 import jax
 import numpy as np
-
 from jax.sharding import Mesh
 
 from jaxplan.sim.devices import scene_mesh, sharded_map  # noqa: F401  (re-exported: the batch runner uses them)

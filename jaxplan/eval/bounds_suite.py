@@ -33,8 +33,16 @@ from jaxplan.bounds.frenet_bounds import path_bounds
 from jaxplan.bounds.optimize import PathQPConfig, curvature_bounds, optimize_path
 from jaxplan.bounds.path_planner import PathConfig, solve_path
 from jaxplan.eval.registry import SuiteArgs, register
-from jaxplan.geometry import (ReferenceLine, box_corners, has_overlap, headings_from_path, ref_state,
-                              reference_line, to_cartesian, vehicle_corners)
+from jaxplan.geometry import (
+    ReferenceLine,
+    box_corners,
+    has_overlap,
+    headings_from_path,
+    ref_state,
+    reference_line,
+    to_cartesian,
+    vehicle_corners,
+)
 from jaxplan.types import VehicleParams
 
 RADII = (5.0, 8.0, 12.0, 20.0, 40.0, 80.0, np.inf)

@@ -14,8 +14,16 @@ import numpy as np
 
 from jaxplan.eval.registry import SuiteArgs, register
 from jaxplan.geometry import box_corners, has_overlap, segment_point_distance
-from jaxplan.parking import (ParkoutConfig, footprint_boxes, make_scenes, min_front_gap, min_slot_length, park_out,
-                             render_scenes, stop_line)
+from jaxplan.parking import (
+    ParkoutConfig,
+    footprint_boxes,
+    make_scenes,
+    min_front_gap,
+    min_slot_length,
+    park_out,
+    render_scenes,
+    stop_line,
+)
 from jaxplan.parking.families import FAMILIES, family_scenes, scene_dicts
 from jaxplan.parking.profile import speed_profile_jit
 from jaxplan.parking.scene_file import problem_from_dict, stack_scenes

@@ -141,7 +141,9 @@ class Referee:
         _require()
         from commonroad_dc.boundary.boundary import create_road_boundary_obstacle
         from commonroad_dc.collision.collision_detection.pycrcc_collision_dispatch import (
-            create_collision_checker, create_collision_object)
+            create_collision_checker,
+            create_collision_object,
+        )
 
         self.scenario, self.problem, self.id_map = scenario, planning_problem, dict(id_map or {})
         self.dt = float(scenario.dt)
@@ -158,7 +160,7 @@ class Referee:
                          for o in scenario.dynamic_obstacles]
 
     @classmethod
-    def from_file(cls, path: str) -> "Referee":
+    def from_file(cls, path: str) -> Referee:
         """A referee for a shared-JSON or CommonRoad XML scenario file."""
         _require()
         return cls(*_open(path))

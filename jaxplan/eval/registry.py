@@ -19,8 +19,8 @@ import numbers
 import os
 import sys
 import time
+from collections.abc import Callable
 from dataclasses import asdict, dataclass
-from typing import Callable
 
 SUITES: dict[str, Callable] = {}
 METRICS, RUN = "metrics.json", "run.json"
@@ -37,7 +37,7 @@ class SuiteArgs:
     scenarios: str | None = None
     weights: str | None = None
 
-    def validate(self) -> "SuiteArgs":
+    def validate(self) -> SuiteArgs:
         """Refuse bad values with a ``ValueError`` naming the field (the checks of ``jaxplan.cli_args``)."""
         from jaxplan import cli_args as ca
 

@@ -22,8 +22,21 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxplan.eval.registry import SuiteArgs, register
-from jaxplan.replan import (GOAL, IMMEDIATE, LAZY, LOST, OBSTACLE, PERIOD, PERIODIC, REASON_NAMES, STRATEGY_NAMES,
-                            SimConfig, run_summary, sample_scenarios, simulate)
+from jaxplan.replan import (
+    GOAL,
+    IMMEDIATE,
+    LAZY,
+    LOST,
+    OBSTACLE,
+    PERIOD,
+    PERIODIC,
+    REASON_NAMES,
+    STRATEGY_NAMES,
+    SimConfig,
+    run_summary,
+    sample_scenarios,
+    simulate,
+)
 
 Z95 = 1.959963984540054
 

@@ -43,16 +43,13 @@ def recorded_scenes(directories, n: int | None = None) -> tuple[list, int]:
     ``directories`` (a folder or a list of them; read by ``load_folder``, the one loading
     path of the suites, each file that fails named on stderr and counted; a scenario whose
     route cannot be built counts as skipped), at most ``n``, names unique."""
-    import sys
-
-    from jaxplan.scenarios.loader import load_folder
-    from jaxplan.scenarios.route import RouteError
-    from jaxplan.scenarios.scene import SceneRecord, build_scene, unique_names
-
     import glob
     import os
+    import sys
 
-    from jaxplan.scenarios.loader import ScenarioError
+    from jaxplan.scenarios.loader import ScenarioError, load_folder
+    from jaxplan.scenarios.route import RouteError
+    from jaxplan.scenarios.scene import SceneRecord, build_scene, unique_names
 
     recs, skipped = [], 0
     for d in [directories] if isinstance(directories, str) else directories:

@@ -205,8 +205,16 @@ LOCATION_GROUPS = [("all", ""), ("US-101", "us101."), ("Lankershim", "lankershim
 @register("tune")
 def tune_suite(args: SuiteArgs) -> dict:
     from jaxplan.tuning.baselines import IDM_GRID
-    from jaxplan.tuning.run import (RECORDED_LR, RECORDED_STEPS, SMALL_IDM_GRID, compare_lattice, demonstrations,
-                                    held_out_locations, recorded_set, tune_speed)
+    from jaxplan.tuning.run import (
+        RECORDED_LR,
+        RECORDED_STEPS,
+        SMALL_IDM_GRID,
+        compare_lattice,
+        demonstrations,
+        held_out_locations,
+        recorded_set,
+        tune_speed,
+    )
 
     n = args.n or (24 if args.quick else 64)
     folder = None

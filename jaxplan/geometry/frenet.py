@@ -60,7 +60,7 @@ class ReferenceLine:
         return self.s[-1]
 
     @classmethod
-    def from_polyline(cls, xy) -> "ReferenceLine":
+    def from_polyline(cls, xy) -> ReferenceLine:
         """Host-side constructor: checks the input and drops repeated points.
 
         Args:
@@ -80,7 +80,7 @@ class ReferenceLine:
         _check_turns(a)
         return reference_line(jnp.asarray(a, dtype=jnp.result_type(float)))
 
-    def validate(self) -> "ReferenceLine":
+    def validate(self) -> ReferenceLine:
         """Host-side check of a line built by the jittable ``reference_line`` (any leading batch dims).
 
         Refuses NaN / inf, fewer than two points, repeated points (a zero-length segment has

@@ -22,14 +22,13 @@ from typing import Any
 
 import jax
 import jax.numpy as jnp
-from jax import lax
 import numpy as np
+from jax import lax
 
 from jaxplan.geometry.frenet import ReferenceLine, ref_state
 from jaxplan.geometry.lines import safe_sqrt
-from jaxplan.lattice.profiles import accel_profile, jerk_profile
 from jaxplan.lattice.quintic import cartesian_to_frenet_state, quintic_coeffs, quintic_eval
-from jaxplan.types import Trajectory, VehicleParams, _pytree, check_coordinates, check_finite
+from jaxplan.types import Trajectory, VehicleParams, check_coordinates, check_finite, pytree_dataclass
 
 KMH = 1.0 / 3.6
 CHUNK_POINTS = 1 << 12  # at most this many candidate points per chunk of the generator (``_chunk``)
@@ -222,7 +221,7 @@ class LatticeConfig:
         return float(np.tan(float(self.vehicle.max_steer)) / float(self.vehicle.wheelbase))
 
     @classmethod
-    def road(cls, **overrides) -> "LatticeConfig":
+    def road(cls, **overrides) -> LatticeConfig:
         """The full lattice the road planner drives with: every longitudinal mode over end
         times, emergency and fallback levels, three lateral times, the hold and goal targets,
         the feasibility filter, safety buffers, the terminal condition and harm selection
@@ -234,7 +233,7 @@ class LatticeConfig:
         base.update(overrides)
         return cls(**base)
 
-    def validate(self) -> "LatticeConfig":
+    def validate(self) -> LatticeConfig:
         if self.dt <= 0 or self.horizon < self.dt:
             raise ValueError(f"LatticeConfig: need 0 < dt <= horizon, got dt={self.dt}, horizon={self.horizon}")
         if self.profile not in ("jerk", "accel"):
@@ -273,7 +272,7 @@ class LatticeConfig:
         return self
 
 
-@_pytree(data_fields=("x", "y", "heading", "kappa", "v", "a", "v_set", "d_crossroad"))
+@pytree_dataclass(data_fields=("x", "y", "heading", "kappa", "v", "a", "v_set", "d_crossroad"))
 class PlanState:
     """The car's state, each field ``(...)``.
 
@@ -291,7 +290,7 @@ class PlanState:
     d_crossroad: Any = float("inf")
 
     @classmethod
-    def make(cls, x, y, heading, v, a=0.0, kappa=0.0, v_set=None, d_crossroad=float("inf")) -> "PlanState":
+    def make(cls, x, y, heading, v, a=0.0, kappa=0.0, v_set=None, d_crossroad=float("inf")) -> PlanState:
         """Host-side constructor with checks; ``v_set`` defaults to ``v``."""
         f = jnp.result_type(float)
         st = cls(*(jnp.asarray(z, f) for z in (x, y, heading, kappa, v, a, v if v_set is None else v_set,
@@ -299,7 +298,7 @@ class PlanState:
         return st.validate()
 
     @classmethod
-    def from_rows(cls, ego) -> "PlanState":
+    def from_rows(cls, ego) -> PlanState:
         """Jittable: states from rows ``ego (..., 5)`` = [x, y, heading, v, a] (the layout of
         ``jaxplan.scenarios.synthetic`` and ``jaxplan.tuning.demos``): no curvature, the set
         speed is the current speed, no crossroad."""
@@ -307,7 +306,7 @@ class PlanState:
         zero = jnp.zeros_like(e[..., 0])
         return cls(e[..., 0], e[..., 1], e[..., 2], zero, e[..., 3], e[..., 4], e[..., 3], zero + jnp.inf)
 
-    def validate(self) -> "PlanState":
+    def validate(self) -> PlanState:
         for name in ("x", "y", "heading", "kappa", "v", "a", "v_set"):
             check_finite(f"PlanState.{name}", getattr(self, name))
         check_coordinates("PlanState x, y", np.stack(np.broadcast_arrays(np.asarray(self.x), np.asarray(self.y)), -1))
@@ -318,7 +317,7 @@ class PlanState:
         return self
 
 
-@_pytree(data_fields=("traj", "axis", "s", "l", "dl", "v_end", "offset", "level", "speed_index", "lane", "l_target",
+@pytree_dataclass(data_fields=("traj", "axis", "s", "l", "dl", "v_end", "offset", "level", "speed_index", "lane", "l_target",
                       "kind", "available", "lat_time", "lane_slot", "profile", "end_time", "s_rel"))
 class Candidates:
     """Every candidate of the lattice, flattened to ``N = G * P`` (see the module docstring).
@@ -405,7 +404,7 @@ def _lateral_ids(config: LatticeConfig):
     return np.repeat(np.asarray(ids), O), np.repeat(np.arange(Lw), O)
 
 
-@_pytree(data_fields=("profiles", "ref_at", "S", "offsets", "lat_ok", "l0", "dl0", "ddl0", "s0", "t", "lon",
+@pytree_dataclass(data_fields=("profiles", "ref_at", "S", "offsets", "lat_ok", "l0", "dl0", "ddl0", "s0", "t", "lon",
                       "l_target"))
 class LatticeParts:
     """What every candidate of one plan is built from (``generate_from`` expands it).

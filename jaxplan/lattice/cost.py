@@ -46,7 +46,7 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 
-from jaxplan.types import _pytree, check_weights
+from jaxplan.types import check_weights, pytree_dataclass
 
 FEATURES = ("d_lrp", "rho_max", "risk", "speed", "collision", "level_free", "jerk_lon", "jerk_lat", "obstacle",
             "v_offset", "goal", "infeasible", "unsafe_end")
@@ -66,7 +66,7 @@ WEIGHT_FIELDS = ("alpha", "beta", "gamma", "delta", "collision", "level", "jerk_
 EXTRA_WEIGHTS = ("jerk_lon", "jerk_lat", "obstacle", "v_offset", "goal")  # enter lambda beside the seed's
 
 
-@_pytree(data_fields=WEIGHT_FIELDS)
+@pytree_dataclass(data_fields=WEIGHT_FIELDS)
 class CostWeights:
     """Cost weights (array pytree, differentiable). Each field ``(...)``, one per ``FEATURES``.
 
@@ -91,7 +91,7 @@ class CostWeights:
     infeasible: Any = 1e6
     unsafe_end: Any = 5e3
 
-    def validate(self) -> "CostWeights":
+    def validate(self) -> CostWeights:
         """Host-side: every weight finite and >= 0 (a ``ValueError`` names the field)."""
         check_weights(self)
         return self

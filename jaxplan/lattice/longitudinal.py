@@ -36,7 +36,7 @@ from typing import Any
 import jax.numpy as jnp
 
 from jaxplan.lattice.profiles import accel_profile, jerk_profile
-from jaxplan.types import _pytree
+from jaxplan.types import pytree_dataclass
 
 KMH = 1.0 / 3.6
 # Mode ids of the longitudinal profiles.
@@ -50,7 +50,7 @@ MIN_END_TIME = 1.0  # s: the earliest end time of a quintic profile
 ESCAPE_DV = 10.0  # m/s: the emergency escape's speed gain
 
 
-@_pytree(data_fields=("s", "v", "a", "v_end", "level", "kind", "available", "end_time"))
+@pytree_dataclass(data_fields=("s", "v", "a", "v_end", "level", "kind", "available", "end_time"))
 class Longitudinal:
     """``G`` speed profiles: ``s, v, a (..., G, T)`` (``s`` from the car), ``v_end (..., G)`` the
     targeted end speed, ``level``, ``kind`` (``CRUISE`` ... ``FALLBACK``) ``(G,)`` int,

@@ -8,24 +8,50 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxplan.geometry.frenet import ReferenceLine, to_frenet, wrap_angle
-from jaxplan.lattice.candidates import (Candidates, LatticeConfig, PlanState, candidate_trajectory, generate_from,
-                                       lattice_parts, stations_finite)
-from jaxplan.lattice.cost import (INVALID, CostWeights, choose, costs, goal_error, motion_terms, obstacle_term,
-                                  road_features_from, seed_features, soft_choice)
-from jaxplan.lattice.crossroad import with_stop_target
-from jaxplan.lattice.feasibility import feasibility, usable, violation
-from jaxplan.lattice.risk import (BIG, Risk, align_obstacles, car_parts, first_contact, inflate, min_separation_axes,
-                                  min_separation_broad, min_separation_pair, min_separation_topk,
-                                  risk_from_separation)
-from jaxplan.lattice.targets import (RoadTargets, extents, goal_region_ahead, lane_leader, obstacle_frenet,
-                                     speed_along)
 from jaxplan.compile_options import NO_YNN, jit
 from jaxplan.geometry.boxes import car_reach
-from jaxplan.types import Obstacles, _pytree, is_concrete
+from jaxplan.geometry.frenet import ReferenceLine, to_frenet, wrap_angle
+from jaxplan.lattice.candidates import (
+    Candidates,
+    LatticeConfig,
+    PlanState,
+    candidate_trajectory,
+    generate_from,
+    lattice_parts,
+    stations_finite,
+)
+from jaxplan.lattice.cost import (
+    INVALID,
+    CostWeights,
+    choose,
+    costs,
+    goal_error,
+    motion_terms,
+    obstacle_term,
+    road_features_from,
+    seed_features,
+    soft_choice,
+)
+from jaxplan.lattice.crossroad import with_stop_target
+from jaxplan.lattice.feasibility import feasibility, usable, violation
+from jaxplan.lattice.risk import (
+    BIG,
+    Risk,
+    align_obstacles,
+    car_parts,
+    first_contact,
+    inflate,
+    min_separation_axes,
+    min_separation_broad,
+    min_separation_pair,
+    min_separation_topk,
+    risk_from_separation,
+)
+from jaxplan.lattice.targets import RoadTargets, extents, goal_region_ahead, lane_leader, obstacle_frenet, speed_along
+from jaxplan.types import Obstacles, is_concrete, pytree_dataclass
 
 
-@_pytree(data_fields=("candidates", "features", "cost", "selection_cost", "collided", "first_t", "ttc",
+@pytree_dataclass(data_fields=("candidates", "features", "cost", "selection_cost", "collided", "first_t", "ttc",
                       "min_sep", "chosen", "mode", "obstacles", "finite", "ok", "feasible", "reasons",
                       "collided_margin", "terminal_ok", "impact", "l_target", "off_road", "trajectory"))
 class LatticeResult:

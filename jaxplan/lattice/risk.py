@@ -19,13 +19,13 @@ from jax import lax
 
 from jaxplan.geometry.boxes import box_separation_axes, poses_to_boxes
 from jaxplan.geometry.lines import safe_norm
-from jaxplan.types import Obstacles, Trajectory, VehicleParams, _pytree
+from jaxplan.types import Obstacles, Trajectory, VehicleParams, pytree_dataclass
 
 BIG = 1e6  # separation reported when there is no obstacle
 FAR = 1e6  # invalid obstacle entries are moved this far away (they then block nothing)
 
 
-@_pytree(data_fields=("min_sep", "collided", "first_t", "ttc"))
+@pytree_dataclass(data_fields=("min_sep", "collided", "first_t", "ttc"))
 class Risk:
     """Attributes: ``min_sep (..., N, T)`` metres; ``collided (..., N)`` bool;
     ``first_t (..., N)`` first colliding sample time (inf if none); ``ttc (..., N)``."""

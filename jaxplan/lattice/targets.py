@@ -19,13 +19,13 @@ from typing import Any
 import jax.numpy as jnp
 
 from jaxplan.geometry.frenet import ref_state, to_frenet
-from jaxplan.types import _pytree
+from jaxplan.types import pytree_dataclass
 
 STOPPED_SPEED = 0.5  # m/s: slower obstacles ahead are stopped for
 HOLD_LANE, GOAL_LANE = 100, 101  # lane ids of the "hold the current offset" and "goal offset" lateral targets
 
 
-@_pytree(data_fields=("lane_centres", "lane_ok", "route_lane", "stop_s", "goal_s", "goal_l", "goal_t", "goal_v",
+@pytree_dataclass(data_fields=("lane_centres", "lane_ok", "route_lane", "stop_s", "goal_s", "goal_l", "goal_t", "goal_v",
                       "obstacle_sl", "lane_borrow", "road_edges"))
 class RoadTargets:
     """Per-plan targets (each field unbatched; add leading axes for ``plan_batch``).
@@ -59,7 +59,7 @@ class RoadTargets:
     road_edges: Any = None
 
     @classmethod
-    def from_config(cls, config, dtype=None) -> "RoadTargets":
+    def from_config(cls, config, dtype=None) -> RoadTargets:
         """The seed's lanes (``config.lanes * config.lane_width``), nothing else."""
         f = dtype or jnp.result_type(float)
         lanes = jnp.asarray(config.lanes, f) * config.lane_width

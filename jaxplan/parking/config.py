@@ -155,7 +155,7 @@ class ParkoutConfig:
                              f"diagonal {diag:.2f} m on {self.cell} m cells; use at least {need}")
 
     @classmethod
-    def for_vehicle(cls, vehicle, **overrides) -> "ParkoutConfig":
+    def for_vehicle(cls, vehicle, **overrides) -> ParkoutConfig:
         """A config whose grid and scan rows fit ``vehicle`` (host side, concrete sizes).
 
         The grid spans what the moves can reach, with ``R`` the smallest turning

@@ -24,8 +24,7 @@ from jax import lax
 from jaxplan.parking.config import ParkoutConfig
 from jaxplan.parking.grid import Grid, cell_table
 from jaxplan.parking.heuristic import cost_to_go
-from jaxplan.parking.parkout import (GridModel, ParkoutResult, PointModel, hits_fn, loop_init, loop_result,
-                                     seed_step)
+from jaxplan.parking.parkout import GridModel, ParkoutResult, PointModel, hits_fn, loop_init, loop_result, seed_step
 from jaxplan.parking.render import render_grids
 from jaxplan.parking.scenes import ParkingScene
 from jaxplan.parking.search import search_steps
@@ -186,12 +185,12 @@ def _plan_models(starts, models, config: ParkoutConfig, vehicle, slots=None) -> 
                              min(SEARCH_SLOTS, max(1, Q // 2)))
         searches.append((failed, sr))
     parts = []
-    for (lo, hi, st, m, res), (failed, sr) in zip(jobs, searches):
+    for (lo, hi, _, _, res), (failed, sr) in zip(jobs, searches):
         res = jax.tree_util.tree_map(lambda a: np.array(a)[: hi - lo], res)
         if sr is not None:
             keep = np.asarray(sr.success)[: len(failed)]
             # a failed search keeps the seed's attempt (it drove something; the search drives nothing)
-            for f, a, b in zip(res._fields, res, sr):
+            for a, b in zip(res, sr):
                 a[failed[keep]] = np.asarray(b)[: len(failed)][keep]
         parts.append(res)
     return jax.tree_util.tree_map(lambda *a: np.concatenate(a), *parts)

@@ -35,7 +35,7 @@ class SlotFrame:
     sign: int
 
     @classmethod
-    def of_start(cls, centre_xy, heading, road_heading, side, vehicle) -> "SlotFrame":
+    def of_start(cls, centre_xy, heading, road_heading, side, vehicle) -> SlotFrame:
         """The frame of a car whose box centre is at ``centre_xy`` with ``heading`` (world)."""
         road = float(road_heading)
         if np.cos(heading - road) < 0:

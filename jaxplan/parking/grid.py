@@ -39,7 +39,7 @@ class Grid:
     cells: Any
     pose: Any
 
-    def validate(self, config: ParkoutConfig) -> "Grid":
+    def validate(self, config: ParkoutConfig) -> Grid:
         c = np.asarray(self.cells)
         if c.shape[-2:] != (config.rows, config.cols):
             raise ValueError(f"Grid.cells: expected (..., {config.rows}, {config.cols}), got {c.shape}")
@@ -157,7 +157,7 @@ def _rows_occupied(table, r, c_lo, c_hi, hit_row, config: ParkoutConfig, base=0)
     ``[c_lo, c_hi]`` (inside the grid); also which rows lie inside the grid.
 
     ``table`` may hold many grids' tables; ``base (...)`` is the flat offset of this one's.
-    
+
     """
     in_rows = (r >= 0) & (r < config.rows)
     a = jnp.clip(c_lo, 0, config.cols).astype(jnp.int32)

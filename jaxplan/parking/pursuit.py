@@ -1,7 +1,8 @@
 """Pure-pursuit rollout of a kinematic bicycle along a reference curve (``lax.scan``)."""
 from __future__ import annotations
 
-from typing import Callable, NamedTuple
+from collections.abc import Callable
+from typing import NamedTuple
 
 import jax.numpy as jnp
 import numpy as np
@@ -76,7 +77,7 @@ def bicycle_step(pose, steer, ds, vehicle):
     return _advance(pose, jnp.tan(steer) / vehicle.wheelbase, ds)
 
 
-def project(tr: "Track", p, s_min):
+def project(tr: Track, p, s_min):
     """Arc length of the point of a track's curve nearest to ``p (2,)`` among those at or after ``s_min``.
 
     Closed form on each piece: the line before the curve, its two arcs and the

@@ -49,7 +49,7 @@ class ParkingScene:
 
     @classmethod
     def make(cls, polygons, valid=None, start=None, *, edge_noise=0.0, salt=0.0, occlusion=False,
-             sensor_range=np.inf, unknown_patches=0.0) -> "ParkingScene":
+             sensor_range=np.inf, unknown_patches=0.0) -> ParkingScene:
         """A scene (or batch) with default start pose and an ideal sensor; validated."""
         p = np.asarray(polygons, np.float64)
         lead = p.shape[:-3]
@@ -65,7 +65,7 @@ class ParkingScene:
     def batch_shape(self):
         return tuple(np.shape(self.salt))
 
-    def validate(self) -> "ParkingScene":
+    def validate(self) -> ParkingScene:
         p = check_finite("ParkingScene.polygons", self.polygons)
         if p.ndim < 3 or p.shape[-1] != 2 or p.shape[-2] < 3:
             raise ValueError(f"ParkingScene.polygons: expected (..., K, N >= 3, 2), got {p.shape}")

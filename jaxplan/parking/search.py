@@ -95,7 +95,7 @@ def search_steps(check, config: ParkoutConfig, vehicle, table: CostToGo, dtype):
     """The search in three parts, for drivers that interleave scenes: ``init(start) -> carry``,
     ``depth(carry) -> carry`` (one depth; ``carry.done`` when finished) and ``finish(carry, start) ->
     ParkoutResult``. ``check`` is the scene's ``hits_fn``."""
-    B, M, T, TA = config.beam, config.max_moves, config.steps, config.arc_steps
+    B, M, TA = config.beam, config.max_moves, config.arc_steps
     kap, gp, steer_p = primitives(config, vehicle, dtype)
     P, E = kap.shape[0], len(ENDS)
     d = stop_line(vehicle, config.c)

@@ -29,7 +29,8 @@ scenario and calls the planner only on re-plans: for planners that are not jitta
 from __future__ import annotations
 
 import dataclasses
-from typing import Any, Callable, NamedTuple
+from collections.abc import Callable
+from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -40,8 +41,16 @@ from jaxplan.replan.longitudinal import arrival_times, move, speed_step
 from jaxplan.replan.path_planner import ApproachPlanner
 from jaxplan.replan.planner import Plan, PlanRequest
 from jaxplan.replan.prediction import plan_separation
-from jaxplan.replan.supervisor import (CarState, Decision, Perception, SupervisorConfig, SupervisorState, init,
-                                       submit, supervise)
+from jaxplan.replan.supervisor import (
+    CarState,
+    Decision,
+    Perception,
+    SupervisorConfig,
+    SupervisorState,
+    init,
+    submit,
+    supervise,
+)
 from jaxplan.replan.trajectory import interpolate_pose, last_valid_index
 from jaxplan.types import is_concrete
 

@@ -55,8 +55,19 @@ from jaxplan.geometry.boxes import poses_to_boxes
 from jaxplan.replan.longitudinal import MotionLimits, advance, arrival_times
 from jaxplan.replan.planner import Plan, PlanRequest, finish_plan
 from jaxplan.replan.prediction import first_contact, plan_separation
-from jaxplan.replan.queue import (BrakeStop, CollisionQueue, ObstacleMemory, brake_init, memory_init, memory_update,
-                                  queue_expire, queue_init, queue_push, queue_reanchor, update_brake_stop)
+from jaxplan.replan.queue import (
+    BrakeStop,
+    CollisionQueue,
+    ObstacleMemory,
+    brake_init,
+    memory_init,
+    memory_update,
+    queue_expire,
+    queue_init,
+    queue_push,
+    queue_reanchor,
+    update_brake_stop,
+)
 from jaxplan.replan.tracking import find_tracking_point_directional
 from jaxplan.replan.trajectory import interpolate_pose, last_valid_index, sub_trajectories
 from jaxplan.types import VehicleParams

@@ -158,9 +158,9 @@ def scene_dict(kind: str, rng: np.random.Generator, index: int) -> dict:
 def survivable(records) -> np.ndarray:
     """``(n,)`` bool: in-lane braking at ``SURVIVAL_DECEL`` from ``t = 0`` touches no obstacle
     (driven to the end of each goal's time window, at most 20 s)."""
+    from jaxplan.baselines import BrakePlanner
     from jaxplan.scenarios.scene import stack_scenes
     from jaxplan.sim.drive import n_steps_for, run_planner
-    from jaxplan.baselines import BrakePlanner
     from jaxplan.sim.rollout import SimConfig
 
     planner = BrakePlanner(decel=SURVIVAL_DECEL)

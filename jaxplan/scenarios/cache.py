@@ -27,7 +27,7 @@ import pickle
 import sys
 import tempfile
 
-from jaxplan.scenarios.loader import ScenarioError, read_bytes
+from jaxplan.scenarios.loader import ScenarioError
 
 CACHE_ENV = "JAXPLAN_CACHE_DIR"
 

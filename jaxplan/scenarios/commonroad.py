@@ -367,7 +367,6 @@ class _Shapes:
         if self.old:
             return self.old.Rectangle(length, width, np.asarray(center, float), orientation)
         import shapely
-
         from commonroad.geometry.occupancy.rect_occupancy import RectOccupancy
         return RectOccupancy(rect_center=shapely.Point(float(center[0]), float(center[1])), width=width,
                              length=length, orientation=orientation)
@@ -425,18 +424,23 @@ def dict_to_commonroad(d: dict, path: str = "scenario", id_map: dict | None = No
     _require()
     import warnings
 
+    from commonroad.common.common_lanelet import LineMarking, StopLine
     from commonroad.common.util import AngleInterval, Interval
     from commonroad.planning.goal import GoalRegion
     from commonroad.planning.planning_problem import PlanningProblem, PlanningProblemSet
-    from commonroad.common.common_lanelet import LineMarking, StopLine
     from commonroad.prediction.prediction import Occupancy, SetBasedPrediction, TrajectoryPrediction
     from commonroad.scenario.lanelet import Lanelet, LaneletNetwork
-    from commonroad.scenario.traffic_light import (TrafficLight, TrafficLightCycle, TrafficLightCycleElement,
-                                                   TrafficLightDirection, TrafficLightState)
     from commonroad.scenario.obstacle import DynamicObstacle, ObstacleType, StaticObstacle
     from commonroad.scenario.scenario import Scenario as CRScenario
     from commonroad.scenario.scenario import ScenarioID, Tag
     from commonroad.scenario.state import CustomState, InitialState
+    from commonroad.scenario.traffic_light import (
+        TrafficLight,
+        TrafficLightCycle,
+        TrafficLightCycleElement,
+        TrafficLightDirection,
+        TrafficLightState,
+    )
     from commonroad.scenario.traffic_sign import TrafficSign, TrafficSignElement
     from commonroad.scenario.trajectory import Trajectory as CRTrajectory
 
@@ -669,8 +673,14 @@ def write_solution(scenario: Scenario, trajectory, path: str, planning_problem_i
     _require()
     import warnings
 
-    from commonroad.common.solution import (CommonRoadSolutionWriter, CostFunction, PlanningProblemSolution,
-                                            Solution, VehicleModel, VehicleType)
+    from commonroad.common.solution import (
+        CommonRoadSolutionWriter,
+        CostFunction,
+        PlanningProblemSolution,
+        Solution,
+        VehicleModel,
+        VehicleType,
+    )
     from commonroad.scenario.scenario import ScenarioID
     from commonroad.scenario.state import KSState
     from commonroad.scenario.trajectory import Trajectory as CRTrajectory

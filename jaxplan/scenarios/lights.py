@@ -26,7 +26,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxplan.scenarios.loader import LIGHT_COLORS, LIGHT_DIRECTIONS, ScenarioError
-from jaxplan.types import _pytree
+from jaxplan.types import pytree_dataclass
 
 GREEN, YELLOW, RED, RED_YELLOW, INACTIVE = (LIGHT_COLORS.index(c) for c in
                                             ("green", "yellow", "red", "redYellow", "inactive"))
@@ -36,7 +36,7 @@ LINE_MARGIN = 0.25  # m: the route crosses a stop line within this beyond its en
 _RESTRICT = {GREEN: 0, YELLOW: 1, RED_YELLOW: 2, RED: 3}  # most restrictive wins where ambiguous
 
 
-@_pytree(data_fields=("line", "s", "color", "period", "lanelet", "valid"))
+@pytree_dataclass(data_fields=("line", "s", "color", "period", "lanelet", "valid"))
 class TrafficLights:
     """The stop lines on a scene's route and their colors (``NL`` lines, ``P`` steps of colors).
 
@@ -57,7 +57,7 @@ class TrafficLights:
     lanelet: Any
     valid: Any
 
-    def validate(self) -> "TrafficLights":
+    def validate(self) -> TrafficLights:
         """Host-side checks of shapes and values (``ValueError`` naming the field)."""
         line, s = np.asarray(self.line), np.asarray(self.s)
         color, period, valid = np.asarray(self.color), np.asarray(self.period), np.asarray(self.valid)

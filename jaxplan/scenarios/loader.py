@@ -38,7 +38,6 @@ from jaxplan.geometry.frenet import ReferenceLine
 from jaxplan.scenarios.polylines import nearest_on_polyline
 from jaxplan.types import FLOAT32_MAX_COORD, Obstacles
 
-
 # Sizes (length, width) for road users the files give without one.
 DEFAULT_SIZE = {"pedestrian": (0.6, 0.6), "bicycle": (1.8, 0.6)}
 

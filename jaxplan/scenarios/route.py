@@ -158,7 +158,7 @@ def neighbour_map(scenario) -> dict:
     lo = np.array([np.minimum(ln.left.min(0), ln.right.min(0)) for ln in lanes]).reshape(-1, 2)
     hi = np.array([np.maximum(ln.left.max(0), ln.right.max(0)) for ln in lanes]).reshape(-1, 2)
     reach = 5.0 + SHARED_BOUND
-    for i, ln in enumerate(lanes):
+    for ln in lanes:
         for side in ("left", "right"):
             if (ln.id, side) in out:
                 continue

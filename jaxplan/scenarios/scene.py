@@ -55,7 +55,7 @@ from jaxplan.scenarios.lane_paths import lane_paths
 from jaxplan.scenarios.lights import no_lights, pad_lights, route_lights
 from jaxplan.scenarios.polylines import arc_length, nearest_on_polyline, resample_polyline, smooth_polyline
 from jaxplan.scenarios.route import Route, RouteError, neighbour_map, plan_route
-from jaxplan.types import Obstacles, _pytree, check_coordinates, check_finite
+from jaxplan.types import Obstacles, check_coordinates, check_finite, pytree_dataclass
 
 OBSTACLE_TYPES = ("car", "truck", "bus", "motorcycle", "bicycle", "pedestrian", "parkedVehicle",
                   "constructionZone", "unknown")
@@ -90,7 +90,7 @@ class SceneConfig:
     route_max_dev: float = 0.1
 
 
-@_pytree(data_fields=("region", "region_valid", "has_region", "time", "speed", "heading", "has_heading",
+@pytree_dataclass(data_fields=("region", "region_valid", "has_region", "time", "speed", "heading", "has_heading",
                       "s_range", "l_range"))
 class Goal:
     """A planning problem's goal (CommonRoad semantics: reached when, at one step, the
@@ -118,7 +118,7 @@ class Goal:
     l_range: Any
 
 
-@_pytree(data_fields=("start", "route", "route_start_s", "route_end_s", "lane_offset", "lane_width", "lane_valid",
+@pytree_dataclass(data_fields=("start", "route", "route_start_s", "route_end_s", "lane_offset", "lane_width", "lane_valid",
                       "lane_same_dir", "road_left", "road_right", "speed_limit", "drivable", "drivable_valid",
                       "obstacles", "obstacle_sl", "obstacle_type", "goal", "dt", "lights",
                       "lane_paths", "lane_path_valid"))
@@ -157,7 +157,7 @@ class Scene:
         """Index of the route's own lane in the lane axis."""
         return self.lane_offset.shape[-2] // 2
 
-    def validate(self) -> "Scene":
+    def validate(self) -> Scene:
         """Host-side checks of shapes and values (clear ``ValueError`` naming the field)."""
         st = check_finite("Scene.start", self.start)
         if st.shape[-1:] != (5,):

@@ -44,7 +44,7 @@ import jax
 import jax.numpy as jnp
 
 from jaxplan.models.idm import idm_accel
-from jaxplan.types import _pytree
+from jaxplan.types import pytree_dataclass
 
 
 @dataclasses.dataclass(frozen=True)
@@ -79,7 +79,7 @@ class AgentParams:
     look_ahead_min: float = 20.0
     look_ahead_points: int = 12
 
-    def validate(self) -> "AgentParams":
+    def validate(self) -> AgentParams:
         for f in ("time_gap", "min_gap", "delta", "speed_ratio", "speed_margin", "v_floor", "look_ahead_time",
                   "look_ahead_min"):
             v = getattr(self, f)
@@ -94,7 +94,7 @@ class AgentParams:
         return self
 
 
-@_pytree(data_fields=("xy", "heading", "s", "v", "sl", "valid", "static", "first", "box0"))
+@pytree_dataclass(data_fields=("xy", "heading", "s", "v", "sl", "valid", "static", "first", "box0"))
 class AgentPaths:
     """Every obstacle's recorded path (one scene; ``K`` obstacles, ``T`` recorded steps). Steps
     where an obstacle is not recorded repeat its nearest earlier state (before its first: its
@@ -123,7 +123,7 @@ class AgentPaths:
     box0: Any
 
 
-@_pytree(data_fields=("s", "v"))
+@pytree_dataclass(data_fields=("s", "v"))
 class AgentState:
     """IDM agents at one step: ``s (K,)`` arc length along their paths, ``v (K,)`` speed."""
 

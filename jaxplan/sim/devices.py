@@ -1,7 +1,7 @@
 """Scenes split over every local device: a 1-D mesh, placement of a batch along its scene axis."""
 from __future__ import annotations
 
-from typing import Callable
+from collections.abc import Callable
 
 import jax
 import numpy as np

@@ -36,7 +36,7 @@ from jax import lax
 from jaxplan.geometry.frenet import frenet_points, ref_state
 from jaxplan.scenarios.scene import OBSTACLE_TYPES
 from jaxplan.sim.agents import AgentPaths, AgentState, agent_boxes, path_frenet, path_pose
-from jaxplan.types import Obstacles, _pytree
+from jaxplan.types import Obstacles, pytree_dataclass
 
 PREDICTIONS = ("oracle", "cv")
 LANE_MATCH_DIST = 2.0  # m: an obstacle farther than this from every lane path goes straight
@@ -45,7 +45,7 @@ LANE_MATCH_TIE = 0.01  # score per metre along the path: of equally near paths, 
 PEDESTRIAN = OBSTACLE_TYPES.index("pedestrian")
 
 
-@_pytree(data_fields=("x", "y", "valid", "sigma", "theta", "route_s", "n"))
+@pytree_dataclass(data_fields=("x", "y", "valid", "sigma", "theta", "route_s", "n"))
 class LanePaths:
     """``Scene.lane_paths`` ready for look-ups (one scene, ``LP`` paths of ``Q`` points), points on
     the leading axis (XLA's CPU backend reduces small trailing axes slowly).

@@ -35,7 +35,7 @@ from jaxplan.sim.agents import AgentParams, agent_boxes, agent_paths, agents_ste
 from jaxplan.sim.metrics.goal import goal_reached
 from jaxplan.sim.prediction import PREDICTIONS, lane_cache, planner_view
 from jaxplan.sim.tracking import TRACKERS
-from jaxplan.types import Obstacles, _pytree
+from jaxplan.types import Obstacles, pytree_dataclass
 
 AGENTS = ("log", "idm")
 
@@ -90,7 +90,7 @@ class SimConfig:
     agent_params: AgentParams = AgentParams()
     remat: bool = False
 
-    def validate(self, planner: Planner | None = None) -> "SimConfig":
+    def validate(self, planner: Planner | None = None) -> SimConfig:
         if self.n_steps < 1 or self.replan_every < 1:
             raise ValueError(f"SimConfig: n_steps and replan_every must be >= 1, got {self.n_steps}, {self.replan_every}")
         if self.replan not in ("periodic", "lazy"):
@@ -106,7 +106,7 @@ class SimConfig:
                                  f"re-plan period ({self.replan_every} steps)")
         return self
 
-    def check_traffic(self) -> "SimConfig":
+    def check_traffic(self) -> SimConfig:
         """The traffic settings (``agents``, ``prediction``, ``agent_params``; part of ``validate``,
         which every drive runs when it is traced)."""
         if self.agents not in AGENTS:
@@ -123,7 +123,7 @@ class SimConfig:
         return -(-self.n_steps // self.replan_every)
 
 
-@_pytree(data_fields=("t", "x", "y", "heading", "v", "a", "kappa", "valid", "end_step", "plan_ok", "fallback",
+@pytree_dataclass(data_fields=("t", "x", "y", "heading", "v", "a", "kappa", "valid", "end_step", "plan_ok", "fallback",
                       "replanned", "info", "traffic"))
 class DriveLog:
     """A drive (add leading batch axes for batches): ``N = n_steps + 1`` states at
@@ -219,7 +219,7 @@ def plan_conflicts(traj, idx, scene, step, vehicle, margin: float):
     return jnp.any(obs.valid & inside[None] & (sep < margin))
 
 
-@_pytree(data_fields=("ego", "done", "plan", "idx", "plan_ok", "agents"))
+@pytree_dataclass(data_fields=("ego", "done", "plan", "idx", "plan_ok", "agents"))
 class DriveState:
     """Where a drive stands between planning cycles (one scene; add leading axes for a batch).
 
@@ -239,7 +239,7 @@ class DriveState:
     agents: Any = None
 
 
-@_pytree(data_fields=("states", "was_done", "ok", "fallback", "replanned", "info", "moved"))
+@pytree_dataclass(data_fields=("states", "was_done", "ok", "fallback", "replanned", "info", "moved"))
 class DriveChunk:
     """What consecutive planning cycles produced (``C`` cycles of ``K = replan_every`` steps each):
     ``states`` (``EgoState`` ``(C, K)``), ``was_done (C, K)``, ``ok, fallback, replanned (C,)``,

@@ -45,8 +45,8 @@ from jaxplan.speed.st_boundary import (
     car_probes,
     project_obstacles,
     side_boundaries,
-    strip_boundaries,
     station_intervals,
+    strip_boundaries,
     strip_extent,
 )
 

@@ -63,7 +63,7 @@ from jaxplan.geometry.frenet import ReferenceLine
 from jaxplan.speed.nonblocking import classify, keep_clear_intervals
 from jaxplan.speed.path_profile import PathProfile, path_profile, resample_obstacles
 from jaxplan.speed.st_boundary import BIG, STBoundary, car_extent, project_obstacles
-from jaxplan.types import Obstacles, VehicleParams, _pytree, check_weights, is_concrete
+from jaxplan.types import Obstacles, VehicleParams, check_weights, is_concrete, pytree_dataclass
 
 
 @dataclasses.dataclass(frozen=True)
@@ -146,7 +146,7 @@ class SpeedConfig:
         """``(n_t * n_sub + 1,)`` times of the obstacle checks."""
         return np.arange(self.n_t * self.n_sub + 1) * (self.dt / self.n_sub)
 
-    def validate(self) -> "SpeedConfig":
+    def validate(self) -> SpeedConfig:
         if self.dt <= 0 or self.ds <= 0 or self.n_t < 1 or self.n_sub < 1:
             raise ValueError("SpeedConfig: dt, ds, n_t and n_sub must be positive")
         if self.v_max < self.dv:
@@ -167,7 +167,7 @@ class SpeedConfig:
         return self
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def band_widths(config: SpeedConfig) -> tuple:
     """Static band sizes ``((S_1, V_1), ..., (S_n, V_n))``: stations and speeds of the
     reachable states at each knot, the widest over every start speed in ``[0, v_max]``."""
@@ -231,20 +231,20 @@ class CostWeights:
     w_goal: Any = 5.0
     w_goal_v: Any = 5.0
 
-    def validate(self) -> "CostWeights":
+    def validate(self) -> CostWeights:
         """Host-side: every weight finite and >= 0 (a ``ValueError`` names the field)."""
         check_weights(self)
         return self
 
     @classmethod
-    def default(cls, dtype=jnp.float32) -> "CostWeights":
+    def default(cls, dtype=jnp.float32) -> CostWeights:
         return jax.tree_util.tree_map(lambda x: jnp.asarray(x, dtype), cls())
 
 
 SpeedCostWeights = CostWeights
 
 
-@_pytree(data_fields=("limit_s", "limit_v", "stop_s", "goal_s", "goal_t", "goal_v", "lane_s"))
+@pytree_dataclass(data_fields=("limit_s", "limit_v", "stop_s", "goal_s", "goal_t", "goal_v", "lane_s"))
 class SpeedRoad:
     """What the road asks of the speed (one scene; stations on the path, relative to the car).
 
@@ -270,7 +270,7 @@ class SpeedRoad:
     lane_s: Any = float("inf")
 
     @classmethod
-    def free(cls, dtype=jnp.float32) -> "SpeedRoad":
+    def free(cls, dtype=jnp.float32) -> SpeedRoad:
         """No speed limit, nothing to stop for, no goal."""
         inf = jnp.asarray(jnp.inf, dtype)
         two = jnp.array([-jnp.inf, jnp.inf], dtype)
@@ -637,7 +637,7 @@ def _terminal(xs, x0, vj, lo, hit, vob, kc, scene, c: SpeedConfig, w: CostWeight
 
 # ----------------------------------------------------------------------------- the DP
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _substep_tables(config: SpeedConfig):
     """Static ``(V, M, n_sub + 1)`` tables for the sub-steps ``q = 0..n_sub`` of a segment
     starting at speed j with acceleration offset m: station offset (rounded, in ds),
@@ -678,7 +678,7 @@ def _h_range(jlo1, jhi1, k: int, c: SpeedConfig, xp=np):
     return lo, hi
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def dp_band(config: SpeedConfig) -> tuple:
     """The DP's static band: ``(H, D, cap)``. At knot ``k`` the states are ``(h, j)``, ``h`` in
     ``[hlo_k, hlo_k + H[k-1])`` (``dp_offsets``), every speed ``j < n_v``; ``D``: the most
@@ -712,7 +712,7 @@ def dp_offsets(first, config: SpeedConfig):
                       for k in range(1, c.n_t + 1)]).astype(jnp.int32)
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _step_tables(config: SpeedConfig, k: int):
     """Static tables of the DP step into knot ``k`` (per target speed ``j'``, rows):
     ``(V, M (n_sub + 1) + M)`` int32 flat starts of the sub-step windows in the step's table
@@ -779,7 +779,7 @@ def _forward(d: DPCosts, config: SpeedConfig, temperature=None, probes=None):
     accel = d.accel.astype(dtype)
     args = []
     for k in range(2, c.n_t + 1):
-        Hk, Hp = H[k - 1], H[k - 2]
+        Hk = H[k - 1]
         half = Hk + V - 1
         # previous values at h = hlo_k + a - j - (V - 1) + x, rows j = -top .. V - 1 + bot
         vp = jnp.pad(val, ((top, bot), (V - 1, Hk + V)), constant_values=big_u)

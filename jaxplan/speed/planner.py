@@ -43,12 +43,12 @@ from jaxplan.plan_context import RoadContext, road_context, route_sample
 from jaxplan.planner import EgoState, PlanOutput
 from jaxplan.speed.compose import compose_profile
 from jaxplan.speed.dp import CostWeights, SpeedConfig, SpeedRoad, _plan_one
-from jaxplan.speed.st_boundary import car_extent
 from jaxplan.speed.smooth import SmoothWeights, smooth_plan
-from jaxplan.types import Obstacles, VehicleParams, _pytree, weights_from
+from jaxplan.speed.st_boundary import car_extent
+from jaxplan.types import Obstacles, VehicleParams, pytree_dataclass, weights_from
 
 
-@_pytree(data_fields=("s", "xy", "theta", "kappa", "l", "route_s", "valid", "blocked_s", "ok"))
+@pytree_dataclass(data_fields=("s", "xy", "theta", "kappa", "l", "route_s", "valid", "blocked_s", "ok"))
 class RoutePath:
     """The path the speed is planned on (the fields of ``jaxplan.bounds``' ``PathPlan`` that
     the speed planner reads): ``s (N,)`` distance along the path from the car (negative behind

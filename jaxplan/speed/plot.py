@@ -8,7 +8,7 @@ import jax
 import numpy as np
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _cycle_fn(planner):
     return jax.jit(planner.speed_plan)
 

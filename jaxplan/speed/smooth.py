@@ -123,7 +123,7 @@ def _maps(n: int, h: float):
     return Va, np.stack([va0, vv0], 1), Sa, np.stack([sa0, sv0], 1)
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def qp_matrices(n: int, h: float, w: SmoothWeights):
     """The constant QP data (float64 numpy): ``P (n, n)``, the constraint matrix ``A (4n, n)``
     with its row blocks [a, jerk, v, s], the affine parts (``Va, Vy, Sa, Sy, Ja, Jy``), the

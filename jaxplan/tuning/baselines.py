@@ -15,7 +15,6 @@ import itertools
 import jax
 import jax.numpy as jnp
 import numpy as np
-
 from jax import lax
 
 from jaxplan.geometry.boxes import poses_to_boxes

@@ -323,8 +323,8 @@ def tune_files(paths, planner_name: str, out: str, scenes: int = 24, drive_steps
     files = split["train"] + split["validation"]
     enable_compilation_cache()
     loaded = load_many(files, progress=progress)
-    for path, reason in loaded.errors:
-        raise ValueError(reason)
+    if loaded.errors:
+        raise ValueError(loaded.errors[0][1])
     recs = {k: [r for r in loaded.records if r.path in v] for k, v in split.items()}
     run = sizes.run_sizes([r.scene for r in loaded.records])
     stack = lambda rs: sizes.for_drive(stack_scenes([r.scene for r in rs], min_sizes=run))  # noqa: E731

@@ -78,7 +78,7 @@ class DemoConfig:
     min_speed: float = 1.0
     max_lane_offset: float = 2.5
 
-    def validate(self) -> "DemoConfig":
+    def validate(self) -> DemoConfig:
         if not 0 < self.min_future <= self.horizon:
             raise ValueError(f"DemoConfig: need 0 < min_future <= horizon, got {self.min_future}, {self.horizon}")
         if self.history < 1.0:
@@ -136,11 +136,11 @@ class DemoIndex:
     def __len__(self) -> int:
         return len(self.scenario)
 
-    def take(self, idx) -> "DemoIndex":
+    def take(self, idx) -> DemoIndex:
         return DemoIndex(*(np.asarray(getattr(self, f.name))[idx] for f in dataclasses.fields(self)))
 
     @staticmethod
-    def concat(parts) -> "DemoIndex":
+    def concat(parts) -> DemoIndex:
         return DemoIndex(*(np.concatenate([getattr(p, f.name) for p in parts]) for f in dataclasses.fields(DemoIndex)))
 
 
@@ -154,7 +154,7 @@ class DemoSet:
     def __len__(self) -> int:
         return len(self.index)
 
-    def take(self, idx) -> "DemoSet":
+    def take(self, idx) -> DemoSet:
         """A subset by integer indices or a boolean mask ``(B,)``."""
         idx = np.asarray(idx)
         if idx.dtype == bool:

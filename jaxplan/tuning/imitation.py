@@ -153,7 +153,7 @@ class ImitationModel:
         os.replace(path + ".tmp", path)
 
     @staticmethod
-    def load(path: str) -> "ImitationModel":
+    def load(path: str) -> ImitationModel:
         """Read a model written by ``save``; one clear error names a bad file or field."""
         try:
             with open(path) as f:
@@ -180,7 +180,7 @@ class ImitationModel:
         return ImitationModel(names, theta, scale, tau, d.get("meta") or {})
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _adam(lr: float, steps: int):
     """Adam with warm-up and cosine decay (one object per setting: the training step compiles once)."""
     return optax.adam(optax.warmup_cosine_decay_schedule(0.0, lr, max(1, steps // 10), steps, lr * 0.05))

@@ -37,8 +37,8 @@ from jaxplan.tuning.baselines import CHUNK, chunks
 from jaxplan.tuning.demos import Demo
 from jaxplan.tuning.features import FeatureConfig, candidate_features
 from jaxplan.tuning.metrics import displacement
-from jaxplan.tuning.train import choice_nll, from_log, target_distribution
 from jaxplan.tuning.traffic import IDMParams, frenet_traffic
+from jaxplan.tuning.train import choice_nll, from_log, target_distribution
 from jaxplan.types import Obstacles, VehicleParams
 
 # 17 end speeds (km/h from the start speed), finer near zero where most humans end.
@@ -92,7 +92,7 @@ class LatticeData:
     def n(self) -> int:
         return int(self.ade3.shape[0])
 
-    def take(self, idx) -> "LatticeData":
+    def take(self, idx) -> LatticeData:
         idx = np.asarray(idx)
         if idx.dtype == bool:
             idx = np.nonzero(idx)[0]

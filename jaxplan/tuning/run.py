@@ -16,17 +16,31 @@ import dataclasses
 import fnmatch
 import os
 
-import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxplan.tuning.baselines import (CHUNK, IDM_GRID, calibrate_idm, constant_acceleration, constant_velocity, idm,
-                                      predict_errors)
+from jaxplan.tuning.baselines import (
+    CHUNK,
+    IDM_GRID,
+    calibrate_idm,
+    constant_acceleration,
+    constant_velocity,
+    idm,
+    predict_errors,
+)
 from jaxplan.tuning.demos import LOCATIONS, DemoConfig, DemoSet, demo_set, synthetic_set
 from jaxplan.tuning.imitation import ImitationModel, fit_model, random_search_model
-from jaxplan.tuning.lattice_tuning import (TUNING_CONFIG, TUNING_CONFIGS, LatticeData, choice_errors,
-                                           WEIGHT_NAMES, default_weights, lattice_data, nearest_eligible,
-                                           rule_choice)
+from jaxplan.tuning.lattice_tuning import (
+    TUNING_CONFIG,
+    TUNING_CONFIGS,
+    WEIGHT_NAMES,
+    LatticeData,
+    choice_errors,
+    default_weights,
+    lattice_data,
+    nearest_eligible,
+    rule_choice,
+)
 from jaxplan.tuning.metrics import bootstrap_ci, summary
 from jaxplan.tuning.traffic import IDMParams
 from jaxplan.tuning.vehicles import split_by_vehicle
@@ -76,7 +90,6 @@ def synthetic_driver_set(n: int, seed: int = 0, configs=CANDIDATE_SETS["small"])
     ``SYNTHETIC_DRIVER`` choosing among ``configs``' candidates (its chosen candidate is the
     recorded future)."""
     from jaxplan.tuning.features import FEATURES
-
     from jaxplan.tuning.imitation import feature_scale
 
     ds = synthetic_set(n, seed)

@@ -16,7 +16,6 @@ built on the station-grid DP; it is gone with the knot-speed DP and not yet rebu
 from __future__ import annotations
 
 import dataclasses
-import functools
 import itertools
 
 import jax
@@ -28,8 +27,8 @@ from jaxplan.geometry.frenet import reference_line
 from jaxplan.scenarios.polylines import resample_polyline
 from jaxplan.speed import CostWeights, SpeedConfig, expected_speed_profile, plan_speed
 from jaxplan.tuning.demos import Demo
-from jaxplan.tuning.train import fit, from_log, to_log
 from jaxplan.tuning.traffic import IDMParams, frenet_traffic, idm_rollout
+from jaxplan.tuning.train import fit, from_log, to_log
 from jaxplan.types import Obstacles, VehicleParams
 
 # 5 s at 1 s steps and 1 m stations (knot speeds every 2 m/s, accelerations every 2 m/s^2), speeds up to

@@ -73,11 +73,11 @@ def vehicle_links(scenarios, min_overlap: float = 1.0, min_travel: float = 3.0, 
     for sid in tracks:
         by_loc[location_of(sid)].append(sid)
     links = []
-    for loc, sids in by_loc.items():
+    for sids in by_loc.values():
         # bucket by size (1 cm grid, neighbours included) so only same-size tracks are compared
         buckets = defaultdict(list)
         for sid in sids:
-            for oid, k0, xy, (ln, wd) in tracks[sid]:
+            for oid, _k0, xy, (ln, wd) in tracks[sid]:
                 buckets[(round(ln / size_tol), round(wd / size_tol))].append((sid, oid, xy, ln, wd))
         seen = set()
         for (bl, bw), items in buckets.items():
