@@ -30,7 +30,10 @@ rectangle of reachable stations and speeds (``DPCosts.ilo``, ``jlo``).
   not staying inside: a collision the car cannot avoid is met at the lowest speed); ``w_block relu(d_follow - gap)^2`` behind the
   tightest one ahead, with the time-headway follow distance
   ``d_follow = follow_dist + follow_headway * v_obstacle``; ``w_block relu(overtake_dist
-  - lead)^2`` ahead of one passed; non-blocking (times a size factor ``(area / 8 m^2) **
+  - lead)^2`` ahead of one passed; ``w_rear relu(upper + rear_gap - s)^2`` ahead of the
+  nearest one behind (the room left to a vehicle closing in from behind) and ``REAR_CONTACT
+  big`` per second inside its boundary (contact the other's fault: far below one the car's
+  own); non-blocking (times a size factor ``(area / 8 m^2) **
   size_exp``): ``w_no_bypass relu(front - rear_of_neighbour)^2``, ``w_blind`` while the
   footprint is alongside the zone ``[rear - blind_back, rear + blind_front]``; keep-clear
   ``w_keep_clear`` while inside a region slower than ``keep_clear_v``; the goal
@@ -230,6 +233,8 @@ class CostWeights:
     w_limit: Any = 20.0
     w_goal: Any = 5.0
     w_goal_v: Any = 5.0
+    w_rear: Any = 20.0
+    rear_gap: Any = 2.0
 
     def validate(self) -> CostWeights:
         """Host-side: every weight finite and >= 0 (a ``ValueError`` names the field)."""
@@ -495,7 +500,8 @@ def _obstacle_tables(xs, x0, ds, scene: SpeedScene, config: SpeedConfig, w: Cost
     ``lower - ds / 2 <= xs_u <= upper + ds / 2`` (sub-steps are rounded to the nearest
     station); it is behind it below that range (follow line ``lower - d_follow``, the
     tightest counts) and ahead of it above (lead line ``upper + overtake_dist``, the
-    farthest counts).
+    farthest counts). Obstacles behind (``Classified.rear``) ask for ``rear_gap`` ahead of
+    their boundary's upper end (the nearest counts).
     """
     X = xs.shape[0]
     F = config.n_t * config.n_sub + 1
@@ -537,6 +543,11 @@ def _obstacle_tables(xs, x0, ds, scene: SpeedScene, config: SpeedConfig, w: Cost
     init, _ = side((zero, zero), 0) if slo.shape[0] else ((jnp.zeros((F, X), dtype),) * 2, None)
     (zone, nbp), _ = jax.lax.scan(side, init, jnp.arange(1, slo.shape[0]))
     rate = w.w_block * (jnp.maximum(xs - e, 0.0) ** 2 + jnp.maximum(g - xs, 0.0) ** 2)
+    # behind: the room left ahead of the nearest one, and a contact (its fault, but a contact)
+    rb = cl.rear
+    r = jnp.max(jnp.where(rb.hit, rb.upper, -big), axis=0, initial=-big)[:, None]  # (F, 1)
+    struck = jnp.any(rb.hit[..., None] & (xs >= rb.lower[..., None] - 0.5 * ds) & (xs <= rb.upper[..., None] + 0.5 * ds), 0)
+    rate = rate + w.w_rear * jnp.maximum(r + w.rear_gap - xs, 0.0) ** 2 + jnp.where(struck, REAR_CONTACT * config.big, 0.0)
     return rate + w.w_no_bypass * nbp + w.w_blind * zone, collide
 
 
@@ -551,6 +562,7 @@ def _goal_table(xs, f_goal, scene: SpeedScene, w: CostWeights):
 
 
 COLLISION_V = 10.0  # m/s: a collision's cost grows by big per this much impact speed
+REAR_CONTACT = 0.01  # per second in contact with a vehicle from behind, times big (far below a collision of the car's own)
 GOAL_TAIL = 1.0  # s: the goal is asked for in the last second of its time window
 GOAL_HUBER = 2.0  # m: the goal's distance cost is quadratic up to this, then linear
 

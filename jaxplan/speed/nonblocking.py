@@ -23,6 +23,9 @@ gets decisions:
 * ``blind_zone``: do not stay alongside its blind zone (beside its rear), for every moving
   neighbour.
 
+An obstacle behind keeps its band boundary as ``rear``: the speed plan leaves it room (a
+vehicle closing in from behind that will not brake is not waited for).
+
 Keep-clear regions (a junction box, a crosswalk: convex polygons) project onto the path
 as a station range where the car must not stop.
 """
@@ -60,6 +63,8 @@ class Classified:
         size: ``(K,)`` footprint area (m^2) of each obstacle.
         v_along: ``(K, T)`` speed of each obstacle along the path (m/s, from its centre's
             station over time).
+        rear: ``STBoundary`` ``(K, T)``: the band boundary of the obstacles behind (``hit``
+            only for those).
     """
 
     blocking: Any
@@ -72,6 +77,7 @@ class Classified:
     blind_zone: Any
     size: Any
     v_along: Any
+    rear: Any
 
 
 def obstacle_speed(obstacles: Obstacles):
@@ -131,6 +137,7 @@ def classify(osl: ObstaclesSL, obstacles: Obstacles, vehicle: VehicleParams, t, 
     limit = braking_station(jnp.asarray(v0, dtype), a_min, t[f]) - jnp.where(moved, 0.5 * vehicle.length, 0.0)
     behind = enters & (centre < limit) & (squarely | ~moved)
     is_blk = enters & ~behind
+    rear = STBoundary(blk.lower, blk.upper, blk.hit & behind[:, None])
     blk = STBoundary(blk.lower, blk.upper, blk.hit & is_blk[:, None])
     nl, nr = jnp.sum(left.hit, -1), jnp.sum(right.hit, -1)
     is_nb = ~is_blk & ((nl + nr) > 0)
@@ -149,7 +156,7 @@ def classify(osl: ObstaclesSL, obstacles: Obstacles, vehicle: VehicleParams, t, 
     blind = is_nb & moving
     b0 = jnp.max(jnp.where(obstacles.valid[..., None], obstacles.boxes, 0.0), axis=-2)
     size = b0[..., 2] * b0[..., 3]
-    return Classified(blk, side, is_blk, is_nb, behind, side_of, no_bypass, blind, size, along_speed(osl, t))
+    return Classified(blk, side, is_blk, is_nb, behind, side_of, no_bypass, blind, size, along_speed(osl, t), rear)
 
 
 def keep_clear_intervals(profile: PathProfile, vehicle: VehicleParams, vertices, valid=None, active=None):
