@@ -137,10 +137,10 @@ def _tune(args) -> int:
         return 0
     if args.planner == "idm":
         raise ValueError("tune idm: only with --closed-loop (demonstrations tune lattice and speed)")
-    given = [f"--{k.replace('_', '-')}" for k in ("scenes", "drive_steps", "batch", "temperature")
-             if getattr(args, k) is not None]
-    if given:
-        raise ValueError(f"{', '.join(given)}: only with --closed-loop")
+    closed_only = [f"--{k.replace('_', '-')}" for k in ("scenes", "drive_steps", "batch", "temperature")
+                   if getattr(args, k) is not None]
+    if closed_only:
+        raise ValueError(f"{', '.join(closed_only)}: only with --closed-loop")
     if args.scenarios:
         ca.scenario_dir(args.scenarios)
 

@@ -5,8 +5,9 @@ switches) with
 
 - ``vehicle``: the ``VehicleParams`` it plans for (the simulator drives that car);
 - ``dt`` and ``horizon_steps``: its trajectory's time step and length;
-- ``init_params() -> params``: its tunable parameters (cost weights, model constants) as a
-  pytree of arrays, the defaults. They are never part of the config: a planner is compiled
+- ``init_params(values=None) -> params``: its tunable parameters (cost weights, model
+  constants) as a pytree of arrays, the defaults with ``values`` (``{name: value}``, e.g.
+  tuned weights) in their place. They are never part of the config: a planner is compiled
   once and driven with any params (``jax.grad`` and optax work on them);
 - ``plan(params, scene, ego, step) -> PlanOutput``: jittable, for one scene (``jax.vmap``
   batches it). ``params`` is a pytree shaped as ``init_params()``; ``scene`` a
@@ -90,7 +91,7 @@ class Planner(Protocol):
     @property
     def horizon_steps(self) -> int: ...
 
-    def init_params(self) -> Any: ...
+    def init_params(self, values: Mapping | None = None, /) -> Any: ...
 
     def plan(self, params, scene, ego: EgoState, step) -> PlanOutput: ...
 
@@ -103,7 +104,9 @@ def check_params(planner, params) -> Any:
     want = planner.init_params()
     if params is None:
         return want
-    t_want, t_got = jax.tree_util.tree_structure(want), jax.tree_util.tree_structure(params)
+    # Any: jaxlib ships no stubs for PyTreeDef, and mypy cannot compare its placeholder type
+    t_want: Any = jax.tree_util.tree_structure(want)
+    t_got: Any = jax.tree_util.tree_structure(params)
     if t_want != t_got:
         raise ValueError(f"{type(planner).__name__} params: expected the structure of init_params() ({t_want}), "
                          f"got {t_got}")

@@ -57,7 +57,7 @@ FLOAT32_MAX_COORD = 1e5
 
 def check_coordinates(name: str, xy: np.ndarray) -> None:
     """Refuse coordinates too far from the origin for float32 (unless x64 is on)."""
-    if xy.size and not jax.config.jax_enable_x64 and np.abs(xy).max() > FLOAT32_MAX_COORD:
+    if xy.size and not jax.config.read("jax_enable_x64") and np.abs(xy).max() > FLOAT32_MAX_COORD:
         raise ValueError(f"{name}: coordinates up to {np.abs(xy).max():.3g} m are too far from the origin "
                          f"for float32 (limit {FLOAT32_MAX_COORD:g} m); move the scene to a local frame "
                          f"(the scenario loaders do) or enable jax_enable_x64")

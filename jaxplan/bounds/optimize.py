@@ -43,6 +43,7 @@ within ``tol_violation``.
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Callable
 from typing import Any, NamedTuple
 
 import jax
@@ -400,7 +401,7 @@ def admm_solve(P, q, C, lo, hi, config: PathQPConfig, z0=None, y0=None, matvec=N
     rho = jnp.asarray(config.rho, dtype)
     total = max(config.max_iter // config.check_every, 1)
     n_stages = config.rho_updates + 1 if config.adaptive_rho else 1
-    budgets = []  # blocks per stage: 2, 4, 8, ... and the rest of max_iter in the last
+    budgets: list[int] = []  # blocks per stage: 2, 4, 8, ... and the rest of max_iter in the last
     for k in range(n_stages):
         rest = total - sum(budgets)
         if rest <= 0:
@@ -698,11 +699,14 @@ def optimize_path(lower, upper, ds, l_ref=None, init=None, weights: PathWeights 
     args = [flat(lower, (T,)), flat(upper, (T,)), flat(dl_bounds[0], (T,)), flat(dl_bounds[1], (T,)),
             flat(ddl_bounds[0], (T,)), flat(ddl_bounds[1], (T,)), flat(l_ref, (T,)), flat(init, (3,)),
             flat(ds, ())]
+    fn: Callable[..., Any]
     if warm is None:
-        fn = lambda *a: _frame(*a, weights, config, None, None)
+        fn = lambda lo, up, dlo, dhi, ddlo, ddhi, lr, x0, ds_: _frame(
+            lo, up, dlo, dhi, ddlo, ddhi, lr, x0, ds_, weights, config, None, None)
     else:
         args += [flat(warm[0], (3 * T,)), flat(warm[1], (6 * T - 3,))]
-        fn = lambda *a: _frame(*a[:9], weights, config, a[9], a[10])
+        fn = lambda lo, up, dlo, dhi, ddlo, ddhi, lr, x0, ds_, z0, y0: _frame(
+            lo, up, dlo, dhi, ddlo, ddhi, lr, x0, ds_, weights, config, z0, y0)
     out = jax.vmap(fn)(*args)
     return jax.tree_util.tree_map(lambda x: x.reshape(lead + x.shape[1:]), out)
 

@@ -100,10 +100,10 @@ def function_id(fn: Callable) -> str:
     """A hash (hex) of a function's identity: module, qualified name, source (or bytecode) and
     the closure values that are plain numbers or strings (a seed captured by a factory).
     ``jax.jit`` wrappers and ``functools.partial`` are looked through (partial arguments included)."""
-    parts = []
+    parts: list[Any] = []
     while True:
         if hasattr(fn, "func") and hasattr(fn, "args"):  # functools.partial
-            parts.append(("partial", fn.args, dict(fn.keywords or {})))
+            parts.append(("partial", fn.args, dict(getattr(fn, "keywords", None) or {})))
             fn = fn.func
         elif hasattr(fn, "__wrapped__"):
             fn = fn.__wrapped__
@@ -224,7 +224,8 @@ def run_chunked(fn: Callable, make_chunk: Callable[[int, int], object], n_scenes
         res = sharded_map(fn, make_chunk(start, stop), mesh, pad_to=chunk_size)
         path = _chunk_path(out_dir, i)
         tmp = path + ".tmp.npz"
-        np.savez(tmp, _start=np.int64(start), **{k: np.asarray(v) for k, v in res.items()})
+        arrays: dict[str, Any] = {k: np.asarray(v) for k, v in res.items()}
+        np.savez(tmp, _start=np.int64(start), **arrays)
         os.replace(tmp, path)
         done += stop - start
         if bar is not None:

@@ -49,15 +49,17 @@ CLAIMS = (
 )
 
 
-def value(metrics: dict, figure: str):
+def value(metrics: dict, figure: str) -> float | None:
     """The figure's value in ``metrics``, or ``None`` when a key is missing or not finite."""
     keys = [k.strip() for k in figure.split(" / ")]
-    vals = [metrics.get(k) for k in keys]
-    if any(not isinstance(v, (int, float)) or isinstance(v, bool) or not math.isfinite(v) for v in vals):
+    raw = [metrics.get(k) for k in keys]
+    vals = [float(v) for v in raw
+            if isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)]
+    if len(vals) != len(raw):
         return None
     if len(vals) == 1:
-        return float(vals[0])
-    return float(vals[0]) / float(vals[1]) if vals[1] else None
+        return vals[0]
+    return vals[0] / vals[1] if vals[1] else None
 
 
 def met(v: float, op: str, target: float) -> bool:

@@ -289,6 +289,8 @@ def imitation_figures(args: SuiteArgs) -> dict:
     from jaxplan.eval.tune_suite import LOCATION_GROUPS, plot_heldout
     from jaxplan.tuning.run import demonstrations, evaluate_cost, load_cost
 
+    if args.weights is None:
+        raise ValueError("imitation figures: need --weights")
     cost = load_cost(args.weights)
     train, val, source = demonstrations(args.scenarios, n_synthetic=args.n or 24, seed=args.seed,
                                         pattern="USA_US101-1[0-2]*" if args.quick and args.scenarios else None)

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import os
 import time
+from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -84,11 +85,12 @@ def sweep(n_per_gap: int, gaps, seed: int, config: ParkoutConfig, vehicle: Vehic
     """Scenes with equal front and rear gap ``g`` for each ``g`` in ``gaps``; both models, one batched call each."""
     rng = np.random.default_rng(seed)
     g = np.repeat(np.asarray(gaps, float), n_per_gap)
-    kw = dict(heading_noise_deg=1.5, offset_noise=0.1, edge_noise=0.03, salt=1e-5) if noise else {}
+    kw: dict[str, Any] = (dict(heading_noise_deg=1.5, offset_noise=0.1, edge_noise=0.03, salt=1e-5)
+                          if noise else {})
     scene, info = make_scenes(rng, len(g), vehicle, front_gap=g, rear_gap=g, **kw)
     out = {}
     for model in ("grid", "two_corner"):
-        tm = {}
+        tm: dict[str, float] = {}
         res = park_out(scene, seed * 7919 + 17, config, vehicle, model, timing=tm)
         coll, clear = _judge(res, scene, vehicle)
         out[model] = dict(res=res, collided=coll, clearance=clear, success=np.asarray(res.success) & ~coll, timing=tm)

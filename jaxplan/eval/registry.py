@@ -21,6 +21,7 @@ import sys
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
+from typing import Any
 
 SUITES: dict[str, Callable] = {}
 METRICS, RUN = "metrics.json", "run.json"
@@ -41,7 +42,7 @@ class SuiteArgs:
         """Refuse bad values with a ``ValueError`` naming the field (the checks of ``jaxplan.cli_args``)."""
         from jaxplan import cli_args as ca
 
-        checks = [("out", ca.output_dir, self.out)]
+        checks: list[tuple[str, Callable[[Any], object], object]] = [("out", ca.output_dir, self.out)]
         if self.n is not None:
             checks.append(("n", ca.positive_int, self.n))
         checks.append(("seed", ca.nonnegative_int, self.seed))
@@ -101,13 +102,13 @@ def _module_summaries(path: str, mtime_ns: int) -> dict[str, str]:
     with open(path) as f:
         tree = ast.parse(f.read())
     mod_doc = ast.get_docstring(tree)
-    out = {}
+    out: dict[str, str] = {}
     for node in tree.body:
         if not isinstance(node, ast.FunctionDef):
             continue
         for dec in node.decorator_list:
             if (isinstance(dec, ast.Call) and getattr(dec.func, "id", None) == "register" and dec.args
-                    and isinstance(dec.args[0], ast.Constant)):
+                    and isinstance(dec.args[0], ast.Constant) and isinstance(dec.args[0].value, str)):
                 name = dec.args[0].value
                 out[name] = _first_line(ast.get_docstring(node) or mod_doc, name)
     return out

@@ -77,8 +77,8 @@ def run_strategies(n: int, seeds, cfg: SimConfig = SimConfig(), keep_logs_of: in
     ``pedestrian`` columns; wall times {strategy: [s per seed]}; the scenarios and logs of
     seed ``keep_logs_of`` {strategy: logs}).
     """
-    table = {s: {} for s in (LAZY, PERIODIC, IMMEDIATE)}
-    times = {s: [] for s in table}
+    table: dict[int, dict[str, np.ndarray]] = {s: {} for s in (LAZY, PERIODIC, IMMEDIATE)}
+    times: dict[int, list[float]] = {s: [] for s in table}
     kept = None
     for seed in seeds:
         sc, kinds = scenarios(seed, n, **scenario_kw)
@@ -167,8 +167,8 @@ def figures(table: dict, times: dict, n_runs_per_call: int, rng: np.random.Gener
     res["claim.lazy_5x_fewer_replans_than_periodic"] = float(res["claim.periodic_over_lazy_replans_ci95_lo"] >= 5)
     res["claim.lazy_fewer_replans_than_immediate"] = float(res["claim.immediate_over_lazy_replans_ci95_lo"] > 1)
     # "No more collisions": the paired difference's interval reaches down to zero or below.
-    lo = [res[f"claim.lazy_minus_{STRATEGY_NAMES[s]}_collision_share_ci95_lo"] for s in (PERIODIC, IMMEDIATE)]
-    res["claim.lazy_no_more_collisions"] = float(all(x <= 0 for x in lo))
+    coll_lo = [res[f"claim.lazy_minus_{STRATEGY_NAMES[s]}_collision_share_ci95_lo"] for s in (PERIODIC, IMMEDIATE)]
+    res["claim.lazy_no_more_collisions"] = float(all(x <= 0 for x in coll_lo))
     res["claim.baselines_collide_as_little_as_lazy"] = float(all(
         res[f"claim.lazy_minus_{STRATEGY_NAMES[s]}_collision_share_ci95_hi"] >= 0 for s in (PERIODIC, IMMEDIATE)))
     return res

@@ -10,6 +10,7 @@ from __future__ import annotations
 import hashlib
 import os
 from collections import defaultdict
+from typing import Any
 
 from jaxplan.eval.claims import claims_table
 from jaxplan.eval.registry import METRICS, RUN, read_json, sha256_file
@@ -113,7 +114,7 @@ def write_report(results_dir: str, filename: str = "report.md", force: bool = Fa
     if run is not None and run.get("metrics_sha256") not in (None, sha256_file(path)):
         raise ValueError(f"{run_path}: describes another {METRICS} (an interrupted or mixed run); "
                          f"run `jaxplan eval` into this folder again")
-    by_suite = defaultdict(dict)
+    by_suite: defaultdict[str, dict[str, Any]] = defaultdict(dict)
     for k, v in metrics.items():
         suite, _, name = k.partition(".")
         by_suite[suite][name or suite] = v

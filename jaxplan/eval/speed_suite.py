@@ -51,7 +51,8 @@ def recorded_scenes(directories, n: int | None = None) -> tuple[list, int]:
     from jaxplan.scenarios.route import RouteError
     from jaxplan.scenarios.scene import SceneRecord, build_scene, unique_names
 
-    recs, skipped = [], 0
+    recs: list[SceneRecord] = []
+    skipped = 0
     for d in [directories] if isinstance(directories, str) else directories:
         pairs = []
         if glob.glob(os.path.join(d, "*.json")) or not glob.glob(os.path.join(d, "*.xml")):

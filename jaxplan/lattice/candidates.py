@@ -226,7 +226,7 @@ class LatticeConfig:
         times, emergency and fallback levels, three lateral times, the hold and goal targets,
         the feasibility filter, safety buffers, the terminal condition and harm selection
         (the road planner gives the lanes' offsets in ``RoadTargets``, ``max_lanes`` of them)."""
-        base = dict(modes=("follow", "stop", "goal"), emergency=True, fallback=True,
+        base: dict[str, Any] = dict(modes=("follow", "stop", "goal"), emergency=True, fallback=True,
                     lateral_times=(2.0, 3.0, 4.5), hold_offset=True, goal_offset=True, lanes=(-2, -1, 0, 1, 2),
                     n_offsets=3, offset_span=0.6, buffer_lon=1.0, buffer_lat=0.3, edge_margin=0.25, terminal=True,
                     near_budget=0.0, near_k=6, d_threshold=150.0)
@@ -381,16 +381,16 @@ def atan2(y, x):
 def _lateral_targets(config: LatticeConfig, targets, l0, dtype):
     """Lateral target offsets ``(Pl,)`` = (lateral lane, offset) and whether each exists."""
     _, O, _ = config.lateral_grid
-    centres, ok = [targets.lane_centres.astype(dtype)], [targets.lane_ok]
+    centre_parts, ok_parts = [targets.lane_centres.astype(dtype)], [targets.lane_ok]
     if config.hold_offset:
-        centres.append(jnp.reshape(l0, (1,)).astype(dtype))
-        ok.append(jnp.ones((1,), bool))
+        centre_parts.append(jnp.reshape(l0, (1,)).astype(dtype))
+        ok_parts.append(jnp.ones((1,), bool))
     if config.goal_offset:
         gl = jnp.asarray(targets.goal_l, dtype)
         fin = jnp.all(jnp.isfinite(gl))
-        centres.append(jnp.reshape(jnp.where(fin, 0.5 * (gl[0] + gl[1]), l0), (1,)).astype(dtype))
-        ok.append(jnp.reshape(fin, (1,)))
-    centres, ok = jnp.concatenate(centres), jnp.concatenate(ok)
+        centre_parts.append(jnp.reshape(jnp.where(fin, 0.5 * (gl[0] + gl[1]), l0), (1,)).astype(dtype))
+        ok_parts.append(jnp.reshape(fin, (1,)))
+    centres, ok = jnp.concatenate(centre_parts), jnp.concatenate(ok_parts)
     offs = jnp.linspace(-config.offset_span, config.offset_span, O, dtype=dtype) if O > 1 else jnp.zeros((1,), dtype)
     return (centres[:, None] + offs).reshape(-1), jnp.repeat(ok, O)
 

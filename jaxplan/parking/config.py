@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from typing import Any
 
 
 @dataclasses.dataclass(frozen=True)
@@ -179,7 +180,7 @@ class ParkoutConfig:
         y_min = -math.ceil(2 * (0.5 * W + 1.5)) / 2
         y_max = math.ceil(W + base.c + L - ro)
         diag = math.hypot(L + 2 * base.margin, W + 2 * base.margin)
-        fields = dict(x_min=float(x_min), y_min=float(y_min), cols=int(round((x_max - x_min) / h)),
+        fields: dict[str, Any] = dict(x_min=float(x_min), y_min=float(y_min), cols=int(round((x_max - x_min) / h)),
                       rows=int(round((y_max - y_min) / h)), scan_rows=int(math.ceil(diag / h)) + 3)
         fields.update(overrides)
         return dataclasses.replace(base, **fields)

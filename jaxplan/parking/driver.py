@@ -168,6 +168,7 @@ def _plan_models(starts, models, config: ParkoutConfig, vehicle, slots=None) -> 
         idx = np.minimum(np.arange(lo, lo + C), hi - 1)
         put = lambda a: jax.device_put(jnp.asarray(a)[idx], dev)  # noqa: E731
         st = put(starts)
+        m: GridModel | PointModel
         if isinstance(models, GridModel):
             m = GridModel(_tables(put(models.table)), put(models.pose))
         else:
@@ -176,7 +177,7 @@ def _plan_models(starts, models, config: ParkoutConfig, vehicle, slots=None) -> 
         jobs.append((lo, hi, st, m, _run_seed(st, m, jnp.asarray(hi - lo, jnp.int32), config, vehicle, W)))
     searches = []
     for lo, hi, st, m, res in jobs:
-        failed = np.nonzero(~np.asarray(res.success)[: hi - lo])[0] if config.search else []
+        failed = np.nonzero(~np.asarray(res.success)[: hi - lo])[0] if config.search else np.zeros(0, int)
         sr = None
         if len(failed):
             Q = _bucket(len(failed))
@@ -233,9 +234,9 @@ def render_scenes(scene: ParkingScene, seed: int, config, vehicle) -> Grid:
         part = jax.tree_util.tree_map(lambda a: jnp.asarray(a)[idx], scene)
         g = render_grids(part, seed, config, vehicle, first=lo)
         cells.append(g.cells[: hi - lo])
-    cells = jnp.concatenate(cells) if len(cells) > 1 else cells[0]
-    jax.block_until_ready(cells)
-    return Grid(cells=cells, pose=jnp.zeros((n, 3), jnp.result_type(float)))
+    all_cells = jnp.concatenate(cells) if len(cells) > 1 else cells[0]
+    jax.block_until_ready(all_cells)
+    return Grid(cells=all_cells, pose=jnp.zeros((n, 3), jnp.result_type(float)))
 
 
 def park_out(scene: ParkingScene, key=None, config: ParkoutConfig = ParkoutConfig(),

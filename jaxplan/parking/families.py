@@ -20,6 +20,8 @@ right. Families:
 """
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
 from jaxplan.parking.frames import LEFT, RIGHT, SlotFrame, axle_to_centre
@@ -30,7 +32,7 @@ FAMILIES = ("standard", "right", "wall", "stopped", "angled", "sensor")
 
 
 def family_scenes(name: str, rng: np.random.Generator, n: int, vehicle: VehicleParams = VehicleParams(),
-                  spare=(1.5, 3.0), **overrides):
+                  spare: tuple[float, float] | np.ndarray = (1.5, 3.0), **overrides):
     """``n`` slot-frame scenes of family ``name``; returns (``ParkingScene``, info dict with ``side`` too).
 
     ``spare``: range of front gap + rear gap in metres (or an ``(n,)`` array).
@@ -39,7 +41,7 @@ def family_scenes(name: str, rng: np.random.Generator, n: int, vehicle: VehicleP
         raise ValueError(f"family must be one of {', '.join(FAMILIES)}, got {name!r}")
     sp = rng.uniform(*spare, n) if isinstance(spare, tuple) else np.broadcast_to(np.asarray(spare, float), (n,))
     split = rng.uniform(0.15, 0.85, n)
-    kw = dict(front_gap=sp * split, rear_gap=sp * (1 - split), heading_noise_deg=1.0, offset_noise=0.05)
+    kw: dict[str, Any] = dict(front_gap=sp * split, rear_gap=sp * (1 - split), heading_noise_deg=1.0, offset_noise=0.05)
     side = np.full(n, LEFT, dtype="<U5")
     if name == "right":
         side[:] = RIGHT

@@ -34,7 +34,7 @@ class GridModel(NamedTuple):
 
     table: jnp.ndarray
     pose: jnp.ndarray
-    base: jnp.ndarray = 0
+    base: jnp.ndarray | int = 0
 
 
 class PointModel(NamedTuple):

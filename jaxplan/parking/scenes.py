@@ -133,8 +133,9 @@ def hash_uniform_at(seed, ints, stream: int = 0, dtype=jnp.float32):
 
 def make_scenes(rng: np.random.Generator, n: int, vehicle: VehicleParams = VehicleParams(), *,
                 front_gap=1.0, rear_gap=1.0, heading_noise_deg=0.0, offset_noise=0.0,
-                edge_noise=0.0, salt=0.0, clutter: int = 3, curb_gap=(0.25, 0.45),
-                other_width=(1.75, 1.95), other_length=(4.2, 5.0), other_yaw_deg=1.0,
+                edge_noise=0.0, salt=0.0, clutter: int = 3, curb_gap: tuple[float, float] = (0.25, 0.45),
+                other_width: tuple[float, float] = (1.75, 1.95),
+                other_length: tuple[float, float] = (4.2, 5.0), other_yaw_deg=1.0,
                 other_shift=0.0, wall_y=None, stopped_x=None, stopped_y=None,
                 occlusion=False, sensor_range=np.inf, unknown_patches=0.0):
     """Random parallel-slot scenes around a parked car (host-side, numpy), in the slot frame.

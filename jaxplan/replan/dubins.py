@@ -43,7 +43,7 @@ SNAP = 1e-2
 def _snap(x):
     """An arc within ``SNAP`` rad of a full turn is no turn: float32 rounding of a zero-length
     arc (from a start a hair off an earlier path) must not become a loop. The path then ends
-    up to ``radius * SNAP`` off its target; callers check the end pose (see :func:`end_pose`)."""
+    up to ``radius * SNAP`` off its target; callers check the end pose (see ``end_pose``)."""
     return jnp.where(x > _TWO_PI - SNAP, 0.0, x)
 
 

@@ -4,13 +4,13 @@ The car accelerates at ``accel`` up to the gear's top speed and brakes at ``dece
 so that it stands still at the next stop point (the end of a single-direction
 sub-trajectory, or a brake-stop point). The same law gives
 
-* a plan's speed profile and time stamps (:func:`profile_speed`, :func:`profile_times`),
+* a plan's speed profile and time stamps (``profile_speed``, ``profile_times``),
 * the supervisor's estimate of when the car reaches each plan point from where it is
   now (the same two functions, started at the car's arc length and speed), used for
   the time-aware collision check, and
-* the simulated car's speed, one step at a time (:func:`speed_step`), and the
+* the simulated car's speed, one step at a time (``speed_step``), and the
   supervisor's prediction of where the car will be after the planning latency
-  (:func:`advance`).
+  (``advance``).
 """
 from __future__ import annotations
 
@@ -102,7 +102,7 @@ def speed_step(v, dist_stop, vmax, limits: MotionLimits, dt):
 
 
 def advance(s, v, s_stop, s_end, vmax, limits: MotionLimits, dt, steps: int):
-    """Where the car will be after ``steps`` steps of :func:`speed_step`: arc length and speed
+    """Where the car will be after ``steps`` steps of ``speed_step``: arc length and speed
     (both ``()``). It brakes for ``s_stop`` and cannot pass ``s_end`` (its sub-trajectory's end);
     the simulated car moves the same way."""
 

@@ -13,6 +13,7 @@ the origin), as the park-out planner expects.
 from __future__ import annotations
 
 import dataclasses
+from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -85,7 +86,7 @@ def parkout_scenarios(seed: int, n: int, planner: ParkoutPlanner = ParkoutPlanne
     from jaxplan.replan.simulator import Scenario
 
     rng = np.random.default_rng(seed)
-    kw = dict(front_gap=rng.uniform(0.7, 1.2, n), rear_gap=rng.uniform(0.7, 1.2, n))
+    kw: dict[str, Any] = dict(front_gap=rng.uniform(0.7, 1.2, n), rear_gap=rng.uniform(0.7, 1.2, n))
     kw.update(scene_kw)
     scene, info = make_scenes(rng, n, planner.vehicle, **kw)
     boxes = jnp.asarray(info["boxes"], jnp.float32)

@@ -23,7 +23,7 @@ end it can reach instead of looping; a car standing at its target gets an empty 
 Each candidate gets the speed profile and time stamps of the shared longitudinal
 model, and its car boxes (grown by ``margin``) are checked against every obstacle
 *where that obstacle is predicted to be when the car gets there* (constant velocity,
-swept over ``[t - before, t + after]``, :func:`jaxplan.replan.prediction.plan_separation`).
+swept over ``[t - before, t + after]``, ``jaxplan.replan.prediction.plan_separation``).
 Cost: length (reverse metres count ``reverse_weight`` times), penalties for back-up /
 pull-forward / goal-region targets, and a large
 penalty for a collision (the cheapest colliding candidate is returned with ``ok = False``
@@ -166,9 +166,9 @@ class ApproachPlanner:
             for sgn in (1.0, -1.0):
                 pts.append(q[:2] + along * u + (side + sgn * clear) * nrm)
                 use.append(r.obstacles_valid[i] & (along > 2.0) & (along < L - 2.0))
-        pts = jnp.stack(pts)
-        heads = jnp.concatenate([target[2:3], jnp.full((pts.shape[0] - 1,), h)])
-        return jnp.concatenate([pts, heads[:, None]], -1), jnp.stack(use)
+        xy = jnp.stack(pts)
+        heads = jnp.concatenate([target[2:3], jnp.full((xy.shape[0] - 1,), h)])
+        return jnp.concatenate([xy, heads[:, None]], -1), jnp.stack(use)
 
     def _leg(self, pieces, n):
         """``n`` poses ``(n, 3)`` evenly spaced along consecutive Dubins paths, their curvature and length."""

@@ -5,7 +5,7 @@ the simulator only see this interface, so any planner (the drivable approach
 planner of :mod:`jaxplan.replan.path_planner`, the park-out planner through
 :mod:`jaxplan.replan.parkout_adapter`, a user's own) can drive them. Inside
 ``lax.scan`` it must be jittable; the host-loop simulator accepts any Python callable.
-:func:`finish_plan` turns a geometric path into a plan with the speed profile and
+``finish_plan`` turns a geometric path into a plan with the speed profile and
 time stamps of the shared longitudinal model (:mod:`jaxplan.replan.longitudinal`).
 """
 from __future__ import annotations
@@ -71,8 +71,8 @@ def finish_plan(xy, theta, gear, valid, v0, limits: MotionLimits, ok, kappa=None
         ``d theta / ds`` between consecutive points.
 
     Speed on each single-direction leg: ``min(vmax, sqrt(v_in^2 + 2 a s), sqrt(2 d (s_leg - s)))``
-    (:func:`~jaxplan.replan.longitudinal.profile_speed`), ``v_in = v0`` on the first leg and 0
-    after a gear shift; time stamps by :func:`~jaxplan.replan.longitudinal.profile_times`.
+    (``jaxplan.replan.longitudinal.profile_speed``), ``v_in = v0`` on the first leg and 0
+    after a gear shift; time stamps by ``jaxplan.replan.longitudinal.profile_times``.
     """
     n = xy.shape[0]
     s_abs = arc_length(xy, valid)

@@ -10,7 +10,7 @@ a moving box, not its whole future path held as a wall.
 
 The planner (its candidates, with a margin), the supervisor's collision points, its
 check of a new plan before installing it, and the re-anchoring of remembered collision
-points on a new plan all call :func:`plan_separation`.
+points on a new plan all call ``plan_separation``.
 """
 from __future__ import annotations
 

@@ -11,8 +11,8 @@ length) sets the brake-stop point ``safety`` metres before it; the brake-stop
 point moves only when that nearest entry changes; with an empty queue there is none.
 
 The queue survives re-plans: on a new plan every entry is re-anchored
-(:func:`queue_reanchor`) at the arc length where its obstacle, as remembered
-(:class:`ObstacleMemory`), meets the new plan, or at ``inf`` (kept, but not
+(``queue_reanchor``) at the arc length where its obstacle, as remembered
+(``ObstacleMemory``), meets the new plan, or at ``inf`` (kept, but not
 binding) when the new plan passes clear of it.
 """
 from __future__ import annotations

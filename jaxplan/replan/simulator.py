@@ -8,22 +8,22 @@ One simulation step (``dt``, default 0.1 s) is:
    perception slot each, as their box *now* and their velocity: real static boxes
    (always there), phantoms (false positives that show for a short time when the car
    first comes near, then vanish) and pedestrians that cross the path and leave.
-2. **Supervisor** (:func:`jaxplan.replan.supervisor.supervise`, the same for every
+2. **Supervisor** (``jaxplan.replan.supervisor.supervise``, the same for every
    strategy): installs an arrived plan after checking it, tracking, collision points,
    queue, brake-stop point, the re-plan decision.
 3. **Planner** for the runs whose supervisor asked, from the request's start (ahead of
    the car when it moves); its plan arrives ``latency_s`` later.
 4. **Car.** Exact tracking with noise: the car advances along the plan and carries a
    small random lateral offset; its speed follows the shared longitudinal law
-   (:func:`jaxplan.replan.longitudinal.speed_step`) towards the supervisor's stop point
+   (``jaxplan.replan.longitudinal.speed_step``) towards the supervisor's stop point
    (end of the sub-trajectory or brake-stop point). Speed is signed by the gear.
 5. **Truth.** Collisions of the car box with real obstacles and pedestrians; success
    when the car stops at the end of its plan within tolerance of the *true* goal.
 
-:func:`simulate` runs the loop as one jitted ``lax.scan`` over time of ``vmap``-ed
+``simulate`` runs the loop as one jitted ``lax.scan`` over time of ``vmap``-ed
 steps; in each step the planner runs only for the runs that asked (gathered in chunks
 of ``plan_chunk``), so its cost follows the number of re-plans, not the batch size.
-:func:`simulate_host` runs the same jitted halves of a step in a Python loop for one
+``simulate_host`` runs the same jitted halves of a step in a Python loop for one
 scenario and calls the planner only on re-plans: for planners that are not jittable.
 """
 from __future__ import annotations
@@ -271,7 +271,7 @@ def step_post(pre: _Pre, new_plan: Plan, sc: Scenario, cfg: SimConfig):
     """Hand the new plan (when one was asked) to the supervisor, move the car, check the truth.
 
     Returns:
-        (state, :class:`StepLog`).
+        (state, ``StepLog``).
     """
     sup_cfg = cfg.supervisor
     w, dec = pre.world, pre.dec
@@ -382,7 +382,7 @@ def simulate_host(sc: Scenario, strategy, cfg: SimConfig = SimConfig(), planner:
     """The same loop for one scenario in Python, calling ``planner`` (any callable
     ``PlanRequest -> Plan`` with the plan size of ``cfg.planner``) only on re-plans.
 
-    Returns (final state, list of :class:`StepLog`).
+    Returns (final state, list of ``StepLog``).
     """
     _check_strategy(strategy)
     planner = cfg.planner if planner is None else planner

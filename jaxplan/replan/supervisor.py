@@ -1,7 +1,7 @@
 """The re-planning supervisor: one safety layer shared by the lazy strategy and its baselines.
 
 Strategies (int codes, traced, so one compiled loop serves all three) differ only in
-*when* they ask the planner (:func:`replan_decision`):
+*when* they ask the planner (``replan_decision``):
 
 * ``LAZY``: re-plan only at an *intermediate destination* with the car (near)
   stopped: at a gear-shift point when the freshly observed goal moved or turned
@@ -17,7 +17,7 @@ and the car has stopped (``LOST``), and when the car stands at the end of a plan
 that the planner flagged as not reaching the goal (``OBSTACLE``, once per
 ``retry_s``); none re-plans once the run is done or while a plan is being made.
 
-Everything else is the same for every strategy (:func:`supervise`, :func:`submit`):
+Everything else is the same for every strategy (``supervise``, ``submit``):
 
 * **Collision points** at ``collision_hz`` on the current sub-trajectory from the
   tracking point, time-aware (each plan point, the car box grown by ``clearance``, is checked against where every
@@ -40,7 +40,7 @@ Everything else is the same for every strategy (:func:`supervise`, :func:`submit
   sub-trajectory; a gear changes only with the car stopped (at a gear-shift point, or
   by installing a plan with the car stopped).
 
-:func:`supervise` is one jittable function of small pytrees, so any simulator (or a
+``supervise`` is one jittable function of small pytrees, so any simulator (or a
 real stack) can call it every tick and call its planner when it says so.
 """
 from __future__ import annotations
@@ -363,7 +363,7 @@ def supervise(state: SupervisorState, car: CarState, per: Perception, goal_est, 
     collision points, update queue and brake-stop point, decide whether to re-plan.
 
     Args:
-        state: from the last tick (or :func:`init`).
+        state: from the last tick (or ``init``).
         car: the car now (its ``s`` on ``state.plan``).
         per: perception now.
         goal_est: ``(3,)`` believed goal.
@@ -371,8 +371,8 @@ def supervise(state: SupervisorState, car: CarState, per: Perception, goal_est, 
         strategy: ``()`` int code; park: ``()`` bool, a parking approach (for the request's phase).
 
     Returns:
-        (state, :class:`Decision`). When ``decision.replan``, call the planner on
-        ``decision.request`` and pass its plan to :func:`submit` (it is installed
+        (state, ``Decision``). When ``decision.replan``, call the planner on
+        ``decision.request`` and pass its plan to ``submit`` (it is installed
         ``latency_s`` later, if it passes the check).
     """
     dt = jnp.asarray(cfg.dt, jnp.float32)

@@ -27,7 +27,7 @@ class TrackingPoint(NamedTuple):
     found: whether any segment qualified (else index is the start index).
     """
 
-    index: jnp.ndarray
+    index: jnp.ndarray  # type: ignore[assignment]  # public field name; shadows tuple.index on purpose
     proj: jnp.ndarray
     dist: jnp.ndarray
     found: jnp.ndarray
@@ -65,14 +65,14 @@ def find_tracking_point(path_xy, car_xy, start, end, window: int = 32, max_dist=
         max_dist: farthest lateral distance accepted.
 
     Returns:
-        :class:`TrackingPoint`.
+        ``TrackingPoint``.
     """
     return _search(path_xy, car_xy, start, end, window, max_dist)
 
 
 def find_tracking_point_directional(path_xy, gear, car_xy, car_heading, motion, start, end,
                                     window: int = 32, max_dist=jnp.inf):
-    """Direction-aware search: as :func:`find_tracking_point`, keeping only segments
+    """Direction-aware search: as ``find_tracking_point``, keeping only segments
     driven in the car's direction of motion.
 
     Args:

@@ -1,6 +1,6 @@
 """Planned trajectory points: point types, arc length, gear-shift split.
 
-A plan is a :class:`jaxplan.types.Trajectory` of ``N`` points with a boolean
+A plan is a ``jaxplan.types.Trajectory`` of ``N`` points with a boolean
 ``valid`` mask ``(N,)`` whose True entries form a prefix (fixed shapes under jit).
 Point ``i`` is a *gear-shift point* when ``gear[i] != gear[i + 1]`` (both valid):
 the car stops there and drives ``i -> i + 1`` in the new gear. Splitting at the

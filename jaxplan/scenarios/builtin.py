@@ -21,6 +21,7 @@ planner's fault.
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 
@@ -184,7 +185,7 @@ def _draw(kind: str, rng, i: int):
 def _generate(n_per_kind: int, seed: int, kinds=KINDS) -> list:
     """``[(scenario object, SceneRecord)]``: ``n_per_kind`` survivable scenes of each kind."""
     rng = np.random.default_rng(seed)
-    kept = {k: [] for k in kinds}
+    kept: dict[str, list[tuple[dict, Any]]] = {k: [] for k in kinds}  # (scenario object, SceneRecord)
     for _attempt in range(10):
         cand = []
         for k in kinds:

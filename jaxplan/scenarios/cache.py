@@ -240,6 +240,7 @@ def _parse_in_workers(paths: list, keys: list, folder: str, config, horizon, n: 
         part = list(zip(paths[w::n], keys[w::n]))
         proc = subprocess.Popen([sys.executable, "-m", "jaxplan.scenarios.cache"], stdin=subprocess.PIPE,
                                 stdout=subprocess.PIPE, text=True)
+        assert proc.stdin is not None  # stdin=PIPE
         proc.stdin.write(json.dumps(dict(job, files=part)))
         proc.stdin.close()
         t = threading.Thread(target=read, args=(proc,), daemon=True)

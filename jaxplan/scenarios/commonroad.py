@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import math
 import os
+from typing import Any
 
 import numpy as np
 
@@ -92,13 +93,14 @@ def _outline(shape) -> np.ndarray:
 def _toward(box: np.ndarray, heading: float) -> np.ndarray:
     """The same box ``[x, y, length, width, theta]`` with ``theta`` the one of its four equivalent
     orientations (quarter turns, length and width swapped on odd ones) nearest ``heading``."""
-    best = None
+    best: tuple[float, np.ndarray] | None = None
     for k in range(4):
         th = box[4] + k * np.pi / 2
         d = math.remainder(th - heading, 2 * np.pi)
         if best is None or abs(d) < abs(best[0]) - 1e-12:
             L, W = (box[2], box[3]) if k % 2 == 0 else (box[3], box[2])
             best = (d, np.array([box[0], box[1], L, W, heading + d]))
+    assert best is not None  # the first of the four orientations always sets it
     return best[1]
 
 
@@ -198,7 +200,7 @@ def _lanelet_lights(ln, d: dict) -> None:
     sl = getattr(ln, "stop_line", None)
     if sl is None:
         return
-    line = {"traffic_lights": sorted(int(i) for i in (getattr(sl, "traffic_light_ref", None) or ()))}
+    line: dict[str, Any] = {"traffic_lights": sorted(int(i) for i in (getattr(sl, "traffic_light_ref", None) or ()))}
     if getattr(sl, "start", None) is not None and getattr(sl, "end", None) is not None:
         line["start"] = [float(v) for v in np.asarray(sl.start, float)[:2]]
         line["end"] = [float(v) for v in np.asarray(sl.end, float)[:2]]
@@ -468,7 +470,7 @@ def dict_to_commonroad(d: dict, path: str = "scenario", id_map: dict | None = No
     lanelets, limits = [], []
     for ln in d["lanelets"]:
         left, right = np.asarray(ln["left"], float), np.asarray(ln["right"], float)
-        kw = {}
+        kw: dict[str, Any] = {}
         for side, key in (("adjacentLeft", "adjacent_left"), ("adjacentRight", "adjacent_right")):
             if ln.get(side):
                 kw[key] = int(ln[side]["ref"])
@@ -492,7 +494,7 @@ def dict_to_commonroad(d: dict, path: str = "scenario", id_map: dict | None = No
     net = LaneletNetwork.create_from_lanelet_list(lanelets, cleanup_ids=False)
     for sign in limits:
         net.add_traffic_sign(sign, set(sign.first_occurrence))
-    where_lit = {}  # a light without a position stands at the right end of the first lanelet naming it
+    where_lit: dict[int, np.ndarray] = {}  # a light without a position stands at the right end of the first lanelet naming it
     for ln in d["lanelets"]:
         for i in list(ln.get("traffic_lights") or []) + list((ln.get("stop_line") or {}).get("traffic_lights") or []):
             where_lit.setdefault(int(i), np.asarray(ln["right"][-1], float))
@@ -534,8 +536,10 @@ def dict_to_commonroad(d: dict, path: str = "scenario", id_map: dict | None = No
             sc.add_objects(DynamicObstacle(unique(int(o["id"])), otype, shapes.obstacle_rect(len0, wid0), init, pred))
             continue
         st = [r for r in (o.get("states") or [])]
+        # parse_scenario has checked that every rectangle has a size (given, or DEFAULT_SIZE by type);
+        # NaN only for the shapes that need none (a polygon)
         length, width = ((float(o["length"]), float(o["width"])) if "length" in o
-                         else DEFAULT_SIZE.get(kind, (None, None)))
+                         else DEFAULT_SIZE.get(kind, (math.nan, math.nan)))
         if o.get("role", "dynamic") == "static" or not st:
             if "polygon" in o:
                 shape = shapes.obstacle_polygon(o["polygon"])

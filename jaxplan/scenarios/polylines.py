@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 
 def arc_length(xy: np.ndarray) -> np.ndarray:
@@ -9,7 +10,7 @@ def arc_length(xy: np.ndarray) -> np.ndarray:
     return np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(xy, axis=0), axis=1))])
 
 
-def resample_polyline(xy: np.ndarray, s: np.ndarray, s_query: np.ndarray) -> np.ndarray:
+def resample_polyline(xy: np.ndarray, s: np.ndarray, s_query: ArrayLike) -> np.ndarray:
     """Points ``(Q, 2)`` at arc lengths ``s_query (Q,)`` on ``xy (P, 2)`` with arc lengths ``s (P,)``,
     extended straight past both ends."""
     s_query = np.asarray(s_query, float)

@@ -334,7 +334,7 @@ def plan_route(scenario) -> Route:
 def _build(scenario, by_id, path, start, reaches, dead_end: bool = True) -> Route:
     # runs of successor lanelets; a run after a lane change starts beside the point where the
     # change starts (the car's position on the first lanelet, else the start of the lanelet left)
-    runs = [(None, [])]
+    runs: list[tuple[np.ndarray | None, list[tuple[np.ndarray, int]]]] = [(None, [])]
     i = 0
     while i < len(path):
         lid, _ = path[i]
@@ -365,12 +365,12 @@ def _build(scenario, by_id, path, start, reaches, dead_end: bool = True) -> Rout
     for origin, pieces in runs:
         if not pieces:
             continue
-        pts, own = [pieces[0][0]], [np.full(len(pieces[0][0]), pieces[0][1])]
+        pts_list, own_list = [pieces[0][0]], [np.full(len(pieces[0][0]), pieces[0][1])]
         for p, lid in pieces[1:]:  # successor lanelets share their first point with the previous one's last
-            p = p[1:] if np.linalg.norm(p[0] - pts[-1][-1]) < 1e-6 else p
-            pts.append(p)
-            own.append(np.full(len(p), lid))
-        pts, own = np.concatenate(pts), np.concatenate(own)
+            p = p[1:] if np.linalg.norm(p[0] - pts_list[-1][-1]) < 1e-6 else p
+            pts_list.append(p)
+            own_list.append(np.full(len(p), lid))
+        pts, own = np.concatenate(pts_list), np.concatenate(own_list)
         if origin is not None:
             pts, idx = blend_lane_change(xy if len(xy) else origin[None], pts, change)
             own = own[idx]
@@ -381,17 +381,17 @@ def _build(scenario, by_id, path, start, reaches, dead_end: bool = True) -> Rout
     xy, owner = xy[keep], owner[keep]
     # behind: the first lanelet's predecessors (straightest), else straight
     first = by_id[path[0][0]]
-    back_pts = []
+    back_pts: list[np.ndarray] = []
     prev_len, cur = 0.0, first
     seen = {i for i, _ in path}
     while prev_len < BACK and cur.predecessors:
-        p = next((by_id[q] for q in cur.predecessors if q in by_id and q not in seen), None)
-        if p is None:
+        pred = next((by_id[q] for q in cur.predecessors if q in by_id and q not in seen), None)
+        if pred is None:
             break
-        back_pts.insert(0, p.center[:-1] if np.linalg.norm(p.center[-1] - xy[0]) < 1e-3 else p.center)
-        seen.add(p.id)
-        prev_len += _length(p.center)
-        cur = p
+        back_pts.insert(0, pred.center[:-1] if np.linalg.norm(pred.center[-1] - xy[0]) < 1e-3 else pred.center)
+        seen.add(pred.id)
+        prev_len += _length(pred.center)
+        cur = pred
     if back_pts:
         bp = np.concatenate(back_pts)
         xy = np.concatenate([bp, xy])

@@ -273,7 +273,8 @@ class _LaneProjector:
     points (vectorised ``nearest_on_polyline``): ``at(lid, i)`` is what ``_lane_at`` reads."""
 
     def __init__(self, by_id, xy: np.ndarray):
-        self.by_id, self.xy, self.cache = by_id, xy, {}
+        self.by_id, self.xy = by_id, xy
+        self.cache: dict[Any, tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = {}
 
     def at(self, lid, i):
         """``(j, u, centre point (2,), width)`` of route point ``i`` on lanelet ``lid``'s centre line."""

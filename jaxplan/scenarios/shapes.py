@@ -7,7 +7,8 @@ from jaxplan.types import check_polygons
 
 
 def random_convex_polygons(rng: np.random.Generator, n: int, max_vertices: int = 8,
-                           min_vertices: int = 3, radius=(0.5, 3.0), spread: float = 4.0):
+                           min_vertices: int = 3, radius: tuple[float, float] = (0.5, 3.0),
+                           spread: float = 4.0):
     """``n`` random convex polygons, counter-clockwise, padded to ``max_vertices``.
 
     Vertices are sorted random angles on a random ellipse, rotated and placed
@@ -38,7 +39,8 @@ def random_convex_polygons(rng: np.random.Generator, n: int, max_vertices: int =
     return pts, valid
 
 
-def random_boxes(rng: np.random.Generator, n: int, spread: float = 4.0, size=(0.5, 5.0)):
+def random_boxes(rng: np.random.Generator, n: int, spread: float = 4.0,
+                 size: tuple[float, float] = (0.5, 5.0)):
     """``n`` random oriented boxes ``(n, 5)`` = [x, y, length, width, heading]."""
     return np.stack([
         rng.uniform(-spread, spread, n), rng.uniform(-spread, spread, n),

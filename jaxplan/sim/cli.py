@@ -8,6 +8,7 @@ persistent compilation cache), both under ``$JAXPLAN_CACHE_DIR`` (default ``~/.c
 from __future__ import annotations
 
 import sys
+from typing import Any
 
 from jaxplan import cli_args as ca
 
@@ -84,7 +85,8 @@ def run(args) -> int:
         if not files:
             return _fail("--sample: give scenario files or folders to sample from")
         files = sample_files(files, args.sample, args.seed)
-    options, params = {}, {}
+    options: dict[str, dict[str, Any]] = {}
+    params: dict[str, Any] = {}
     if args.weights:
         from jaxplan.tuning.train import load_weights
 

@@ -36,6 +36,8 @@ import math
 import os
 import sys
 import time
+from collections.abc import Callable, Sequence
+from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -88,13 +90,14 @@ def summarize(rows: list) -> dict:
     """Summary figures over drives (rows of per-drive metrics); figures whose key no row has are left out."""
     if not rows:
         return {}
-    out = {}
+    out: dict[str, Any] = {}
+    reduce: dict[str, Callable[[np.ndarray], Any]] = {"mean": np.mean, "sum": np.sum, "max": np.max, "min": np.min}
     for name, key, how in SUMMARY:
         vals = [r[key] for r in rows if r.get(key) is not None]
         if key not in rows[0] and not vals:
             continue
         v = np.array(vals, float)
-        out[name] = float({"mean": np.mean, "sum": np.sum, "max": np.max, "min": np.min}[how](v)) if len(v) else None
+        out[name] = float(reduce[how](v)) if len(v) else None
     col = lambda k: np.array([float(r.get(k) or 0.0) for r in rows])  # noqa: E731
     out["collisions"] = float(np.sum(col("overlap.collided")))
     out["not_at_fault_collisions"] = float(np.sum(col("overlap.collided")) - np.sum(col("overlap.at_fault")))
@@ -333,7 +336,7 @@ def _describe(planner, info: dict, end_step: int, every: int) -> str:
 
 def drive(records, planners: list, out: str, config: SimConfig, animate: bool = False, planner_options=None,
           progress: bool = True, batch_size: int = DEFAULT_BATCH, plots: str = "auto", fresh: bool = False,
-          skipped: list = (), run_info: dict | None = None, parse_s: float = 0.0,
+          skipped: Sequence[str] = (), run_info: dict | None = None, parse_s: float = 0.0,
           planner_params: dict | None = None) -> DriveResult:
     """Drive ``records`` (``SceneRecord``s) with each planner name; write the outputs under ``out``.
 

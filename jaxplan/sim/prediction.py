@@ -139,13 +139,16 @@ def anchored_predictions(scene, paths: AgentPaths, state: AgentState, step, H: i
             jnp.where(st[:, None, None], rec_sl, sl))
 
 
-def present_state(scene, step, paths: AgentPaths | None = None, state: AgentState | None = None):
+def present_state(scene, step, paths: AgentPaths | None = None,
+                  state: AgentState | None = None) -> tuple[Any, Any, Any, Any]:
     """Each obstacle now: box ``(K, 5)``, speed ``(K,)``, present ``(K,)``, Frenet ``(K, 2)``.
 
     With ``paths`` and ``state`` (IDM agents) the simulated agents, else the recording at
     ``step``: the speed is its last step's displacement along its heading (the next step's
     at its first recorded step), never negative."""
     if paths is not None:
+        if state is None:
+            raise ValueError("present_state: IDM agents (paths) need their state")
         boxes, present = agent_boxes(paths, state, step)
         _, _, i, fr, past = path_pose(paths, state.s)
         sl = path_frenet(paths, i, fr, past)
@@ -274,6 +277,8 @@ def planner_view(scene, step, H: int, length: int, prediction: str, paths: Agent
     if prediction == "oracle":
         if paths is None:
             return scene
+        if state is None:
+            raise ValueError("planner_view: IDM agents (paths) need their state")
         boxes, valid, sl = anchored_predictions(scene, paths, state, step, H)
     elif prediction == "cv":
         now = present_state(scene, step, paths, state)

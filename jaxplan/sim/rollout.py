@@ -296,7 +296,7 @@ class _Drive:
         done0 = (self.config.stop_at_goal & self.reached(ego0, 0.0)) | (self.t_end <= 1e-6)
         plan0 = jax.eval_shape(lambda: self.planner.plan(self.params, self.scene, ego0, 0)).trajectory
         plan0 = jax.tree_util.tree_map(lambda a: jnp.zeros(a.shape, a.dtype), plan0)
-        agents0 = init_agents(self.paths) if self.idm else None
+        agents0 = init_agents(self.paths) if self.paths is not None else None  # idm
         return DriveState(ego0, done0, plan0, jnp.asarray(0), jnp.asarray(False), agents0)
 
     def cycle(self, st: DriveState, c):
@@ -350,7 +350,7 @@ class _Drive:
         n = config.n_steps + 1
         t = jnp.arange(n, dtype=self.f) * self.dt
         end_step = jnp.max(jnp.where(valid, jnp.arange(n), 0))
-        if self.idm:  # the agents at every step: (C, K, K_obstacles, ...) -> (K_obstacles, N, ...)
+        if self.paths is not None:  # idm; the agents at every step: (C, K, K_obstacles, ...) -> (K_obstacles, N, ...)
             b0, v0 = agent_boxes(self.paths, init_agents(self.paths), 0)
             mb, mv = (a.reshape((C * K,) + a.shape[2:])[:config.n_steps] for a in chunk.moved)
             traffic = Obstacles(jnp.swapaxes(jnp.concatenate([b0[None], mb]), 0, 1),

@@ -329,6 +329,7 @@ def tune_files(paths, planner_name: str, out: str, scenes: int = 24, drive_steps
     run = sizes.run_sizes([r.scene for r in loaded.records])
     stack = lambda rs: sizes.for_drive(stack_scenes([r.scene for r in rs], min_sizes=run))  # noqa: E731
     train, val = stack(recs["train"]), stack(recs["validation"])
+    names: tuple[str, ...]
     if planner_name == "lattice":
         planner = make_planner("lattice", options=(("select_temperature", temperature),))
         names = TUNED

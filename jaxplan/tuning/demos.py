@@ -91,7 +91,8 @@ class DemoConfig:
 @jax.tree_util.register_dataclass
 @dataclasses.dataclass(frozen=True)
 class Demo:
-    """One demonstration (or a batch with leading dims), in its local frame.
+    """One demonstration (or a batch with leading dims), in its local frame: numpy arrays as
+    ``scenario_demos`` builds them, jax arrays once ``stack``ed.
 
     Attributes:
         ego: ``(5,)`` start state [x, y, heading, v, a] (x = y = 0), fitted on the past.
@@ -105,15 +106,15 @@ class Demo:
         t: ``(T,)`` times from the start.
     """
 
-    ego: jax.Array
-    ref_xy: jax.Array
-    obstacles: jax.Array
-    obstacle_valid: jax.Array
-    obstacle_static: jax.Array
-    human_xy: jax.Array
-    human_v: jax.Array
-    human_valid: jax.Array
-    t: jax.Array
+    ego: jax.Array | np.ndarray
+    ref_xy: jax.Array | np.ndarray
+    obstacles: jax.Array | np.ndarray
+    obstacle_valid: jax.Array | np.ndarray
+    obstacle_static: jax.Array | np.ndarray
+    human_xy: jax.Array | np.ndarray
+    human_v: jax.Array | np.ndarray
+    human_valid: jax.Array | np.ndarray
+    t: jax.Array | np.ndarray
 
 
 @dataclasses.dataclass(frozen=True)

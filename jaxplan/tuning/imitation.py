@@ -24,6 +24,7 @@ import dataclasses
 import functools
 import json
 import os
+from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -227,7 +228,7 @@ def fit_model(train: LatticeData, steps: int = 400, lr: float = 0.05, ce_weight:
     params = init_params(names) if init is None else init
     opt = _adam(float(lr), int(steps))
     state = opt.init(params)
-    hist = {"step": [], "loss": [], "train_ade3": [], "val_ade3": [], "temperature": [], "weights": []}
+    hist: dict[str, list[Any]] = {"step": [], "loss": [], "train_ade3": [], "val_ade3": [], "temperature": [], "weights": []}
     for i in range(steps):
         params, state, lv = _train_step(params, state, train, scale, signed, opt, float(ce_weight), float(sigma),
                                         float(l2))

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import dataclasses
 import types
+from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -110,7 +111,7 @@ def start_states(demos: Demo, start_accel: str = "zero") -> PlanState:
     if start_accel not in ("zero", "fit"):
         raise ValueError(f"start_accel must be 'zero' or 'fit', got {start_accel!r}")
     a = jnp.zeros_like(demos.ego[..., 4]) if start_accel == "zero" else jnp.clip(demos.ego[..., 4], -4.0, 2.5)
-    return PlanState.from_rows(demos.ego.at[..., 4].set(a))
+    return PlanState.from_rows(jnp.asarray(demos.ego).at[..., 4].set(a))
 
 
 def _obstacles(demos: Demo) -> Obstacles:
@@ -126,7 +127,7 @@ def _chunk_data(demos: Demo, idm: IDMParams, configs: tuple, fcfg: FeatureConfig
     obs = _obstacles(demos)
     T = configs[0].n_steps
     traffic = jax.vmap(lambda r, o: frenet_traffic(r, o.aligned(T), configs[0].dt))(refs, obs)
-    parts = []
+    parts: list[tuple[Any, ...]] = []
     for cfg in configs:
         res = plan_batch(state, refs, obs, cfg, CostWeights())
         feats = jax.vmap(candidate_features, in_axes=(0, 0, 0, 0, None, None, None))(
@@ -140,7 +141,7 @@ def _chunk_data(demos: Demo, idm: IDMParams, configs: tuple, fcfg: FeatureConfig
     cat = [jnp.concatenate([p[i] for p in parts], axis=1) for i in range(8)]
     raw = {k: jnp.concatenate([p[8][k] for p in parts], axis=1) for k in parts[0][8]}
     valid5 = displacement(demos.human_xy, demos.human_xy, demos.human_valid)["valid5"]
-    return LatticeData(*cat, valid5), raw
+    return LatticeData(*(cat + [valid5])), raw
 
 
 def lattice_data(demos: Demo, configs: tuple = TUNING_CONFIGS, idm: IDMParams = IDMParams(),

@@ -15,6 +15,7 @@ from __future__ import annotations
 import dataclasses
 import fnmatch
 import os
+from typing import TYPE_CHECKING
 
 import jax.numpy as jnp
 import numpy as np
@@ -44,6 +45,9 @@ from jaxplan.tuning.lattice_tuning import (
 from jaxplan.tuning.metrics import bootstrap_ci, summary
 from jaxplan.tuning.traffic import IDMParams
 from jaxplan.tuning.vehicles import split_by_vehicle
+
+if TYPE_CHECKING:
+    from jaxplan.scenarios.loader import Folder
 
 # Candidate sets by name (stored in a model's metadata, so evaluation plans the same set).
 CANDIDATE_SETS = {"rich": TUNING_CONFIGS, "small": (TUNING_CONFIG,)}
@@ -170,7 +174,7 @@ def method_errors(model: ImitationModel, rule: dict, rand: ImitationModel, data:
 
 def figures(errors: dict, ds: DemoSet, n_boot: int = 1000, seed: int = 0, by_location: bool = True) -> dict:
     """Flat figures with bootstrap intervals over scenarios, overall and per location."""
-    m = {"demos": len(ds), "scenarios": len(set(ds.index.scenario.tolist()))}
+    m: dict[str, float] = {"demos": len(ds), "scenarios": len(set(ds.index.scenario.tolist()))}
     groups = [("", np.ones(len(ds), bool))]
     if by_location:
         groups += [(slug(loc) + ".", ds.index.location == loc) for loc in LOCATIONS if (ds.index.location == loc).any()]
@@ -268,10 +272,10 @@ def load_cost(path: str):
     return load_weights(path, allowed=WEIGHT_NAMES, planner="lattice")
 
 
-def demonstrations(scenarios: str | None, n_synthetic: int = CHUNK, seed: int = 0, max_files: int | None = None,
+def demonstrations(scenarios: str | Folder | None, n_synthetic: int = CHUNK, seed: int = 0, max_files: int | None = None,
                    pattern: str | None = None) -> tuple[DemoSet, DemoSet, str]:
-    """Train / validation demonstrations (disjoint by vehicle) from a scenario folder, or
-    synthetic ones whose human is the hidden ``SYNTHETIC_DRIVER``."""
+    """Train / validation demonstrations (disjoint by vehicle) from a scenario folder (its path,
+    or the ``Folder`` that ``load_folder`` returned), or synthetic ones whose human is the hidden ``SYNTHETIC_DRIVER``."""
     if scenarios:
         ds = recorded_set(scenarios, max_files=max_files, pattern=pattern)
         train, val = split(ds)

@@ -89,7 +89,7 @@ def speed_data(demos: Demo, config: SpeedConfig = SPEED_TUNING_CONFIG, points: i
     idx = np.arange(config.n_t + 1) * steps
     if idx[-1] >= s.shape[1]:
         raise ValueError(f"speed_data: demonstrations of {s.shape[1]} samples are shorter than the DP horizon")
-    paths, kept = [], []
+    paths, kept_b = [], []
     for b in np.nonzero(s[:, -1] > 2.0)[0]:
         keep = np.concatenate([[True], seg[b] > 1e-3])
         sb = s[b][keep]
@@ -99,8 +99,8 @@ def speed_data(demos: Demo, config: SpeedConfig = SPEED_TUNING_CONFIG, points: i
         except ValueError:
             continue
         paths.append(path)
-        kept.append(b)
-    kept = np.asarray(kept, int)
+        kept_b.append(b)
+    kept = np.asarray(kept_b, int)
     pick = lambda x: jnp.asarray(np.asarray(x)[kept])
     obs = Obstacles(pick(demos.obstacles), pick(demos.obstacle_valid), pick(demos.t), pick(demos.obstacle_static))
     data = SpeedData(jnp.asarray(np.array(paths).reshape(len(kept), points, 2), jnp.float32), obs,

@@ -96,13 +96,13 @@ class IDMParams:
         delta: acceleration exponent.
     """
 
-    v_ratio: jax.Array = 1.0
-    v_extra: jax.Array = 1.0
-    headway: jax.Array = 1.2
-    s_jam: jax.Array = 2.0
-    a_max: jax.Array = 1.0
-    b_comf: jax.Array = 1.5
-    delta: jax.Array = 4.0
+    v_ratio: jax.Array | float = 1.0
+    v_extra: jax.Array | float = 1.0
+    headway: jax.Array | float = 1.2
+    s_jam: jax.Array | float = 2.0
+    a_max: jax.Array | float = 1.0
+    b_comf: jax.Array | float = 1.5
+    delta: jax.Array | float = 4.0
 
 
 def idm_accel(p: IDMParams, v, v_des, gap, v_lead, has_leader):

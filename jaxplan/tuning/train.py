@@ -11,6 +11,7 @@ from __future__ import annotations
 import json
 import os
 from collections.abc import Callable
+from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -81,7 +82,7 @@ def fit(loss_fn: Callable, params: dict, data, steps: int = 300, lr: float = 0.0
         return optax.apply_updates(params, upd), state, loss
 
     key = jax.random.PRNGKey(seed)
-    hist = {"step": [], "loss": [], "params": []}
+    hist: dict[str, list[Any]] = {"step": [], "loss": [], "params": []}
     for i in range(steps):
         if batch_size is None or batch_size >= n:
             idx = jnp.arange(n)

@@ -104,7 +104,7 @@ def vehicle_identities(scenarios, **kw) -> dict:
     scenarios (the connected components of ``vehicle_links``), the smallest
     ``"scenario:obstacle"`` of its component."""
     scenarios = list(scenarios)
-    parent = {}
+    parent: dict[tuple[str, int], tuple[str, int]] = {}
 
     def find(x):
         while parent[x] != x:
@@ -120,7 +120,7 @@ def vehicle_identities(scenarios, **kw) -> dict:
         if ra != rb:
             parent[max(ra, rb)] = min(ra, rb)
     name = lambda x: f"{x[0]}:{x[1]}"
-    smallest = {}
+    smallest: dict[tuple[str, int], str] = {}
     for x in parent:
         r = find(x)
         smallest[r] = min(smallest.get(r, name(x)), name(x))
