@@ -17,6 +17,7 @@ Everything past the geometry core loads on first use (``jaxplan.rollout`` import
 ``jaxplan.sim``), so ``import jaxplan`` stays cheap; so do the planner packages
 (``jaxplan.lattice``, ``jaxplan.speed``, ...).
 """
+
 from jaxplan import geometry as geometry
 from jaxplan.geometry import (
     ReferenceLine,
@@ -64,15 +65,58 @@ _LAZY = {
 }
 
 # The planners and the rest load on first use: ``jaxplan.lattice.plan(...)`` or ``from jaxplan import speed``.
-_SUBPACKAGES = ("bounds", "lattice", "speed", "parking", "replan", "tuning", "scenarios", "eval", "sim",
-                "baselines", "models", "planner")
+_SUBPACKAGES = (
+    "bounds",
+    "lattice",
+    "speed",
+    "parking",
+    "replan",
+    "tuning",
+    "scenarios",
+    "eval",
+    "sim",
+    "baselines",
+    "models",
+    "planner",
+)
 
 __all__ = [  # the eager names above and every name in _LAZY (tests/test_public_api.py checks)
-    "METRICS", "ChunkedRollout", "DriveLog", "EgoState", "Obstacles", "PlanOutput", "Planner", "Polygon",
-    "ReferenceLine", "Scene", "SceneConfig", "SceneRecord", "SimConfig", "Trajectory", "VehicleParams", "box_corners",
-    "builtin_scenes", "driven_scene", "evaluate", "evaluate_batch", "has_overlap", "headings_from_path", "index_scene",
-    "load_records", "load_scenes", "make_planner", "overlap_polygon", "planner_names", "polygon_area",
-    "register_planner", "rollout", "separation", "stack_scenes", "to_cartesian", "to_frenet", "vehicle_corners"
+    "METRICS",
+    "ChunkedRollout",
+    "DriveLog",
+    "EgoState",
+    "Obstacles",
+    "PlanOutput",
+    "Planner",
+    "Polygon",
+    "ReferenceLine",
+    "Scene",
+    "SceneConfig",
+    "SceneRecord",
+    "SimConfig",
+    "Trajectory",
+    "VehicleParams",
+    "box_corners",
+    "builtin_scenes",
+    "driven_scene",
+    "evaluate",
+    "evaluate_batch",
+    "has_overlap",
+    "headings_from_path",
+    "index_scene",
+    "load_records",
+    "load_scenes",
+    "make_planner",
+    "overlap_polygon",
+    "planner_names",
+    "polygon_area",
+    "register_planner",
+    "rollout",
+    "separation",
+    "stack_scenes",
+    "to_cartesian",
+    "to_frenet",
+    "vehicle_corners",
 ]
 
 

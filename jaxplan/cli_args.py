@@ -11,6 +11,7 @@ Usage in a subcommand::
 
     sub.add_parser("drive", ...).add_argument("scenario", type=cli_args.scenario_file)
 """
+
 from __future__ import annotations
 
 import argparse

@@ -15,6 +15,7 @@ first call, never at import): on other JAX versions or backends ``jit`` is plain
 (they are taken only at the top level, and the user's apply), it is plain ``jax.jit``, inlined
 there; under a top-level ``vmap`` the options apply.
 """
+
 from __future__ import annotations
 
 import functools
@@ -68,8 +69,9 @@ class _LazyJit:
             # inside another jit / grad JAX refuses compiler options (before tracing ``fun``): then
             # plain jax.jit, inlined there. Looking for tracers only here keeps the walk over every
             # argument (about 14 us for the lattice plan's 29 arrays) off the top-level call.
-            if not self.applied or not any(isinstance(x, jax.core.Tracer)
-                                           for x in jax.tree_util.tree_leaves((args, kwargs))):
+            if not self.applied or not any(
+                isinstance(x, jax.core.Tracer) for x in jax.tree_util.tree_leaves((args, kwargs))
+            ):
                 raise
         if self._plain is None:
             self._plain = jax.jit(self._fun, **self._kwargs)

@@ -20,6 +20,7 @@ quantities every road planner needs, so that no planner recomputes them its own 
   never once the car's front is past the line (a red it has already entered is cleared). Green
   and inactive lights let the car through.
 """
+
 from __future__ import annotations
 
 from typing import Any
@@ -46,7 +47,7 @@ def curve_speed(scene, s, reach, a_lat, decel, n: int = 32):
     d = jnp.linspace(0.0, 1.0, n, dtype=f) * reach
     kap = jnp.abs(route_sample(scene, scene.route.kappa, s + d))
     v_curve = jnp.sqrt(a_lat / jnp.maximum(kap, 1e-6))
-    return jnp.min(jnp.sqrt(v_curve ** 2 + 2.0 * decel * d))
+    return jnp.min(jnp.sqrt(v_curve**2 + 2.0 * decel * d))
 
 
 def route_sample(scene, values, s):
@@ -55,9 +56,32 @@ def route_sample(scene, values, s):
     return jnp.vectorize(lambda v, q: jnp.interp(q, scene.route.s, v), signature="(r),()->()")(values, s)
 
 
-@pytree_dataclass(data_fields=("obstacles", "obstacle_s", "obstacle_l", "s", "l", "v_set", "lane_offset", "lane_width",
-                      "lane_valid", "lane_same_dir", "road_left", "road_right", "t_now", "goal_t", "goal_s",
-                      "goal_l", "goal_v", "route_end_s", "leader_gap", "leader_v", "leader_index", "ego"))
+@pytree_dataclass(
+    data_fields=(
+        "obstacles",
+        "obstacle_s",
+        "obstacle_l",
+        "s",
+        "l",
+        "v_set",
+        "lane_offset",
+        "lane_width",
+        "lane_valid",
+        "lane_same_dir",
+        "road_left",
+        "road_right",
+        "t_now",
+        "goal_t",
+        "goal_s",
+        "goal_l",
+        "goal_v",
+        "route_end_s",
+        "leader_gap",
+        "leader_v",
+        "leader_index",
+        "ego",
+    )
+)
 class RoadContext:
     """One planning cycle's view of the scene (``K`` obstacles, ``H`` steps, ``L`` lanes).
 
@@ -157,9 +181,12 @@ def road_context(scene, ego: EgoState, step, horizon_steps: int, vehicle: Vehicl
     lights = getattr(scene, "lights", None)
     if lights is not None and lights.s.shape[-1]:  # static: scenes without stop lines keep K obstacles
         lo, ls, ll = light_targets(scene, s + front_offset(vehicle, f), jnp.asarray(ego.v, f), step, horizon_steps)
-        obs = Obstacles(jnp.concatenate([obs.boxes, lo.boxes.astype(obs.boxes.dtype)]),
-                        jnp.concatenate([obs.valid, lo.valid]), obs.t,
-                        jnp.concatenate([jnp.asarray(obs.static, bool), lo.static]))
+        obs = Obstacles(
+            jnp.concatenate([obs.boxes, lo.boxes.astype(obs.boxes.dtype)]),
+            jnp.concatenate([obs.valid, lo.valid]),
+            obs.t,
+            jnp.concatenate([jnp.asarray(obs.static, bool), lo.static]),
+        )
         os_, ol = jnp.concatenate([os_, ls.astype(os_.dtype)]), jnp.concatenate([ol, ll.astype(ol.dtype)])
     ahead = jnp.maximum(30.0, ego.v * SPEED_LOOKAHEAD)
     probe = s + jnp.linspace(0.0, 1.0, 16, dtype=f) * ahead
@@ -171,10 +198,14 @@ def road_context(scene, ego: EgoState, step, horizon_steps: int, vehicle: Vehicl
     # the leader: nearest obstacle ahead (now) whose lateral extent overlaps the car's
     half_w = 0.5 * jnp.asarray(vehicle.width, f)
     b0 = obs.boxes[:, 0]
-    ext = 0.5 * (jnp.abs(b0[:, 2] * jnp.sin(b0[:, 4] - _heading_at(ref, os_[:, 0])))
-                 + jnp.abs(b0[:, 3] * jnp.cos(b0[:, 4] - _heading_at(ref, os_[:, 0]))))
-    ext_s = 0.5 * (jnp.abs(b0[:, 2] * jnp.cos(b0[:, 4] - _heading_at(ref, os_[:, 0])))
-                   + jnp.abs(b0[:, 3] * jnp.sin(b0[:, 4] - _heading_at(ref, os_[:, 0]))))
+    ext = 0.5 * (
+        jnp.abs(b0[:, 2] * jnp.sin(b0[:, 4] - _heading_at(ref, os_[:, 0])))
+        + jnp.abs(b0[:, 3] * jnp.cos(b0[:, 4] - _heading_at(ref, os_[:, 0])))
+    )
+    ext_s = 0.5 * (
+        jnp.abs(b0[:, 2] * jnp.cos(b0[:, 4] - _heading_at(ref, os_[:, 0])))
+        + jnp.abs(b0[:, 3] * jnp.sin(b0[:, 4] - _heading_at(ref, os_[:, 0])))
+    )
     front = s + front_offset(vehicle, f)
     gap = os_[:, 0] - ext_s - front
     in_lane = jnp.abs(ol[:, 0] - l) < ext + half_w
@@ -189,11 +220,30 @@ def road_context(scene, ego: EgoState, step, horizon_steps: int, vehicle: Vehicl
     else:
         vel, ok1 = jnp.zeros_like(b0[:, :2]), obs.valid[:, 0]
     v_along = jnp.where(ok1, vel[:, 0] * jnp.cos(hdg) + vel[:, 1] * jnp.sin(hdg), 0.0)
-    return RoadContext(obs, os_, ol, s, l, v_set, at(scene.lane_offset), at(scene.lane_width), lane_valid, same,
-                       at(scene.road_left), at(scene.road_right), t_now, scene.goal.time - t_now, scene.goal.s_range,
-                       scene.goal.l_range, scene.goal.speed, scene.route_end_s,
-                       jnp.where(has, gap[k], NO_LEADER), jnp.where(has, v_along[k], 0.0),
-                       jnp.where(has, k, -1), ego)
+    return RoadContext(
+        obs,
+        os_,
+        ol,
+        s,
+        l,
+        v_set,
+        at(scene.lane_offset),
+        at(scene.lane_width),
+        lane_valid,
+        same,
+        at(scene.road_left),
+        at(scene.road_right),
+        t_now,
+        scene.goal.time - t_now,
+        scene.goal.s_range,
+        scene.goal.l_range,
+        scene.goal.speed,
+        scene.route_end_s,
+        jnp.where(has, gap[k], NO_LEADER),
+        jnp.where(has, v_along[k], 0.0),
+        jnp.where(has, k, -1),
+        ego,
+    )
 
 
 def _heading_at(ref, s):

@@ -26,6 +26,7 @@ starting at the ego state; ``ok`` is False when the planner knows its plan is no
 Planners register by name (``register_planner``); the built-in ones are imported on first
 use (``make_planner("lattice")``). Nothing in the simulator knows a planner's internals.
 """
+
 from __future__ import annotations
 
 import importlib
@@ -57,8 +58,14 @@ class EgoState:
         start = jnp.asarray(start)
         h = start[..., 2]
         off = jnp.asarray(vehicle.center_offset, start.dtype)
-        return cls(start[..., 0] - off * jnp.cos(h), start[..., 1] - off * jnp.sin(h), h, start[..., 3],
-                   start[..., 4], jnp.zeros_like(h))
+        return cls(
+            start[..., 0] - off * jnp.cos(h),
+            start[..., 1] - off * jnp.sin(h),
+            h,
+            start[..., 3],
+            start[..., 4],
+            jnp.zeros_like(h),
+        )
 
     def box_centre(self, vehicle: VehicleParams):
         """``(..., 2)`` centre of the car's box."""
@@ -108,12 +115,15 @@ def check_params(planner, params) -> Any:
     t_want: Any = jax.tree_util.tree_structure(want)
     t_got: Any = jax.tree_util.tree_structure(params)
     if t_want != t_got:
-        raise ValueError(f"{type(planner).__name__} params: expected the structure of init_params() ({t_want}), "
-                         f"got {t_got}")
+        raise ValueError(
+            f"{type(planner).__name__} params: expected the structure of init_params() ({t_want}), got {t_got}"
+        )
     for a, b in zip(jax.tree_util.tree_leaves(want), jax.tree_util.tree_leaves(params)):
         if jnp.shape(a) != jnp.shape(b):
-            raise ValueError(f"{type(planner).__name__} params: a leaf of shape {jnp.shape(b)} where init_params() "
-                             f"has {jnp.shape(a)}")
+            raise ValueError(
+                f"{type(planner).__name__} params: a leaf of shape {jnp.shape(b)} where init_params() "
+                f"has {jnp.shape(a)}"
+            )
     return jax.tree_util.tree_map(lambda a, b: jnp.asarray(b, jnp.result_type(a)), want, params)
 
 
@@ -122,8 +132,9 @@ def planner_compiler_options(planner) -> dict:
     (none when it names none)."""
     options = getattr(planner, "compiler_options", None) or {}
     if not isinstance(options, Mapping):
-        raise TypeError(f"{type(planner).__name__}.compiler_options: needs a dict of XLA options "
-                        f"(name -> value), got {options!r}")
+        raise TypeError(
+            f"{type(planner).__name__}.compiler_options: needs a dict of XLA options (name -> value), got {options!r}"
+        )
     return dict(options)
 
 

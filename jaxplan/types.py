@@ -4,6 +4,7 @@ Array fields carry any number of leading batch dimensions. Each type has a
 host-side ``validate()`` that raises ``ValueError`` with a clear message; call it
 at the API boundary, before ``jax.jit``.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -20,6 +21,7 @@ CENTER = "center"
 if TYPE_CHECKING:
     from typing_extensions import dataclass_transform
 else:
+
     def dataclass_transform(**_):
         return lambda f: f
 
@@ -31,9 +33,7 @@ def pytree_dataclass(data_fields, meta_fields=()):
 
     def wrap(cls):
         cls = dataclasses.dataclass(frozen=True)(cls)
-        return jax.tree_util.register_dataclass(
-            cls, data_fields=list(data_fields), meta_fields=list(meta_fields)
-        )
+        return jax.tree_util.register_dataclass(cls, data_fields=list(data_fields), meta_fields=list(meta_fields))
 
     return wrap
 
@@ -58,9 +58,11 @@ FLOAT32_MAX_COORD = 1e5
 def check_coordinates(name: str, xy: np.ndarray) -> None:
     """Refuse coordinates too far from the origin for float32 (unless x64 is on)."""
     if xy.size and not jax.config.read("jax_enable_x64") and np.abs(xy).max() > FLOAT32_MAX_COORD:
-        raise ValueError(f"{name}: coordinates up to {np.abs(xy).max():.3g} m are too far from the origin "
-                         f"for float32 (limit {FLOAT32_MAX_COORD:g} m); move the scene to a local frame "
-                         f"(the scenario loaders do) or enable jax_enable_x64")
+        raise ValueError(
+            f"{name}: coordinates up to {np.abs(xy).max():.3g} m are too far from the origin "
+            f"for float32 (limit {FLOAT32_MAX_COORD:g} m); move the scene to a local frame "
+            f"(the scenario loaders do) or enable jax_enable_x64"
+        )
 
 
 def check_trailing(name: str, x: Any, trailing: tuple[int, ...], coords: int = 0) -> np.ndarray:
@@ -71,7 +73,7 @@ def check_trailing(name: str, x: Any, trailing: tuple[int, ...], coords: int = 0
     """
     a = check_finite(name, x)
     k = len(trailing)
-    if a.ndim < k or tuple(a.shape[a.ndim - k:]) != tuple(trailing):
+    if a.ndim < k or tuple(a.shape[a.ndim - k :]) != tuple(trailing):
         raise ValueError(f"{name}: expected shape (..., {', '.join(map(str, trailing))}), got {a.shape}")
     if coords:
         check_coordinates(name, a[..., :coords])
@@ -86,8 +88,9 @@ def check_boxes(boxes: Any, name: str = "boxes") -> np.ndarray:
     return a
 
 
-def check_polygons(vertices: Any, valid: Any = None, name: str = "polygon",
-                   reorient: bool = False) -> tuple[np.ndarray, np.ndarray]:
+def check_polygons(
+    vertices: Any, valid: Any = None, name: str = "polygon", reorient: bool = False
+) -> tuple[np.ndarray, np.ndarray]:
     """Host-side check of convex polygons ``(..., N, 2)`` with optional mask ``(..., N)``.
 
     Valid vertices must form a prefix, number at least 3, span a positive area,
@@ -116,7 +119,7 @@ def check_polygons(vertices: Any, valid: Any = None, name: str = "polygon",
     cross = e[..., 0] * e_next[..., 1] - e[..., 1] * e_next[..., 0]
     area2 = np.sum(np.where(m, v[..., 0] * (v + e)[..., 1] - v[..., 1] * (v + e)[..., 0], 0.0), axis=-1)
     scale = np.maximum(1.0, np.max(np.abs(np.where(m[..., None], v, 0.0)), axis=(-2, -1)))
-    if np.any(np.abs(area2) <= 1e-12 * scale ** 2):
+    if np.any(np.abs(area2) <= 1e-12 * scale**2):
         raise ValueError(f"{name}: degenerate polygon (zero area)")
     cw = area2 < 0
     if np.any(cw):
@@ -161,8 +164,9 @@ def is_concrete(*xs) -> bool:
     return not any(isinstance(x, jax.core.Tracer) for x in jax.tree_util.tree_leaves(xs))
 
 
-@pytree_dataclass(data_fields=("length", "width", "wheelbase", "rear_overhang", "max_steer"),
-         meta_fields=("reference",))
+@pytree_dataclass(
+    data_fields=("length", "width", "wheelbase", "rear_overhang", "max_steer"), meta_fields=("reference",)
+)
 class VehicleParams:
     """Car geometry. Lengths in metres, ``max_steer`` in radians (front wheel).
 
@@ -381,8 +385,12 @@ class Obstacles:
         static = jnp.asarray(self.static, bool)
         lead = self.boxes.shape[:-2]
         if n == 0:
-            return Obstacles(jnp.zeros(lead + (t.shape[-1], 5), dtype).at[..., 2:4].set(1.0),
-                             jnp.zeros(lead + (t.shape[-1],), bool), t, static)
+            return Obstacles(
+                jnp.zeros(lead + (t.shape[-1], 5), dtype).at[..., 2:4].set(1.0),
+                jnp.zeros(lead + (t.shape[-1],), bool),
+                t,
+                static,
+            )
         if n == 1:
             b = jnp.broadcast_to(self.boxes, lead + (t.shape[-1], 5))
             ok = self.valid & (jnp.abs(t - tt[0]) <= SNAP)
@@ -440,10 +448,16 @@ class Obstacles:
         want = np.arange(t.shape[-1]) * dt
         tol = 1e-4 * max(1.0, dt * t.shape[-1])
         if np.any(np.abs(t - want) > tol):
-            step = float(t.reshape(-1, t.shape[-1])[0, 1] - t.reshape(-1, t.shape[-1])[0, 0]) if t.shape[-1] > 1 else float("nan")
-            raise ValueError(f"{name}.t: predictions are stamped from t = {float(t.reshape(-1)[0]):g} s every "
-                             f"{step:g} s, but the planner's grid is t = k * {dt:g} s; resample them to that grid "
-                             f"(jaxplan.speed.path_profile.resample_obstacles)")
+            step = (
+                float(t.reshape(-1, t.shape[-1])[0, 1] - t.reshape(-1, t.shape[-1])[0, 0])
+                if t.shape[-1] > 1
+                else float("nan")
+            )
+            raise ValueError(
+                f"{name}.t: predictions are stamped from t = {float(t.reshape(-1)[0]):g} s every "
+                f"{step:g} s, but the planner's grid is t = k * {dt:g} s; resample them to that grid "
+                f"(jaxplan.speed.path_profile.resample_obstacles)"
+            )
         return self
 
 

@@ -4,6 +4,7 @@ A scene is *survivable* when this planner, braking at ``-5 m/s^2`` from ``t = 0`
 every obstacle (``jaxplan.scenarios.builtin`` keeps only such scenes): a collision of
 another planner in it is then that planner's fault.
 """
+
 from __future__ import annotations
 
 import dataclasses

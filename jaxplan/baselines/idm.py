@@ -5,6 +5,7 @@ Along the route at the car's lateral offset, the speed follows IDM towards the s
 each future step, and stops before the end of the mapped road. The IDM law is the library's
 one (``jaxplan.models.idm``) with this planner's parameters (``IDMParams``).
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -42,8 +43,9 @@ def idm_accel(v, v_set, gap, dv, p: IDMParams = IDMParams()):
     for speed ``v``, desired speed ``v_set``, bumper gap ``gap`` (m, > 0 or large without a leader)
     and approach rate ``dv = v - v_leader``; clipped to ``[-b_max, a_max]``. Finite gradients (the
     gap is floored at 0.1 m)."""
-    a = idm_model(v, v_set, gap, dv, a_max=p.a_max, b_comf=p.b_comf, time_gap=p.time_gap, min_gap=p.min_gap,
-                  delta=p.delta)
+    a = idm_model(
+        v, v_set, gap, dv, a_max=p.a_max, b_comf=p.b_comf, time_gap=p.time_gap, min_gap=p.min_gap, delta=p.delta
+    )
     return jnp.clip(a, -p.b_max, p.a_max)
 
 

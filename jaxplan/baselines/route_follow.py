@@ -1,5 +1,6 @@
 """Trajectories along the route: the baselines' path (keep the current lateral offset,
 after a short quintic that aligns the car's heading with the lane)."""
+
 from __future__ import annotations
 
 import jax.numpy as jnp
@@ -29,8 +30,7 @@ def follow_route(route, ego, ds, v, a, t) -> Trajectory:
         ``Trajectory`` ``(H,)`` of the car's reference point (``s`` = distance driven).
     """
     f = route.xy.dtype
-    s0, l0, dl0, ddl0 = cartesian_to_frenet_state(route, jnp.stack([ego.x, ego.y]).astype(f), ego.heading,
-                                                  ego.kappa)
+    s0, l0, dl0, ddl0 = cartesian_to_frenet_state(route, jnp.stack([ego.x, ego.y]).astype(f), ego.heading, ego.kappa)
     S = jnp.maximum(ALIGN_MIN, ALIGN_TIME * ego.v)
     c = quintic_coeffs(l0, jnp.clip(dl0, -1.0, 1.0), jnp.clip(ddl0, -0.5, 0.5), l0, S)
     l, dl, ddl = quintic_eval(c, S, ds)
@@ -48,7 +48,7 @@ def braking_profile(v0, a_brake, t):
     """Distance, speed and acceleration ``(H,)`` of braking at ``a_brake < 0`` from ``v0`` to a stop."""
     t_stop = v0 / jnp.maximum(-a_brake, 1e-6)
     tc = jnp.minimum(t, t_stop)
-    s = v0 * tc + 0.5 * a_brake * tc ** 2
+    s = v0 * tc + 0.5 * a_brake * tc**2
     v = jnp.maximum(v0 + a_brake * t, 0.0)
     a = jnp.where(t < t_stop, a_brake, 0.0)
     return s, v, a

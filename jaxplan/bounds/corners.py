@@ -35,6 +35,7 @@ Cases outside the seed, with the rule used (see ``CASE_*``):
 * no corner inside (edges only cross) or a degenerate construction: the seed
   has nothing to offer; the exact distance (``exact_avoid_distance``) is used.
 """
+
 from __future__ import annotations
 
 from typing import NamedTuple
@@ -144,8 +145,12 @@ def _single(car, obs, obs_valid, u, with_exact=True):
     prv, nxt = (r - 1) % count, (r + 1) % count
     po1, po2 = op.vertices[prv], op.vertices[nxt]
     other_edge = jnp.where(car_primary, op.index_b, op.index_a)  # edge of the other contour
-    seed = ((op.source[prv] == EDGE_CROSSING) & (op.source[nxt] == EDGE_CROSSING)
-            & (other_edge[prv] == other_edge[nxt]) & (n_corners == 1))
+    seed = (
+        (op.source[prv] == EDGE_CROSSING)
+        & (op.source[nxt] == EDGE_CROSSING)
+        & (other_edge[prv] == other_edge[nxt])
+        & (n_corners == 1)
+    )
 
     # The other contour's edge ends Pl1, Pl2 (padded to a common size).
     M = obs.shape[0]
@@ -185,20 +190,36 @@ def _single(car, obs, obs_valid, u, with_exact=True):
     # Pi' behind Ph (l3 leaves through another edge) is outside the seed: deepest-exit rule.
     ahead = ok1 & (t1 >= -tol)
     case_seed = jnp.where(on_edge, CASE_ON_EDGE, jnp.where(off_ok, CASE_OFF_EDGE, CASE_DEGENERATE))
-    case = jnp.where(~overlap, CASE_NONE,
-                     jnp.where(~has_corner, CASE_NO_CORNER,
-                               jnp.where(seed & ahead, case_seed, CASE_DEEPEST)))
+    case = jnp.where(
+        ~overlap, CASE_NONE, jnp.where(~has_corner, CASE_NO_CORNER, jnp.where(seed & ahead, case_seed, CASE_DEEPEST))
+    )
     dist_seed = jnp.where(on_edge, jnp.maximum(t1, 0.0), jnp.maximum(t2, 0.0))
     un = jnp.linalg.norm(u)
     exact = exact_avoid_distance(car, obs, u, car_valid, obs_valid) if with_exact else jnp.nan
-    dist = jnp.where(case == CASE_NONE, 0.0,
-                     jnp.where((case == CASE_ON_EDGE) | (case == CASE_OFF_EDGE), dist_seed,
-                               jnp.where(case == CASE_DEEPEST, exit_t, exact)))
+    dist = jnp.where(
+        case == CASE_NONE,
+        0.0,
+        jnp.where(
+            (case == CASE_ON_EDGE) | (case == CASE_OFF_EDGE), dist_seed, jnp.where(case == CASE_DEEPEST, exit_t, exact)
+        ),
+    )
     pi_second = jnp.where(case == CASE_OFF_EDGE, pi2, pi1)
     del un, K, dtype
-    return ContourConstruction(dist, case.astype(jnp.int32), car_primary, ph, po1, po2, pl1, pl2, pi1,
-                               pi_second, target_aux.astype(jnp.int32), target_contour.astype(jnp.int32),
-                               depth)
+    return ContourConstruction(
+        dist,
+        case.astype(jnp.int32),
+        car_primary,
+        ph,
+        po1,
+        po2,
+        pl1,
+        pl2,
+        pi1,
+        pi_second,
+        target_aux.astype(jnp.int32),
+        target_contour.astype(jnp.int32),
+        depth,
+    )
 
 
 def contour_construction(vehicle_corners, obstacle_corners, normal, obstacle_valid=None, with_exact: bool = True):

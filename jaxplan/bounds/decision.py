@@ -25,6 +25,7 @@ road gives ``[road_lo, road_hi]``.
 Everything is per scene with static shapes (``K`` obstacles, ``N`` stations); batch with
 ``jax.vmap``.
 """
+
 from __future__ import annotations
 
 from typing import NamedTuple
@@ -89,15 +90,17 @@ def obstacle_intervals(base_xy, ref_theta, car_theta, vehicle, boxes, valid, lat
     half_car = 0.5 * jnp.stack([jnp.asarray(vehicle.length, dtype), jnp.asarray(vehicle.width, dtype)])
     half_obs = 0.5 * boxes[..., 2:4] + jnp.stack([lon_buffer, 0.0]).astype(dtype)
     nrm = jnp.stack([-jnp.sin(ref_theta), jnp.cos(ref_theta)], -1)
-    t_lo, t_hi, hit = box_overlap_interval(ctr[:, None], unit(car_theta)[:, None], half_car, boxes[..., :2],
-                                           unit(boxes[..., 4]), half_obs, nrm[:, None])
+    t_lo, t_hi, hit = box_overlap_interval(
+        ctr[:, None], unit(car_theta)[:, None], half_car, boxes[..., :2], unit(boxes[..., 4]), half_obs, nrm[:, None]
+    )
     buf = jnp.broadcast_to(jnp.asarray(lat_buffer, dtype), car_theta.shape)[:, None]
     hit = hit & valid
     return jnp.where(hit, t_lo - buf, _INF), jnp.where(hit, t_hi + buf, -_INF), hit
 
 
-def decide_corridor(lo, hi, hit, road_lo, road_hi, l0, reach, l_pref, side0=None, *, room_cap=1.0,
-                    min_gap=0.0, start_tol=1e-3) -> Corridor:
+def decide_corridor(
+    lo, hi, hit, road_lo, road_hi, l0, reach, l_pref, side0=None, *, room_cap=1.0, min_gap=0.0, start_tol=1e-3
+) -> Corridor:
     """Side decisions and the corridor along the stations (see the module docstring).
 
     Args:
@@ -159,5 +162,6 @@ def decide_corridor(lo, hi, hit, road_lo, road_hi, l0, reach, l_pref, side0=None
     l0 = jnp.asarray(l0, dtype)
     init = (l0, l0, side0, jnp.asarray(False), jnp.asarray(N, jnp.int32), jnp.asarray(0, jnp.int32))
     (_, _, side, _, bidx, _), (lower, upper, r_lo, r_hi, valid) = jax.lax.scan(
-        step, init, (lo, hi, hit, road_lo, road_hi, reach, l_pref))
+        step, init, (lo, hi, hit, road_lo, road_hi, reach, l_pref)
+    )
     return Corridor(lower, upper, r_lo, r_hi, side, valid, bidx)

@@ -11,6 +11,7 @@ Each face normal ``n`` with support ``h(n) = max_B n.b - min_A n.a`` gives
 
 No iteration, no solve: one pass over the ``N + M`` edge normals.
 """
+
 from __future__ import annotations
 
 import jax
@@ -59,10 +60,12 @@ def overlap_interval(poly_a, poly_b, direction, valid_a=None, valid_b=None):
     _, nb, okb = polygon_edges(b, vb)
     # Face normals of B - A: B's outward normals and A's reversed ones.
     lead = jnp.broadcast_shapes(na.shape[:-2], nb.shape[:-2])
-    n = jnp.concatenate([jnp.broadcast_to(nb, lead + nb.shape[-2:]),
-                         jnp.broadcast_to(-na, lead + na.shape[-2:])], axis=-2)
-    ok = jnp.concatenate([jnp.broadcast_to(okb, lead + okb.shape[-1:]),
-                          jnp.broadcast_to(oka, lead + oka.shape[-1:])], axis=-1)
+    n = jnp.concatenate(
+        [jnp.broadcast_to(nb, lead + nb.shape[-2:]), jnp.broadcast_to(-na, lead + na.shape[-2:])], axis=-2
+    )
+    ok = jnp.concatenate(
+        [jnp.broadcast_to(okb, lead + okb.shape[-1:]), jnp.broadcast_to(oka, lead + oka.shape[-1:])], axis=-1
+    )
     h = _support(b, vb, n) + _support(a, va, -n)  # (..., N+M)
     c = n[..., 0] * d[..., None, 0] + n[..., 1] * d[..., None, 1]
     scale = jnp.linalg.norm(d, axis=-1)[..., None]
@@ -100,13 +103,16 @@ def box_overlap_interval(center_a, axis_a, half_a, center_b, axis_b, half_b, dir
     va, vb = perp(ua), perp(ub)
     delta = cb - ca
     eps = 64 * jnp.finfo(dtype).eps * jnp.maximum(jnp.linalg.norm(d, axis=-1), 1e-30)
-    t_lo = jnp.full(jnp.broadcast_shapes(delta.shape[:-1], d.shape[:-1], ua.shape[:-1], ub.shape[:-1]),
-                    -jnp.inf, dtype)
+    t_lo = jnp.full(jnp.broadcast_shapes(delta.shape[:-1], d.shape[:-1], ua.shape[:-1], ub.shape[:-1]), -jnp.inf, dtype)
     t_hi = -t_lo
     flat_sep = jnp.zeros(t_lo.shape, bool)
     for nu in (ua, va, ub, vb):
-        r = (ha[..., 0] * jnp.abs(dot(nu, ua)) + ha[..., 1] * jnp.abs(dot(nu, va))
-             + hb[..., 0] * jnp.abs(dot(nu, ub)) + hb[..., 1] * jnp.abs(dot(nu, vb)))
+        r = (
+            ha[..., 0] * jnp.abs(dot(nu, ua))
+            + ha[..., 1] * jnp.abs(dot(nu, va))
+            + hb[..., 0] * jnp.abs(dot(nu, ub))
+            + hb[..., 1] * jnp.abs(dot(nu, vb))
+        )
         p = dot(nu, delta)
         c = dot(nu, d)
         moving = jnp.abs(c) > eps

@@ -42,6 +42,7 @@ side and one bound:
 
 Lane limits clip everything; the combined bound per point is the tightest.
 """
+
 from __future__ import annotations
 
 from typing import NamedTuple
@@ -121,8 +122,9 @@ def _box_params(corners):
     return c, e0 / jnp.maximum(ln0, 1e-12)[..., None], 0.5 * jnp.stack([ln0, ln1], -1)
 
 
-def _frame(ref, s, l, vehicle, obs, valid, vmask, lane_lower, lane_upper, buffer, method, normal, n_construct,
-           rectangles):
+def _frame(
+    ref, s, l, vehicle, obs, valid, vmask, lane_lower, lane_upper, buffer, method, normal, n_construct, rectangles
+):
     """One frame: s, l ``(T,)``; obs ``(K, T, M, 2)``; valid ``(K, T)``; vmask ``(K, T, M)``."""
     dtype = s.dtype
     xy = to_cartesian(ref, s, l)
@@ -215,14 +217,40 @@ def _frame(ref, s, l, vehicle, obs, valid, vmask, lane_lower, lane_upper, buffer
     lb = jnp.max(lower_k, axis=-1)
     upper = jnp.minimum(ub, lane_upper)
     lower = jnp.maximum(lb, lane_lower)
-    return PathBounds(lower, upper, lb > lane_lower, ub < lane_upper, lower <= upper, lower_k, upper_k,
-                      left, overlap & valid, block, jnp.where(valid, case, 0), xy, heading)
+    return PathBounds(
+        lower,
+        upper,
+        lb > lane_lower,
+        ub < lane_upper,
+        lower <= upper,
+        lower_k,
+        upper_k,
+        left,
+        overlap & valid,
+        block,
+        jnp.where(valid, case, 0),
+        xy,
+        heading,
+    )
 
 
-def path_bounds(ref: ReferenceLine, s, l, vehicle: VehicleParams, obstacle_corners, obstacle_valid=None,
-                vertex_valid=None, lane_lower=-jnp.inf, lane_upper=jnp.inf, *, method: str = "contour",
-                normal: str = "frenet", buffer: float = 0.0, n_construct: int = 16,
-                rectangles: bool = False) -> PathBounds:
+def path_bounds(
+    ref: ReferenceLine,
+    s,
+    l,
+    vehicle: VehicleParams,
+    obstacle_corners,
+    obstacle_valid=None,
+    vertex_valid=None,
+    lane_lower=-jnp.inf,
+    lane_upper=jnp.inf,
+    *,
+    method: str = "contour",
+    normal: str = "frenet",
+    buffer: float = 0.0,
+    n_construct: int = 16,
+    rectangles: bool = False,
+) -> PathBounds:
     """Per-point lower / upper bounds on the Frenet offset ``l``, with masks.
 
     Args:
@@ -271,8 +299,14 @@ def path_bounds(ref: ReferenceLine, s, l, vehicle: VehicleParams, obstacle_corne
             if o.shape[-2] != 4 or (vertex_valid is not None and not np.all(vertex_valid)):
                 raise ValueError("obstacle_corners: rectangles=True needs 4 valid corners per contour")
             e0, e1 = o[..., 0, :] - o[..., 1, :], o[..., 1, :] - o[..., 2, :]
-            cos = np.abs(np.sum(e0 * e1, -1)) / np.maximum(np.linalg.norm(e0, axis=-1) * np.linalg.norm(e1, axis=-1), 1e-12)
-            if o.size and (np.max(cos) > 1e-3 or np.max(np.abs(o[..., 0, :] - o[..., 1, :] + o[..., 2, :] - o[..., 3, :])) > 1e-3 * max(1.0, np.abs(o).max())):
+            cos = np.abs(np.sum(e0 * e1, -1)) / np.maximum(
+                np.linalg.norm(e0, axis=-1) * np.linalg.norm(e1, axis=-1), 1e-12
+            )
+            if o.size and (
+                np.max(cos) > 1e-3
+                or np.max(np.abs(o[..., 0, :] - o[..., 1, :] + o[..., 2, :] - o[..., 3, :]))
+                > 1e-3 * max(1.0, np.abs(o).max())
+            ):
                 raise ValueError("obstacle_corners: rectangles=True but a contour is not a rectangle")
     dtype = jnp.result_type(s, l, obs, float)
     s, l, obs = s.astype(dtype), l.astype(dtype), obs.astype(dtype)
@@ -283,8 +317,15 @@ def path_bounds(ref: ReferenceLine, s, l, vehicle: VehicleParams, obstacle_corne
     lane_lower = jnp.broadcast_to(jnp.asarray(lane_lower, dtype), lead + (T,)).reshape((-1, T))
     lane_upper = jnp.broadcast_to(jnp.asarray(lane_upper, dtype), lead + (T,)).reshape((-1, T))
     flat = lambda x, tail: jnp.broadcast_to(x, lead + tail).reshape((-1,) + tail)
-    args = (flat(s, (T,)), flat(l, (T,)), flat(obs, (K, T, M, 2)), flat(valid, (K, T)), flat(vmask, (K, T, M)),
-            lane_lower, lane_upper)
+    args = (
+        flat(s, (T,)),
+        flat(l, (T,)),
+        flat(obs, (K, T, M, 2)),
+        flat(valid, (K, T)),
+        flat(vmask, (K, T, M)),
+        lane_lower,
+        lane_upper,
+    )
     buf = jnp.asarray(buffer, dtype)
 
     def one(s1, l1, o1, v1, m1, lo1, up1):

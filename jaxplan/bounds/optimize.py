@@ -40,6 +40,7 @@ somewhere, the initial state lies outside its bounds, or the certificate fires,
 ``feasible`` is False and ``l`` is NaN. ``ok`` = feasible, converged, and every bound met
 within ``tol_violation``.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -160,13 +161,14 @@ def jerk_map(T: int, ds, dtype=jnp.float32):
     k = jnp.arange(T - 1)[None, :]
     n = (i - 1 - k).astype(dtype) * ds  # n * ds for k < i
     on = (k < i).astype(dtype)
-    m_l = on * (ds ** 3 / 6 + n * ds ** 2 / 2 + n ** 2 * ds / 2)
-    m_d = on * (ds ** 2 / 2 + n * ds)
+    m_l = on * (ds**3 / 6 + n * ds**2 / 2 + n**2 * ds / 2)
+    m_d = on * (ds**2 / 2 + n * ds)
     m_a = on * ds
     t = jnp.arange(T, dtype=dtype) * ds
     one, zero = jnp.ones(T, dtype), jnp.zeros(T, dtype)
-    H = jnp.concatenate([jnp.stack([one, t, t ** 2 / 2], -1), jnp.stack([zero, one, t], -1),
-                         jnp.stack([zero, zero, one], -1)], axis=0)
+    H = jnp.concatenate(
+        [jnp.stack([one, t, t**2 / 2], -1), jnp.stack([zero, one, t], -1), jnp.stack([zero, zero, one], -1)], axis=0
+    )
     return jnp.concatenate([m_l, m_d, m_a], axis=0), H
 
 
@@ -203,13 +205,14 @@ def state_problem(ds, l_ref, lower, upper, dl_lo, dl_hi, ddl_lo, ddl_hi, jerk_ma
     eye = jnp.eye(T, dtype=dtype)
     D = (jnp.eye(T - 1, T, 1, dtype=dtype) - jnp.eye(T - 1, T, dtype=dtype)) / ds  # (T-1, T)
     Z = jnp.zeros((T, T), dtype)
-    P = 2 * jnp.block([[weights.ref * eye, Z, Z], [Z, weights.dl * eye, Z],
-                       [Z, Z, weights.ddl * eye + weights.dddl * D.T @ D]])
+    P = 2 * jnp.block(
+        [[weights.ref * eye, Z, Z], [Z, weights.dl * eye, Z], [Z, Z, weights.ddl * eye + weights.dddl * D.T @ D]]
+    )
     q = jnp.concatenate([-2 * weights.ref * l_ref, jnp.zeros(2 * T, dtype)])
     I0 = jnp.eye(T - 1, T, dtype=dtype)
     I1 = jnp.eye(T - 1, T, 1, dtype=dtype)
     Zr = jnp.zeros((T - 1, T), dtype)
-    A_pos = jnp.concatenate([I1 - I0, -ds * I0, -(ds ** 2 / 3) * I0 - (ds ** 2 / 6) * I1], axis=1)
+    A_pos = jnp.concatenate([I1 - I0, -ds * I0, -(ds**2 / 3) * I0 - (ds**2 / 6) * I1], axis=1)
     A_vel = jnp.concatenate([Zr, I1 - I0, -(ds / 2) * (I0 + I1)], axis=1)
     A_jerk = jnp.concatenate([Zr, Zr, D], axis=1)
     A = jnp.concatenate([jnp.eye(3 * T, dtype=dtype), A_jerk, A_pos, A_vel], axis=0)
@@ -251,8 +254,7 @@ def _tri_inverse(L):
     k = n // 2
     Ai, Ci = _tri_inverse(L[:k, :k]), _tri_inverse(L[k:, k:])
     low = -Ci @ (L[k:, :k] @ Ai)
-    return jnp.concatenate([jnp.concatenate([Ai, jnp.zeros((k, n - k), L.dtype)], 1),
-                            jnp.concatenate([low, Ci], 1)], 0)
+    return jnp.concatenate([jnp.concatenate([Ai, jnp.zeros((k, n - k), L.dtype)], 1), jnp.concatenate([low, Ci], 1)], 0)
 
 
 def _cholesky(K):
@@ -354,8 +356,9 @@ def admm_solve(P, q, C, lo, hi, config: PathQPConfig, z0=None, y0=None, matvec=N
         Cty = cty(ys)
         dual = jnp.max(jnp.abs((Pz + qs + Cty) / d)) / c
         prim_scale = jnp.maximum(jnp.max(jnp.abs(Cz / e)), jnp.max(jnp.abs(ws / e)))
-        dual_scale = jnp.maximum(jnp.maximum(jnp.max(jnp.abs(Pz / d)), jnp.max(jnp.abs(Cty / d))),
-                                 jnp.max(jnp.abs(qs / d))) / c
+        dual_scale = (
+            jnp.maximum(jnp.maximum(jnp.max(jnp.abs(Pz / d)), jnp.max(jnp.abs(Cty / d))), jnp.max(jnp.abs(qs / d))) / c
+        )
         return prim, dual, prim_scale, dual_scale
 
     def run_stage(st, rho, Kinv, n_blocks_max):
@@ -386,9 +389,20 @@ def admm_solve(P, q, C, lo, hi, config: PathQPConfig, z0=None, y0=None, matvec=N
             inf_ok = (ndy > 1e-12) & (ctdy <= config.eps_pinf * ndy) & (support < -config.eps_pinf * ndy)
             keep = done  # finished problems keep their state (vmap runs every lane)
             pick = lambda a, b: jnp.where(keep, a, b)
-            return (pick(zs, zn), pick(ws, wn), pick(ys, yn), pick(it, it + config.check_every), nb + 1,
-                    done | c_ok | inf_ok, pick(conv, c_ok), pick(infeas, inf_ok), pick(prim, pr), pick(dual, du),
-                    pick(ps_, pscale), pick(ds_, dscale))
+            return (
+                pick(zs, zn),
+                pick(ws, wn),
+                pick(ys, yn),
+                pick(it, it + config.check_every),
+                nb + 1,
+                done | c_ok | inf_ok,
+                pick(conv, c_ok),
+                pick(infeas, inf_ok),
+                pick(prim, pr),
+                pick(dual, du),
+                pick(ps_, pscale),
+                pick(ds_, dscale),
+            )
 
         st = st[:4] + (jnp.asarray(0, jnp.int32),) + st[5:]
         if config.early_exit:
@@ -396,8 +410,20 @@ def admm_solve(P, q, C, lo, hi, config: PathQPConfig, z0=None, y0=None, matvec=N
         return jax.lax.fori_loop(0, n_blocks_max, lambda _, s: block(s), st)  # reverse-differentiable
 
     z0_ = jnp.asarray(0.0, dtype)
-    st = (zs, ws, ys, jnp.asarray(0, jnp.int32), jnp.asarray(0, jnp.int32), jnp.asarray(False), jnp.asarray(False),
-          jnp.asarray(False), z0_, z0_, z0_, z0_)
+    st = (
+        zs,
+        ws,
+        ys,
+        jnp.asarray(0, jnp.int32),
+        jnp.asarray(0, jnp.int32),
+        jnp.asarray(False),
+        jnp.asarray(False),
+        jnp.asarray(False),
+        z0_,
+        z0_,
+        z0_,
+        z0_,
+    )
     rho = jnp.asarray(config.rho, dtype)
     total = max(config.max_iter // config.check_every, 1)
     n_stages = config.rho_updates + 1 if config.adaptive_rho else 1
@@ -439,9 +465,9 @@ def state_matvec(ds, T):
     """``x -> A x`` of ``state_problem`` in O(T) (the rows' structure), for ``admm_solve``."""
 
     def mv(x):
-        l, dl, ddl = x[:T], x[T:2 * T], x[2 * T:]
+        l, dl, ddl = x[:T], x[T : 2 * T], x[2 * T :]
         jerk = (ddl[1:] - ddl[:-1]) / ds
-        pos = l[1:] - l[:-1] - ds * dl[:-1] - (ds ** 2 / 3) * ddl[:-1] - (ds ** 2 / 6) * ddl[1:]
+        pos = l[1:] - l[:-1] - ds * dl[:-1] - (ds**2 / 3) * ddl[:-1] - (ds**2 / 6) * ddl[1:]
         vel = dl[1:] - dl[:-1] - (ds / 2) * (ddl[:-1] + ddl[1:])
         return jnp.concatenate([x, jerk, pos, vel])
 
@@ -456,7 +482,7 @@ def _small_inverse(S):
     M = jnp.concatenate([S, jnp.eye(k, dtype=S.dtype)], -1)
     for j in range(k):
         row = M[j] / M[j, j]
-        M = (M - M[:, j:j + 1] * row[None, :]).at[j].set(row)
+        M = (M - M[:, j : j + 1] * row[None, :]).at[j].set(row)
     return M[:, k:]
 
 
@@ -563,11 +589,17 @@ def polish_state(P, q, A, lo, hi, z, act_lo, act_hi, config: PathQPConfig, matve
         fi = (act[ri] & has).astype(dt)
         pin = lambda f: jnp.where(f > 0, -delta, -1.0)[..., None] * eye3
         Ab_, B1_, B0_ = fb[..., None] * Ab, fi[..., None] * B1, fi[..., None] * B0
-        D = jnp.concatenate([jnp.concatenate([Pd, jnp.swapaxes(Ab_, 1, 2), jnp.swapaxes(B1_, 1, 2)], 2),
-                             jnp.concatenate([Ab_, pin(fb), Z3], 2),
-                             jnp.concatenate([B1_, Z3, pin(fi)], 2)], 1)
-        L = jnp.concatenate([jnp.concatenate([Pl, Z3, Z3], 2), jnp.concatenate([Z3, Z3, Z3], 2),
-                             jnp.concatenate([B0_, Z3, Z3], 2)], 1)
+        D = jnp.concatenate(
+            [
+                jnp.concatenate([Pd, jnp.swapaxes(Ab_, 1, 2), jnp.swapaxes(B1_, 1, 2)], 2),
+                jnp.concatenate([Ab_, pin(fb), Z3], 2),
+                jnp.concatenate([B1_, Z3, pin(fi)], 2),
+            ],
+            1,
+        )
+        L = jnp.concatenate(
+            [jnp.concatenate([Pl, Z3, Z3], 2), jnp.concatenate([Z3, Z3, Z3], 2), jnp.concatenate([B0_, Z3, Z3], 2)], 1
+        )
         Si, G = _block_factor(D, L)
         af = act.astype(dt)
         y = jnp.zeros(m, dt)
@@ -595,8 +627,11 @@ def polish_state(P, q, A, lo, hi, z, act_lo, act_hi, config: PathQPConfig, matve
         p_scale = jnp.maximum(jnp.max(jnp.abs(Ax)), jnp.max(jnp.abs(w)))
         d_scale = jnp.maximum(jnp.maximum(jnp.max(jnp.abs(Px)), jnp.max(jnp.abs(Aty))), jnp.max(jnp.abs(q)))
         finite = jnp.all(jnp.isfinite(x)) & jnp.all(jnp.isfinite(y))  # a singular active set: never a candidate
-        good = (finite & (prim <= config.eps_abs + config.eps_rel * p_scale)
-                & (dual <= config.eps_abs + config.eps_rel * d_scale))
+        good = (
+            finite
+            & (prim <= config.eps_abs + config.eps_rel * p_scale)
+            & (dual <= config.eps_abs + config.eps_rel * d_scale)
+        )
         take = good & (prim < best)
         xb, yb = jnp.where(take, x, xb), jnp.where(take, yp, yb)
         best = jnp.where(take, prim, best)
@@ -620,8 +655,19 @@ def polish_state(P, q, A, lo, hi, z, act_lo, act_hi, config: PathQPConfig, matve
         return k + 1, n_lo, n_hi, x, (n_bad == 0) | ~finite, found | good, best, xb, yb, n_best, trials
 
     inf = jnp.asarray(jnp.inf, dt)
-    c = (jnp.asarray(0, jnp.int32), act_lo & ~eq, act_hi & ~eq, z, jnp.asarray(skip), jnp.asarray(False), inf, z,
-         jnp.zeros(m, dt), jnp.asarray(m + 1, jnp.int32), jnp.asarray(3, jnp.int32))
+    c = (
+        jnp.asarray(0, jnp.int32),
+        act_lo & ~eq,
+        act_hi & ~eq,
+        z,
+        jnp.asarray(skip),
+        jnp.asarray(False),
+        inf,
+        z,
+        jnp.zeros(m, dt),
+        jnp.asarray(m + 1, jnp.int32),
+        jnp.asarray(3, jnp.int32),
+    )
     if config.early_exit:
         c = jax.lax.while_loop(lambda c: (c[0] < config.polish_passes) & ~c[4], one_pass, c)
     else:
@@ -633,9 +679,14 @@ def _frame(lower, upper, dl_lo, dl_hi, ddl_lo, ddl_hi, l_ref, init, ds, weights,
     T = lower.shape[-1]
     dtype = lower.dtype
     bad_bounds = jnp.any(lower[1:] > upper[1:]) | jnp.any(dl_lo[1:] > dl_hi[1:]) | jnp.any(ddl_lo[1:] > ddl_hi[1:])
-    start_out = ((init[0] < lower[0] - config.tol_violation) | (init[0] > upper[0] + config.tol_violation)
-                 | (init[1] < dl_lo[0] - 1e-6) | (init[1] > dl_hi[0] + 1e-6)
-                 | (init[2] < ddl_lo[0] - 1e-6) | (init[2] > ddl_hi[0] + 1e-6))
+    start_out = (
+        (init[0] < lower[0] - config.tol_violation)
+        | (init[0] > upper[0] + config.tol_violation)
+        | (init[1] < dl_lo[0] - 1e-6)
+        | (init[1] > dl_hi[0] + 1e-6)
+        | (init[2] < ddl_lo[0] - 1e-6)
+        | (init[2] > ddl_hi[0] + 1e-6)
+    )
     # Repaired bounds keep the solver well posed on bad input; the answer is masked.
     fix = lambda a, b: (jnp.where(a <= b, a, 0.5 * (a + b)), jnp.where(a <= b, b, 0.5 * (a + b)))
     lo_s, up_s = fix(lower, upper)
@@ -650,20 +701,30 @@ def _frame(lower, upper, dl_lo, dl_hi, ddl_lo, ddl_hi, l_ref, init, ds, weights,
         polished = pol_ok & ~infeas
         z, y = jnp.where(polished, zp, z), jnp.where(polished, yp, y)
         conv = conv | polished
-    l, dl, ddl = z[:T], z[T:2 * T], z[2 * T:]
+    l, dl, ddl = z[:T], z[T : 2 * T], z[2 * T :]
     viol = jnp.maximum(jnp.max(jnp.maximum(l[1:] - upper[1:], lower[1:] - l[1:])), 0.0)
     feasible = ~bad_bounds & ~start_out & ~infeas
     ok = feasible & conv & (viol <= config.tol_violation) & jnp.all(jnp.isfinite(z))
     nan = jnp.asarray(jnp.nan, dtype)
     mask = lambda v: jnp.where(feasible, v, nan)
     jerk = (ddl[1:] - ddl[:-1]) / ds
-    return PathQPResult(mask(l), mask(dl), mask(ddl), mask(jerk), feasible, infeas, conv, polished, ok, viol, it, rho,
-                        z, y)
+    return PathQPResult(
+        mask(l), mask(dl), mask(ddl), mask(jerk), feasible, infeas, conv, polished, ok, viol, it, rho, z, y
+    )
 
 
-def optimize_path(lower, upper, ds, l_ref=None, init=None, weights: PathWeights | None = None,
-                  config: PathQPConfig = PathQPConfig(), dl_bounds=None, ddl_bounds=None,
-                  warm=None) -> PathQPResult:
+def optimize_path(
+    lower,
+    upper,
+    ds,
+    l_ref=None,
+    init=None,
+    weights: PathWeights | None = None,
+    config: PathQPConfig = PathQPConfig(),
+    dl_bounds=None,
+    ddl_bounds=None,
+    warm=None,
+) -> PathQPResult:
     """Piecewise-jerk path inside bounds, batched over frames (``jax.vmap`` of one frame).
 
     Args:
@@ -696,17 +757,27 @@ def optimize_path(lower, upper, ds, l_ref=None, init=None, weights: PathWeights 
     if ddl_bounds is None:
         ddl_bounds = (jnp.full((T,), -config.ddl_max, dtype), jnp.full((T,), config.ddl_max, dtype))
     flat = lambda x, tail: jnp.broadcast_to(jnp.asarray(x, dtype), lead + tail).reshape((-1,) + tail)
-    args = [flat(lower, (T,)), flat(upper, (T,)), flat(dl_bounds[0], (T,)), flat(dl_bounds[1], (T,)),
-            flat(ddl_bounds[0], (T,)), flat(ddl_bounds[1], (T,)), flat(l_ref, (T,)), flat(init, (3,)),
-            flat(ds, ())]
+    args = [
+        flat(lower, (T,)),
+        flat(upper, (T,)),
+        flat(dl_bounds[0], (T,)),
+        flat(dl_bounds[1], (T,)),
+        flat(ddl_bounds[0], (T,)),
+        flat(ddl_bounds[1], (T,)),
+        flat(l_ref, (T,)),
+        flat(init, (3,)),
+        flat(ds, ()),
+    ]
     fn: Callable[..., Any]
     if warm is None:
         fn = lambda lo, up, dlo, dhi, ddlo, ddhi, lr, x0, ds_: _frame(
-            lo, up, dlo, dhi, ddlo, ddhi, lr, x0, ds_, weights, config, None, None)
+            lo, up, dlo, dhi, ddlo, ddhi, lr, x0, ds_, weights, config, None, None
+        )
     else:
         args += [flat(warm[0], (3 * T,)), flat(warm[1], (6 * T - 3,))]
         fn = lambda lo, up, dlo, dhi, ddlo, ddhi, lr, x0, ds_, z0, y0: _frame(
-            lo, up, dlo, dhi, ddlo, ddhi, lr, x0, ds_, weights, config, z0, y0)
+            lo, up, dlo, dhi, ddlo, ddhi, lr, x0, ds_, weights, config, z0, y0
+        )
     out = jax.vmap(fn)(*args)
     return jax.tree_util.tree_map(lambda x: x.reshape(lead + x.shape[1:]), out)
 

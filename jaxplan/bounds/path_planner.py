@@ -41,6 +41,7 @@ of every blocking obstacle. Past a blockage the points are not valid and ``block
 says where the car's reference point must stop before (the car at ``blocked_s`` overlaps
 the blocking obstacle lengthened by ``lon_buffer``).
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -109,8 +110,27 @@ class PathConfig:
     qp: PathQPConfig = PathQPConfig(jerk_max=0.2, max_iter=2000)
 
 
-@pytree_dataclass(data_fields=("s", "xy", "theta", "kappa", "l", "route_s", "lower", "upper", "valid", "blocked_s", "ok",
-                      "side", "blocking", "rounds", "qp_ok", "collision_free", "ds"))
+@pytree_dataclass(
+    data_fields=(
+        "s",
+        "xy",
+        "theta",
+        "kappa",
+        "l",
+        "route_s",
+        "lower",
+        "upper",
+        "valid",
+        "blocked_s",
+        "ok",
+        "side",
+        "blocking",
+        "rounds",
+        "qp_ok",
+        "collision_free",
+        "ds",
+    )
+)
 class PathPlan:
     """The path of one scene on a uniform arc-length grid from the car (``N`` points, ``K`` obstacles).
 
@@ -159,9 +179,9 @@ def corridor_edges(scene, opposite_lanes: bool):
     ok = scene.lane_valid & (scene.lane_same_dir | opposite_lanes)
     ok = ok.at[c].set(True)
     left_ok = jnp.cumprod(ok[c:].astype(jnp.int32), axis=0).astype(bool)  # (L - c, R)
-    right_ok = jnp.cumprod(ok[:c + 1][::-1].astype(jnp.int32), axis=0).astype(bool)
+    right_ok = jnp.cumprod(ok[: c + 1][::-1].astype(jnp.int32), axis=0).astype(bool)
     left = jnp.max(jnp.where(left_ok, off[c:] + 0.5 * wid[c:], -jnp.inf), 0)
-    right = jnp.min(jnp.where(right_ok, off[:c + 1][::-1] - 0.5 * wid[:c + 1][::-1], jnp.inf), 0)
+    right = jnp.min(jnp.where(right_ok, off[: c + 1][::-1] - 0.5 * wid[: c + 1][::-1], jnp.inf), 0)
     return jnp.minimum(left, scene.road_left), jnp.maximum(right, scene.road_right)
 
 
@@ -224,7 +244,7 @@ def speed_curvature_cap(v0, dist, a_lat_max, decel):
     """``(N,)`` curvature bound at distances ``dist (N,)`` along the path for a car at speed
     ``v0 ()`` that brakes at most at ``decel`` (m/s^2): ``a_lat_max / v(s)^2`` with ``v(s)^2 =
     max(v0^2 - 2 decel s, 0)`` (unbounded where the car could have stopped)."""
-    v2 = jnp.maximum(v0 ** 2 - 2.0 * decel * dist, 0.0)
+    v2 = jnp.maximum(v0**2 - 2.0 * decel * dist, 0.0)
     return a_lat_max / jnp.maximum(v2, 1e-6)
 
 
@@ -285,18 +305,29 @@ def solve_path(ref, st, ds, boxes, blocking, edge_left, edge_right, l_pref, init
         ``margin == 0``, exactly the corridor at that one heading. The three headings are one
         vmapped call, so the interval kernel is traced once."""
         heads = jnp.stack([d_lo, 0.5 * (d_lo + d_hi), d_hi])  # (3, N)
-        lo, hi, hit = jax.vmap(lambda h: obstacle_intervals(base, th_r, th_r + h, veh, box_n, blk_n,
-                                                            lat_buf + margin, lon_buf))(heads)
+        lo, hi, hit = jax.vmap(
+            lambda h: obstacle_intervals(base, th_r, th_r + h, veh, box_n, blk_n, lat_buf + margin, lon_buf)
+        )(heads)
         rl, rr = jax.vmap(lambda h: car_reach(veh, h))(heads)
         road_hi = edge_left - (jnp.max(rl, 0) + margin) - config.edge_buffer
         road_lo = edge_right + (jnp.max(rr, 0) + margin) + config.edge_buffer
-        return decide_corridor(jnp.min(lo, 0), jnp.max(hi, 0), jnp.any(hit, 0), road_lo, road_hi, l0, reach,
-                               l_pref, side, room_cap=config.room_cap, min_gap=config.min_gap)
+        return decide_corridor(
+            jnp.min(lo, 0),
+            jnp.max(hi, 0),
+            jnp.any(hit, 0),
+            road_lo,
+            road_hi,
+            l0,
+            reach,
+            l_pref,
+            side,
+            room_cap=config.room_cap,
+            min_gap=config.min_gap,
+        )
 
     def qp_bounds(cor):
         """The QP's bounds on ``l`` from the corridor (the car's own offset at station 0)."""
-        return (cor.lower.at[0].set(jnp.minimum(cor.lower[0], l0)),
-                cor.upper.at[0].set(jnp.maximum(cor.upper[0], l0)))
+        return (cor.lower.at[0].set(jnp.minimum(cor.lower[0], l0)), cor.upper.at[0].set(jnp.maximum(cor.upper[0], l0)))
 
     def solve(cor, warm):
         return optimize_path(*qp_bounds(cor), ds, l_pref, init, w, config.qp, dl_b, ddl_b, warm=warm)
@@ -310,8 +341,11 @@ def solve_path(ref, st, ds, boxes, blocking, edge_left, edge_right, l_pref, init
         hit = box_has_overlap(car[:, None], box_n) & blk_n & valid[:, None]
         mid = poses_to_boxes(0.5 * (xy[1:] + xy[:-1]), 0.5 * (th[1:] + th[:-1]), veh)
         vm = valid[1:] & valid[:-1]
-        hit_m = (box_has_overlap(mid[:, None], box_n[1:]) | box_has_overlap(mid[:, None], box_n[:-1])) \
-            & (blk_n[1:] | blk_n[:-1]) & vm[:, None]
+        hit_m = (
+            (box_has_overlap(mid[:, None], box_n[1:]) | box_has_overlap(mid[:, None], box_n[:-1]))
+            & (blk_n[1:] | blk_n[:-1])
+            & vm[:, None]
+        )
         return ~jnp.any(hit) & ~jnp.any(hit_m)
 
     car_dth = jnp.zeros((N,), f).at[0].set(dth0)
@@ -337,14 +371,27 @@ def solve_path(ref, st, ds, boxes, blocking, edge_left, edge_right, l_pref, init
     cor0 = zero(jax.eval_shape(lambda: bounds_at(car_dth, car_dth, jnp.zeros((), f), None)))
     qp0 = zero(jax.eval_shape(lambda: solve(cor0, None)))
     rounds, cor, qp, fine, _, _ = jax.lax.while_loop(
-        lambda s: (s[0] == 0) | ((s[0] < config.max_rounds) & ~s[3]), body,
-        (jnp.asarray(0, jnp.int32), cor0, qp0, jnp.asarray(False), car_dth, car_dth))
+        lambda s: (s[0] == 0) | ((s[0] < config.max_rounds) & ~s[3]),
+        body,
+        (jnp.asarray(0, jnp.int32), cor0, qp0, jnp.asarray(False), car_dth, car_dth),
+    )
     l = jnp.where(qp.feasible, qp.l, l0)
     dl = jnp.where(qp.feasible, qp.dl, 0.0)
     ddl = jnp.where(qp.feasible, qp.ddl, 0.0)
     xy, th, kap = pose(l, dl, ddl)
-    return dict(corridor=cor, qp=qp, rounds=rounds, clear=clear(xy, th, cor.valid), xy=xy, theta=th, kappa=kap,
-                l=l, dl=dl, ddl=ddl, qp_input=(*qp_bounds(cor), *dl_b, *ddl_b))
+    return dict(
+        corridor=cor,
+        qp=qp,
+        rounds=rounds,
+        clear=clear(xy, th, cor.valid),
+        xy=xy,
+        theta=th,
+        kappa=kap,
+        l=l,
+        dl=dl,
+        ddl=ddl,
+        qp_input=(*qp_bounds(cor), *dl_b, *ddl_b),
+    )
 
 
 def _plan(scene, ctx, config, ego):
@@ -363,10 +410,13 @@ def _plan(scene, ctx, config, ego):
     left_e, right_e = corridor_edges(scene, config.opposite_lanes)
     front = veh.front_offset
     rear = veh.rear_offset
-    edge_l = jnp.minimum(jnp.minimum(_sample(scene, left_e, st), _sample(scene, left_e, st + front)),
-                         _sample(scene, left_e, st + rear))
-    edge_r = jnp.maximum(jnp.maximum(_sample(scene, right_e, st), _sample(scene, right_e, st + front)),
-                         _sample(scene, right_e, st + rear))
+    edge_l = jnp.minimum(
+        jnp.minimum(_sample(scene, left_e, st), _sample(scene, left_e, st + front)), _sample(scene, left_e, st + rear)
+    )
+    edge_r = jnp.maximum(
+        jnp.maximum(_sample(scene, right_e, st), _sample(scene, right_e, st + front)),
+        _sample(scene, right_e, st + rear),
+    )
     l_pref = _sample(scene, scene.lane_offset[scene.own_lane], st)
     res = solve_path(ref, st, ds, boxes, blocking, edge_l, edge_r, l_pref, jnp.stack([l0, dl0, ddl0]), config, v0)
     cor, qp = res["corridor"], res["qp"]
@@ -384,7 +434,22 @@ def _plan(scene, ctx, config, ego):
     valid_o = (s_out <= S_end + 1e-4) & (s_out < blocked_s)
     side = jnp.where(blocking, cor.side, NONE)
     ok = qp.ok & res["clear"] & (b > 0)
-    return PathPlan(s_out, jnp.stack([x_o, y_o], -1), _resample(S, th, s_out), _resample(S, kap, s_out),
-                    _resample(S, l, s_out), _resample(S, st, s_out) + past, _resample(S, cor.lower, s_out),
-                    _resample(S, cor.upper, s_out), valid_o, blocked_s, ok, side, blocking, res["rounds"], qp.ok,
-                    res["clear"], ds)
+    return PathPlan(
+        s_out,
+        jnp.stack([x_o, y_o], -1),
+        _resample(S, th, s_out),
+        _resample(S, kap, s_out),
+        _resample(S, l, s_out),
+        _resample(S, st, s_out) + past,
+        _resample(S, cor.lower, s_out),
+        _resample(S, cor.upper, s_out),
+        valid_o,
+        blocked_s,
+        ok,
+        side,
+        blocking,
+        res["rounds"],
+        qp.ok,
+        res["clear"],
+        ds,
+    )

@@ -20,6 +20,7 @@ JAXPLAN_PROCESS_ID=i``, see ``maybe_init_distributed``); process ``i`` then
 runs chunks ``i, i + N, i + 2N, ...`` on its own devices into the shared
 output folder, and ``load_results`` gathers them in order.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -43,9 +44,11 @@ def maybe_init_distributed() -> None:
     """Call ``jax.distributed.initialize`` when the JAXPLAN_* variables say so."""
     addr = os.environ.get("JAXPLAN_COORDINATOR")
     if addr:
-        jax.distributed.initialize(coordinator_address=addr,
-                                   num_processes=int(os.environ["JAXPLAN_NUM_PROCESSES"]),
-                                   process_id=int(os.environ["JAXPLAN_PROCESS_ID"]))
+        jax.distributed.initialize(
+            coordinator_address=addr,
+            num_processes=int(os.environ["JAXPLAN_NUM_PROCESSES"]),
+            process_id=int(os.environ["JAXPLAN_PROCESS_ID"]),
+        )
 
 
 def _chunk_path(out_dir: str, i: int) -> str:
@@ -84,8 +87,10 @@ def _feed(h, obj) -> None:
     else:
         r = repr(obj)
         if " at 0x" in r:
-            raise TypeError(f"run_chunked inputs: cannot fingerprint {type(obj).__name__} (its repr names a memory "
-                            f"address); pass numbers, strings, arrays, dataclasses or containers of them")
+            raise TypeError(
+                f"run_chunked inputs: cannot fingerprint {type(obj).__name__} (its repr names a memory "
+                f"address); pass numbers, strings, arrays, dataclasses or containers of them"
+            )
         h.update(f"{type(obj).__qualname__}:{r};".encode())
 
 
@@ -116,8 +121,7 @@ def function_id(fn: Callable) -> str:
         code = getattr(fn, "__code__", None)
         parts.append(code.co_code if code is not None else repr(type(fn)))
     cells = getattr(fn, "__closure__", None) or ()
-    parts.append(tuple(c.cell_contents for c in cells
-                       if isinstance(getattr(c, "cell_contents", None), _SIMPLE)))
+    parts.append(tuple(c.cell_contents for c in cells if isinstance(getattr(c, "cell_contents", None), _SIMPLE)))
     h = hashlib.sha256()
     try:
         _feed(h, parts)
@@ -126,8 +130,13 @@ def function_id(fn: Callable) -> str:
     return h.hexdigest()[:16]
 
 
-_LABELS = {"fn": "the function", "make_chunk": "the chunk maker", "n_scenes": "the number of scenes",
-           "chunk_size": "the chunk size", "inputs": "the inputs"}
+_LABELS = {
+    "fn": "the function",
+    "make_chunk": "the chunk maker",
+    "n_scenes": "the number of scenes",
+    "chunk_size": "the chunk size",
+    "inputs": "the inputs",
+}
 
 
 def _write_json(path: str, obj) -> None:
@@ -152,8 +161,9 @@ def _read_manifest(out_dir: str) -> dict | None:
             raise ValueError("not an object")
         return m
     except (OSError, ValueError) as e:
-        raise ValueError(f"{path}: unreadable run manifest ({type(e).__name__}: {e}); delete {out_dir} to "
-                         f"start fresh") from None
+        raise ValueError(
+            f"{path}: unreadable run manifest ({type(e).__name__}: {e}); delete {out_dir} to start fresh"
+        ) from None
 
 
 def _claim(out_dir: str, settings: dict, fresh: bool) -> None:
@@ -163,12 +173,15 @@ def _claim(out_dir: str, settings: dict, fresh: bool) -> None:
         for f in _chunk_files(out_dir) + ([path] if os.path.exists(path) else []):
             os.remove(f)
     old = _read_manifest(out_dir)
-    how = (f"to start fresh delete {out_dir} (or its chunk_*.npz and {MANIFEST}), choose another output folder, "
-           f"or pass fresh=True")
+    how = (
+        f"to start fresh delete {out_dir} (or its chunk_*.npz and {MANIFEST}), choose another output folder, "
+        f"or pass fresh=True"
+    )
     if old is None:
         if _chunk_files(out_dir):
-            raise ValueError(f"{out_dir}: holds chunk files but no {MANIFEST}, so which run wrote them is unknown; "
-                             f"{how}")
+            raise ValueError(
+                f"{out_dir}: holds chunk files but no {MANIFEST}, so which run wrote them is unknown; {how}"
+            )
         _write_json(path, settings)
         return
     diff = [k for k in settings if old.get(k) != settings[k]]
@@ -177,10 +190,19 @@ def _claim(out_dir: str, settings: dict, fresh: bool) -> None:
         raise ValueError(f"{out_dir}: holds the chunks of another run: {what}; {how}")
 
 
-def run_chunked(fn: Callable, make_chunk: Callable[[int, int], object], n_scenes: int, out_dir: str,
-                chunk_size: int = 1024, mesh: Mesh | None = None, progress: bool = True,
-                process_index: int | None = None, process_count: int | None = None, inputs: Any = None,
-                fresh: bool = False) -> dict:
+def run_chunked(
+    fn: Callable,
+    make_chunk: Callable[[int, int], object],
+    n_scenes: int,
+    out_dir: str,
+    chunk_size: int = 1024,
+    mesh: Mesh | None = None,
+    progress: bool = True,
+    process_index: int | None = None,
+    process_count: int | None = None,
+    inputs: Any = None,
+    fresh: bool = False,
+) -> dict:
     """Run ``fn`` over ``n_scenes`` scenes in chunks, resuming from ``out_dir``.
 
     Args:
@@ -205,8 +227,17 @@ def run_chunked(fn: Callable, make_chunk: Callable[[int, int], object], n_scenes
     if os.path.exists(out_dir) and not os.path.isdir(out_dir):
         raise ValueError(f"{out_dir}: is a file, not an output folder")
     os.makedirs(out_dir, exist_ok=True)
-    _claim(out_dir, {"fn": function_id(fn), "make_chunk": function_id(make_chunk), "n_scenes": int(n_scenes),
-                     "chunk_size": int(chunk_size), "inputs": fingerprint(inputs)}, fresh)
+    _claim(
+        out_dir,
+        {
+            "fn": function_id(fn),
+            "make_chunk": function_id(make_chunk),
+            "n_scenes": int(n_scenes),
+            "chunk_size": int(chunk_size),
+            "inputs": fingerprint(inputs),
+        },
+        fresh,
+    )
     pi = jax.process_index() if process_index is None else process_index
     pc = jax.process_count() if process_count is None else process_count
     n_chunks = -(-n_scenes // chunk_size)
@@ -216,8 +247,11 @@ def run_chunked(fn: Callable, make_chunk: Callable[[int, int], object], n_scenes
     if progress:
         from tqdm import tqdm
 
-        bar = tqdm(total=sum(min(chunk_size, n_scenes - i * chunk_size) for i in todo), unit="scene",
-                   desc=os.path.basename(out_dir.rstrip("/")) or "batch")
+        bar = tqdm(
+            total=sum(min(chunk_size, n_scenes - i * chunk_size) for i in todo),
+            unit="scene",
+            desc=os.path.basename(out_dir.rstrip("/")) or "batch",
+        )
     t0, done = time.perf_counter(), 0
     for i in todo:
         start, stop = i * chunk_size, min(n_scenes, (i + 1) * chunk_size)
@@ -233,8 +267,11 @@ def run_chunked(fn: Callable, make_chunk: Callable[[int, int], object], n_scenes
     if bar is not None:
         bar.close()
     dt = time.perf_counter() - t0
-    return {"chunks_run": len(todo), "chunks_skipped": len(mine) - len(todo),
-            "scenes_per_s": done / dt if done and dt > 0 else 0.0}
+    return {
+        "chunks_run": len(todo),
+        "chunks_skipped": len(mine) - len(todo),
+        "scenes_per_s": done / dt if done and dt > 0 else 0.0,
+    }
 
 
 def load_results(out_dir: str) -> dict:
@@ -255,8 +292,10 @@ def load_results(out_dir: str) -> dict:
         if m is not None:
             start, size, n = int(p["_start"]), int(m["chunk_size"]), int(m["n_scenes"])
             if start % size or start >= n or f != _chunk_path(out_dir, start // size):
-                raise ValueError(f"{f}: not a chunk of the run recorded in {os.path.join(out_dir, MANIFEST)} "
-                                 f"({n} scenes in chunks of {size})")
+                raise ValueError(
+                    f"{f}: not a chunk of the run recorded in {os.path.join(out_dir, MANIFEST)} "
+                    f"({n} scenes in chunks of {size})"
+                )
         parts.append(p)
     parts.sort(key=lambda p: int(p["_start"]))
     keys = [k for k in parts[0] if k != "_start"]
@@ -268,5 +307,3 @@ def peak_rss_mb() -> float:
     import resource
 
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
-
-

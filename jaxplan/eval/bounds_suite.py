@@ -21,6 +21,7 @@ that collide (SAT at every station and between stations). With ``osqp`` installe
 frames OSQP solves, and the share it certifies infeasible. Plots: error against
 radius; one frame.
 """
+
 from __future__ import annotations
 
 import os
@@ -87,8 +88,13 @@ def make_scenarios(rng, n_frames, n_obs, radii=RADII):
         moving = rng.uniform(size=(n_frames, n_obs)) < 1 / 3
         v_o = np.where(moving, rng.uniform(0.5, 0.6 * v, (n_frames, n_obs)), 0.0)
         s_ot = s_o[..., None] + v_o[..., None] * t  # (F, K, T), at t = 0 from OBSTACLE_MIN_S on
-        xy = np.asarray(to_cartesian(ref, jnp.asarray(s_ot, jnp.float32),
-                                     jnp.asarray(np.broadcast_to(l_o[..., None], s_ot.shape), jnp.float32)))
+        xy = np.asarray(
+            to_cartesian(
+                ref,
+                jnp.asarray(s_ot, jnp.float32),
+                jnp.asarray(np.broadcast_to(l_o[..., None], s_ot.shape), jnp.float32),
+            )
+        )
         _, th, _, _ = ref_state(ref, jnp.asarray(s_ot, jnp.float32))
         head = np.asarray(th) + rng.uniform(-0.5, 0.5, (n_frames, n_obs))[..., None]
         size = np.stack([rng.uniform(1.0, 5.0, (n_frames, n_obs)), rng.uniform(0.5, 2.2, (n_frames, n_obs))], -1)
@@ -98,8 +104,14 @@ def make_scenarios(rng, n_frames, n_obs, radii=RADII):
         S.append(s)
         L.append(l)
         VEL.append(v)
-    return (np.stack(refs).astype(np.float32), np.stack(S).astype(np.float32), np.stack(L).astype(np.float32),
-            np.stack(OBS).astype(np.float32), np.asarray(VEL), np.stack(BOX).astype(np.float32))
+    return (
+        np.stack(refs).astype(np.float32),
+        np.stack(S).astype(np.float32),
+        np.stack(L).astype(np.float32),
+        np.stack(OBS).astype(np.float32),
+        np.asarray(VEL),
+        np.stack(BOX).astype(np.float32),
+    )
 
 
 def _at_bound(ref, s, l, heading, bound, obs):
@@ -133,11 +145,24 @@ def _frame_path(ref, s, l, boxes):
     ds, init = st[1] - st[0], jnp.stack([l[0], 0.0, 0.0]).astype(st.dtype)
     res = solve_path(ref, st, ds, bx, jnp.ones(bx.shape[:2], bool), edge, -edge, jnp.zeros_like(st), init, PATH)
     cor, qp = res["corridor"], res["qp"]
-    return dict(ok=qp.ok & res["clear"] & (cor.blocked_index > 1), qp_ok=qp.ok, clear=res["clear"],
-                qp_input=jnp.stack(res["qp_input"]), init=init, ds=ds,
-                blocked=cor.blocked_index < N, corridor_ok=cor.blocked_index > 1, qp_infeasible=~qp.feasible,
-                rounds=res["rounds"], l=res["l"], lower=cor.lower, upper=cor.upper, valid=cor.valid,
-                theta=res["theta"], xy=res["xy"])
+    return dict(
+        ok=qp.ok & res["clear"] & (cor.blocked_index > 1),
+        qp_ok=qp.ok,
+        clear=res["clear"],
+        qp_input=jnp.stack(res["qp_input"]),
+        init=init,
+        ds=ds,
+        blocked=cor.blocked_index < N,
+        corridor_ok=cor.blocked_index > 1,
+        qp_infeasible=~qp.feasible,
+        rounds=res["rounds"],
+        l=res["l"],
+        lower=cor.lower,
+        upper=cor.upper,
+        valid=cor.valid,
+        theta=res["theta"],
+        xy=res["xy"],
+    )
 
 
 def _osqp_verdicts(p, corridor_ok, max_iter=20000):
@@ -159,16 +184,39 @@ def _osqp_verdicts(p, corridor_ok, max_iter=20000):
     for f in np.nonzero(cok)[0]:
         lo_l, up_l, dlo, dhi, ddlo, ddhi = qi[f]
         T = lo_l.shape[0]
-        P, q, A, lo, hi = (np.asarray(x, np.float64) for x in state_problem(
-            j(ds[f]), jnp.zeros(T, jnp.float32), j(lo_l), j(up_l), j(dlo), j(dhi), j(ddlo), j(ddhi),
-            PATH.qp.jerk_max, j(init[f]), PathWeights(*PATH.weights)))
+        P, q, A, lo, hi = (
+            np.asarray(x, np.float64)
+            for x in state_problem(
+                j(ds[f]),
+                jnp.zeros(T, jnp.float32),
+                j(lo_l),
+                j(up_l),
+                j(dlo),
+                j(dhi),
+                j(ddlo),
+                j(ddhi),
+                PATH.qp.jerk_max,
+                j(init[f]),
+                PathWeights(*PATH.weights),
+            )
+        )
         lo, hi = np.where(np.isfinite(lo), lo, -1e30), np.where(np.isfinite(hi), hi, 1e30)
         if np.any(lo > hi):
             out[f] = "infeasible"
             continue
         m = osqp.OSQP()
-        m.setup(sp.csc_matrix(np.triu(P)), q, sp.csc_matrix(A), lo, hi, verbose=False, eps_abs=1e-6, eps_rel=1e-6,
-                max_iter=max_iter, polish=True)
+        m.setup(
+            sp.csc_matrix(np.triu(P)),
+            q,
+            sp.csc_matrix(A),
+            lo,
+            hi,
+            verbose=False,
+            eps_abs=1e-6,
+            eps_rel=1e-6,
+            max_iter=max_iter,
+            polish=True,
+        )
         st = m.solve().info.status
         out[f] = "solved" if st == "solved" else "infeasible" if "infeasible" in st else "undecided"
     return out.reshape(corridor_ok.shape)
@@ -185,19 +233,26 @@ def _one_radius(ref_xy, s, l, obs, boxes):
     for m in METHODS:
         method = "contour" if m.startswith("contour") else m
         normal = "trajectory" if m == "contour_traj" else "frenet"
-        bs[m] = path_bounds(ref, s, l, CAR, obs, lane_lower=-LANE, lane_upper=LANE, method=method, normal=normal,
-                            rectangles=True)
+        bs[m] = path_bounds(
+            ref, s, l, CAR, obs, lane_lower=-LANE, lane_upper=LANE, method=method, normal=normal, rectangles=True
+        )
     # One QP call for every method's bounds (one compiled solver).
     M = len(METHODS)
     init = jnp.stack([l[:, 0], jnp.zeros_like(l[:, 0]), jnp.zeros_like(l[:, 0])], -1)
     rep = lambda x: jnp.concatenate([x] * M, 0)
-    qp_all = optimize_path(jnp.concatenate([bs[m].lower for m in METHODS]),
-                           jnp.concatenate([bs[m].upper for m in METHODS]), rep(ds), rep(l), rep(init), config=QP,
-                           ddl_bounds=(rep(ddl[0]), rep(ddl[1])))
+    qp_all = optimize_path(
+        jnp.concatenate([bs[m].lower for m in METHODS]),
+        jnp.concatenate([bs[m].upper for m in METHODS]),
+        rep(ds),
+        rep(l),
+        rep(init),
+        config=QP,
+        ddl_bounds=(rep(ddl[0]), rep(ddl[1])),
+    )
     F = s.shape[0]
     for j, m in enumerate(METHODS):
         b = bs[m]
-        qp = jax.tree_util.tree_map(lambda x: x[j * F:(j + 1) * F], qp_all)
+        qp = jax.tree_util.tree_map(lambda x: x[j * F : (j + 1) * F], qp_all)
         bound = jnp.where(b.left, b.obstacle_upper, b.obstacle_lower)  # (F, T, K)
         # 1 mm towards the safe side, so that touching is not counted as unsafe.
         safe = jnp.where(b.left, bound - 1e-3, bound + 1e-3)
@@ -205,9 +260,20 @@ def _one_radius(ref_xy, s, l, obs, boxes):
         path = to_cartesian(ref, s, jnp.where(qp.ok[:, None], qp.l, l))
         cars = vehicle_corners(path, CAR, headings_from_path(path))  # (F, T, 4, 2)
         hit = has_overlap(cars[:, None], obs)  # (F, K, T)
-        out[m] = dict(bound=bound, unsafe=unsafe, overlap=b.overlap, left=b.left, case=b.case,
-                      collide=jnp.any(hit, axis=(1, 2)), qp_ok=qp.ok, qp_feasible=qp.feasible, qp_l=qp.l,
-                      lower=b.lower, upper=b.upper, heading=b.heading)
+        out[m] = dict(
+            bound=bound,
+            unsafe=unsafe,
+            overlap=b.overlap,
+            left=b.left,
+            case=b.case,
+            collide=jnp.any(hit, axis=(1, 2)),
+            qp_ok=qp.ok,
+            qp_feasible=qp.feasible,
+            qp_l=qp.l,
+            lower=b.lower,
+            upper=b.upper,
+            heading=b.heading,
+        )
     out["path"] = jax.vmap(lambda s1, l1, b1: _frame_path(ref, s1, l1, b1))(s, l, boxes)
     return out
 
@@ -233,18 +299,22 @@ def _figures(res, radii):
             err = np.abs(d)[fin]
             cons = np.where(left[i], -d, d)[fin]
             tag = "straight" if np.isinf(rad) else f"r{int(rad)}"
-            vals = {"mean_err": float(err.mean()) if err.size else float("nan"),
-                    "p95_err": float(np.percentile(err, 95)) if err.size else float("nan"),
-                    "unsafe_share": float(np.asarray(r["unsafe"])[i][sel].mean()) if sel.any() else float("nan"),
-                    "conservative_share": float((cons > 0.2).sum() / max(sel.sum(), 1)),
-                    "missing_share": float(1 - fin.sum() / max(sel.sum(), 1)),
-                    "collide_share": float(np.asarray(r["collide"])[i][np.asarray(r["qp_ok"])[i]].mean())
-                    if np.asarray(r["qp_ok"])[i].any() else float("nan"),
-                    "unsafe_5cm_share": float((cons < -0.05).sum() / max(sel.sum(), 1)
-                                              + (sel & ~np.isfinite(b[i])).sum() / max(sel.sum(), 1)),
-                    "qp_infeasible_share": float(1 - np.asarray(r["qp_feasible"])[i].mean()),
-                    "qp_fail_share": float(1 - np.asarray(r["qp_ok"])[i].mean()),
-                    "pairs": int(sel.sum())}
+            vals = {
+                "mean_err": float(err.mean()) if err.size else float("nan"),
+                "p95_err": float(np.percentile(err, 95)) if err.size else float("nan"),
+                "unsafe_share": float(np.asarray(r["unsafe"])[i][sel].mean()) if sel.any() else float("nan"),
+                "conservative_share": float((cons > 0.2).sum() / max(sel.sum(), 1)),
+                "missing_share": float(1 - fin.sum() / max(sel.sum(), 1)),
+                "collide_share": float(np.asarray(r["collide"])[i][np.asarray(r["qp_ok"])[i]].mean())
+                if np.asarray(r["qp_ok"])[i].any()
+                else float("nan"),
+                "unsafe_5cm_share": float(
+                    (cons < -0.05).sum() / max(sel.sum(), 1) + (sel & ~np.isfinite(b[i])).sum() / max(sel.sum(), 1)
+                ),
+                "qp_infeasible_share": float(1 - np.asarray(r["qp_feasible"])[i].mean()),
+                "qp_fail_share": float(1 - np.asarray(r["qp_ok"])[i].mean()),
+                "pairs": int(sel.sum()),
+            }
             for k, v in vals.items():
                 m[f"{meth}.{tag}.{k}"] = round(v, 4) if isinstance(v, float) else v
             rows.append(vals)
@@ -257,14 +327,18 @@ def _figures(res, radii):
             sel = ov[i] & np.isfinite(ex[i]) & np.isfinite(b[i])
             err.append(np.abs(np.where(sel, b[i], 0.0) - np.where(sel, ex[i], 0.0))[sel])
         m[f"{meth}.r_le12.mean_err"] = round(float(np.concatenate(err).mean()), 4)
-    m["claim.r_le12.centerline_over_contour"] = round(m["centerline.r_le12.mean_err"]
-                                                     / max(m["contour.r_le12.mean_err"], 1e-9), 3)
+    m["claim.r_le12.centerline_over_contour"] = round(
+        m["centerline.r_le12.mean_err"] / max(m["contour.r_le12.mean_err"], 1e-9), 3
+    )
     m["claim.r_le12.contour_3x_better"] = float(m["claim.r_le12.centerline_over_contour"] >= 3.0)
     case = np.asarray(res["contour"]["case"])[ov & np.isfinite(ex)]
-    for c, name in enumerate(["none", "on_edge", "off_edge", "deepest", "no_corner", "degenerate", "exact",
-                              "unconstructed"]):
+    for c, name in enumerate(
+        ["none", "on_edge", "off_edge", "deepest", "no_corner", "degenerate", "exact", "unconstructed"]
+    ):
         m[f"contour.case_share.{name}"] = round(float(np.mean(case == c)), 4)
-    m["claim.r_le12.slbox_over_contour"] = round(m["slbox.r_le12.mean_err"] / max(m["contour.r_le12.mean_err"], 1e-9), 3)
+    m["claim.r_le12.slbox_over_contour"] = round(
+        m["slbox.r_le12.mean_err"] / max(m["contour.r_le12.mean_err"], 1e-9), 3
+    )
     p = {k: np.asarray(v) for k, v in res["path"].items()}
     for i, rad in enumerate(radii):
         tag = "straight" if np.isinf(rad) else f"r{int(rad)}"
@@ -297,8 +371,9 @@ def bounds_suite(args: SuiteArgs) -> dict:
     n_obs = 4 if args.quick else 8
     rng = np.random.default_rng(args.seed)
     refs, S, L, OBS, _, BOX = make_scenarios(rng, n_frames, n_obs)
-    res = jax.tree_util.tree_map(np.asarray, _all_radii(jnp.asarray(refs), jnp.asarray(S), jnp.asarray(L),
-                                                         jnp.asarray(OBS), jnp.asarray(BOX)))
+    res = jax.tree_util.tree_map(
+        np.asarray, _all_radii(jnp.asarray(refs), jnp.asarray(S), jnp.asarray(L), jnp.asarray(OBS), jnp.asarray(BOX))
+    )
     m, per = _figures(res, RADII)
     m["frames_per_radius"] = n_frames
     m["obstacles_per_frame"] = n_obs

@@ -5,6 +5,7 @@ comparison and the target. ``judge(metrics)`` gives one row per claim: the value
 is met, or ``None`` when this run did not measure it (a suite not run, or run without the input
 the figure needs). The report (``jaxplan report``) opens with these rows.
 """
+
 from __future__ import annotations
 
 import math
@@ -31,21 +32,56 @@ class Claim:
 
 
 CLAIMS = (
-    Claim("seed 000", "contour corners bound the path >= 3x closer than the centre line (radius <= 12 m)",
-          "bounds.claim.r_le12.centerline_over_contour", ">=", 3.0),
+    Claim(
+        "seed 000",
+        "contour corners bound the path >= 3x closer than the centre line (radius <= 12 m)",
+        "bounds.claim.r_le12.centerline_over_contour",
+        ">=",
+        3.0,
+    ),
     Claim("seed 002", "grid park-out never collides", "parkout.claim.grid_runs_with_collision", "==", 0),
-    Claim("seed 002", "grid park-out gets out of every slot >= the analytic minimum",
-          "parkout.claim.success_rate_slot_ge_min", ">=", 1.0),
-    Claim("issue 17", "park-out gets out of every slot with >= 1.5 m spare",
-          "parkout.claim.success_rate_spare_ge_1.5", ">=", 1.0),
-    Claim("seed 003", "lazy re-planning: >= 5x fewer re-plans than periodic",
-          "replan.claim.periodic_over_lazy_replans", ">=", 5.0),
-    Claim("seed 003", "lazy re-planning: no more collisions than periodic (share difference)",
-          "replan.claim.lazy_minus_periodic_collision_share", "<=", 0.0),
-    Claim("issue 18", "tuned weights: ADE3 >= 20 % below the default weights",
-          "lattice.imitation.weights.ade3 / lattice.imitation.default.ade3", "<=", 0.8),
-    Claim("issue 18", "tuned weights: ADE3 below constant velocity",
-          "lattice.imitation.weights.ade3 / lattice.imitation.constant_velocity.ade3", "<=", 1.0),
+    Claim(
+        "seed 002",
+        "grid park-out gets out of every slot >= the analytic minimum",
+        "parkout.claim.success_rate_slot_ge_min",
+        ">=",
+        1.0,
+    ),
+    Claim(
+        "issue 17",
+        "park-out gets out of every slot with >= 1.5 m spare",
+        "parkout.claim.success_rate_spare_ge_1.5",
+        ">=",
+        1.0,
+    ),
+    Claim(
+        "seed 003",
+        "lazy re-planning: >= 5x fewer re-plans than periodic",
+        "replan.claim.periodic_over_lazy_replans",
+        ">=",
+        5.0,
+    ),
+    Claim(
+        "seed 003",
+        "lazy re-planning: no more collisions than periodic (share difference)",
+        "replan.claim.lazy_minus_periodic_collision_share",
+        "<=",
+        0.0,
+    ),
+    Claim(
+        "issue 18",
+        "tuned weights: ADE3 >= 20 % below the default weights",
+        "lattice.imitation.weights.ade3 / lattice.imitation.default.ade3",
+        "<=",
+        0.8,
+    ),
+    Claim(
+        "issue 18",
+        "tuned weights: ADE3 below constant velocity",
+        "lattice.imitation.weights.ade3 / lattice.imitation.constant_velocity.ade3",
+        "<=",
+        1.0,
+    ),
 )
 
 
@@ -53,8 +89,7 @@ def value(metrics: dict, figure: str) -> float | None:
     """The figure's value in ``metrics``, or ``None`` when a key is missing or not finite."""
     keys = [k.strip() for k in figure.split(" / ")]
     raw = [metrics.get(k) for k in keys]
-    vals = [float(v) for v in raw
-            if isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)]
+    vals = [float(v) for v in raw if isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)]
     if len(vals) != len(raw):
         return None
     if len(vals) == 1:

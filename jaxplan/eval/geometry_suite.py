@@ -1,4 +1,5 @@
 """Suite ``geometry``: oracle agreement with shapely and throughput of the core."""
+
 from __future__ import annotations
 
 import os
@@ -39,9 +40,11 @@ def geometry_suite(args: SuiteArgs) -> dict:
     aj, bj = jnp.asarray(a, jnp.float32), jnp.asarray(b, jnp.float32)
     ours_area = np.asarray(_area_jit(aj, bj, va, vb))
     ours_hit = np.asarray(_overlap_jit(aj, bj, va, vb))
-    m = {"pairs": n,
-         "overlap_pairs_per_s": round(_rate(_overlap_jit, aj, bj, va, vb)),
-         "area_pairs_per_s": round(_rate(_area_jit, aj, bj, va, vb))}
+    m = {
+        "pairs": n,
+        "overlap_pairs_per_s": round(_rate(_overlap_jit, aj, bj, va, vb)),
+        "area_pairs_per_s": round(_rate(_area_jit, aj, bj, va, vb)),
+    }
     try:
         import shapely
     except ImportError:  # oracle figures need the test extra
@@ -54,9 +57,13 @@ def geometry_suite(args: SuiteArgs) -> dict:
     truth = shapely.relate_pattern(A, B, "T********")
     big = ref > 1e-3
     rel = np.abs(ours_area - ref)[big] / ref[big]
-    m.update({"overlap_agreement": float(np.mean(ours_hit == truth)),
-              "area_rel_err_max_f32": float(rel.max()) if big.any() else 0.0,
-              "area_rel_err_mean_f32": float(rel.mean()) if big.any() else 0.0})
+    m.update(
+        {
+            "overlap_agreement": float(np.mean(ours_hit == truth)),
+            "area_rel_err_max_f32": float(rel.max()) if big.any() else 0.0,
+            "area_rel_err_mean_f32": float(rel.mean()) if big.any() else 0.0,
+        }
+    )
     _plot(a, va, b, vb, ref, ours_area, args.out)
     return m
 

@@ -15,6 +15,7 @@ fixed-speed candidates (end speed = current speed) had none (the seed's claim);
 candidates per scene; time per plan. Plots: the candidate fan coloured by cost
 with the obstacles over time, and the chosen trajectory.
 """
+
 from __future__ import annotations
 
 import os
@@ -101,9 +102,14 @@ def _outcome(res, cfg):
     zero = int(np.argmin(np.abs(np.asarray(cfg.speed_deltas_kmh))))
     fixed = (np.asarray(res.candidates.speed_index) == zero) & (lvl == 0)
     free = ~col
-    return {"chosen_free": ~np.take_along_axis(col, chosen[..., None], -1)[..., 0],
-            "fixed_free": (free & fixed).any(-1), "any_free": free.any(-1),
-            "level0_free": (free & (lvl == 0)).any(-1), "mode": np.asarray(res.mode), "ok": np.asarray(res.ok)}
+    return {
+        "chosen_free": ~np.take_along_axis(col, chosen[..., None], -1)[..., 0],
+        "fixed_free": (free & fixed).any(-1),
+        "any_free": free.any(-1),
+        "level0_free": (free & (lvl == 0)).any(-1),
+        "mode": np.asarray(res.mode),
+        "ok": np.asarray(res.ok),
+    }
 
 
 def braking_survives(state, ref, obs, cfg) -> bool:
@@ -137,8 +143,9 @@ def _run_synthetic(n_per_kind, seed):
                 if kept == n_per_kind:
                     break
                 kw, boxes = synthetic_scene(kind, rng, T, cfg.dt)
-                st = PlanState.make(0.0, rng.uniform(-0.3, 0.3), rng.uniform(-0.03, 0.03), kw["v"],
-                                    d_crossroad=kw["d_crossroad"])
+                st = PlanState.make(
+                    0.0, rng.uniform(-0.3, 0.3), rng.uniform(-0.03, 0.03), kw["v"], d_crossroad=kw["d_crossroad"]
+                )
                 o = _pad(boxes, K_SYN, T, t)
                 if not braking_survives(st, ref, o, cfg):
                     continue
@@ -162,8 +169,12 @@ def _run_synthetic(n_per_kind, seed):
         rows.append(o)
         for kind in kinds:
             idx = np.nonzero(o["kind"] == kind)[0]
-            results[kind] = (jax.tree_util.tree_map(lambda a: a[idx], res), cfg,
-                             [states[i] for i in idx], [obs[i] for i in idx])
+            results[kind] = (
+                jax.tree_util.tree_map(lambda a: a[idx], res),
+                cfg,
+                [states[i] for i in idx],
+                [obs[i] for i in idx],
+            )
     table = {k: np.concatenate([r[k] for r in rows]) for k in rows[0]}
     return table, results, timing
 
@@ -181,7 +192,7 @@ def recorded_obstacles(sc, cfg: LatticeConfig = NORMAL, k_max: int = K_SYN) -> O
     bb = np.tile([0, 0, 1.0, 1.0, 0], (k_max, T, 1))
     vv = np.zeros((k_max, T), bool)
     ss = np.zeros(k_max, bool)
-    bb[:len(keep)], vv[:len(keep)], ss[:len(keep)] = b[keep], v[keep], st[keep]
+    bb[: len(keep)], vv[: len(keep)], ss[: len(keep)] = b[keep], v[keep], st[keep]
     return Obstacles(jnp.asarray(bb, jnp.float32), jnp.asarray(vv), jnp.asarray(t, jnp.float32), jnp.asarray(ss))
 
 
@@ -209,7 +220,7 @@ def _run_recorded(directory, limit, batch, cfg=NORMAL):
         return {}, None, len(folder.skipped), unusable
     rows, times, example = [], [], None
     for i in range(0, len(scenes), batch):
-        chunk = scenes[i:i + batch]
+        chunk = scenes[i : i + batch]
         pad = chunk + [chunk[-1]] * (batch - len(chunk))
         S, R, O = (_stack([c[j] for c in pad]) for j in range(3))
         t0 = time.perf_counter()
@@ -226,14 +237,16 @@ def _run_recorded(directory, limit, batch, cfg=NORMAL):
 
 def _figures(table, prefix=""):
     n = len(table["chosen_free"])
-    return {f"{prefix}scenes": n,
-            f"{prefix}share_chosen_collision_free": float(np.mean(table["chosen_free"])),
-            f"{prefix}share_speed_variation_found_free": float(np.mean(table["any_free"] & ~table["fixed_free"])),
-            f"{prefix}share_escalated": float(np.mean(table["mode"] == 1)),
-            f"{prefix}share_all_collide": float(np.mean(table["mode"] == 2)),
-            f"{prefix}share_emergency": float(np.mean(table["mode"] == 3)),
-            f"{prefix}share_constrained": float(np.mean(table["mode"] == 4)),
-            f"{prefix}share_not_ok": float(np.mean(~table["ok"]))}
+    return {
+        f"{prefix}scenes": n,
+        f"{prefix}share_chosen_collision_free": float(np.mean(table["chosen_free"])),
+        f"{prefix}share_speed_variation_found_free": float(np.mean(table["any_free"] & ~table["fixed_free"])),
+        f"{prefix}share_escalated": float(np.mean(table["mode"] == 1)),
+        f"{prefix}share_all_collide": float(np.mean(table["mode"] == 2)),
+        f"{prefix}share_emergency": float(np.mean(table["mode"] == 3)),
+        f"{prefix}share_constrained": float(np.mean(table["mode"] == 4)),
+        f"{prefix}share_not_ok": float(np.mean(~table["ok"])),
+    }
 
 
 @register("lattice")
@@ -292,12 +305,20 @@ def imitation_figures(args: SuiteArgs) -> dict:
     if args.weights is None:
         raise ValueError("imitation figures: need --weights")
     cost = load_cost(args.weights)
-    train, val, source = demonstrations(args.scenarios, n_synthetic=args.n or 24, seed=args.seed,
-                                        pattern="USA_US101-1[0-2]*" if args.quick and args.scenarios else None)
+    train, val, source = demonstrations(
+        args.scenarios,
+        n_synthetic=args.n or 24,
+        seed=args.seed,
+        pattern="USA_US101-1[0-2]*" if args.quick and args.scenarios else None,
+    )
     m = evaluate_cost(train, val, cost, n_boot=200 if args.quick else 1000, seed=args.seed)
-    plot_heldout(m, os.path.join(args.out, "lattice_imitation.png"), LOCATION_GROUPS,
-                 methods=("constant_velocity", "constant_acceleration", "idm", "default", "weights", "oracle"),
-                 title=f"imitation of held-out vehicles ({os.path.basename(args.weights)}): ADE at 3 s")
+    plot_heldout(
+        m,
+        os.path.join(args.out, "lattice_imitation.png"),
+        LOCATION_GROUPS,
+        methods=("constant_velocity", "constant_acceleration", "idm", "default", "weights", "oracle"),
+        title=f"imitation of held-out vehicles ({os.path.basename(args.weights)}): ADE at 3 s",
+    )
     out = {f"imitation.{k}": v for k, v in m.items()}
     out["imitation.recorded"] = int(source == "recorded")
     return out
@@ -329,10 +350,22 @@ def _draw(ax, res, i, cfg, obs_boxes, obs_valid, title):
             if not obs_valid[k, s]:
                 continue
             alpha = 0.15 + 0.6 * j / max(1, len(steps) - 1)
-            ax.add_patch(MplPolygon(np.asarray(box_corners(jnp.asarray(obs_boxes[k, s]))), closed=True,
-                                    facecolor="C3", alpha=alpha, edgecolor="C3"))
-    ax.plot(x[chosen], y[chosen], "k-", lw=2.5, label=f"chosen (level {lvl[chosen]}, "
-                                                      f"{'collides' if col[chosen] else 'free'})")
+            ax.add_patch(
+                MplPolygon(
+                    np.asarray(box_corners(jnp.asarray(obs_boxes[k, s]))),
+                    closed=True,
+                    facecolor="C3",
+                    alpha=alpha,
+                    edgecolor="C3",
+                )
+            )
+    ax.plot(
+        x[chosen],
+        y[chosen],
+        "k-",
+        lw=2.5,
+        label=f"chosen (level {lvl[chosen]}, {'collides' if col[chosen] else 'free'})",
+    )
     ax.plot(x[chosen, ::10], y[chosen, ::10], "ko", ms=4)
     ax.set_aspect("equal")
     ax.set_title(title, fontsize=9)
@@ -351,10 +384,17 @@ def _plot_fan(results, out):
         modes = np.asarray(res.mode)
         chosen_free = ~np.take_along_axis(np.asarray(res.collided), np.asarray(res.chosen)[:, None], -1)[:, 0]
         i = 0
-        _draw(ax, res, i, cfg, np.asarray(res.obstacles.boxes[i]), np.asarray(res.obstacles.valid[i]),
-              f"{kind}: {cfg.n_candidates} candidates, mode {MODE_NAMES[modes[i]]}; chosen plan collision-free "
-              f"in {chosen_free.mean():.0%} of {len(modes)} scenes; obstacles every 1 s (darker = later), "
-              f"collided candidates dotted")
+        _draw(
+            ax,
+            res,
+            i,
+            cfg,
+            np.asarray(res.obstacles.boxes[i]),
+            np.asarray(res.obstacles.valid[i]),
+            f"{kind}: {cfg.n_candidates} candidates, mode {MODE_NAMES[modes[i]]}; chosen plan collision-free "
+            f"in {chosen_free.mean():.0%} of {len(modes)} scenes; obstacles every 1 s (darker = later), "
+            f"collided candidates dotted",
+        )
         ax.set_xlim(-10, 110)
         ax.set_ylim(-8, 10)
         ax.set_xlabel("x (m)")
@@ -371,8 +411,7 @@ def _plot_recorded(example, out):
 
     res, cfg, st, obs, sid = example
     fig, ax = plt.subplots(figsize=(10, 5))
-    _draw(ax, res, None, cfg, np.asarray(res.obstacles.boxes), np.asarray(res.obstacles.valid),
-          f"recorded scene {sid}")
+    _draw(ax, res, None, cfg, np.asarray(res.obstacles.boxes), np.asarray(res.obstacles.valid), f"recorded scene {sid}")
     ax.set_xlabel("x (m)")
     ax.set_ylabel("y (m)")
     x, y = np.asarray(res.candidates.traj.x), np.asarray(res.candidates.traj.y)

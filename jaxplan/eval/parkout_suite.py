@@ -3,6 +3,7 @@
 Every executed footprint is judged against the true obstacle outlines with the
 geometry core's polygon SAT (``run_metrics``), independent of the planner's grid.
 """
+
 from __future__ import annotations
 
 import os
@@ -70,8 +71,9 @@ def run_metrics(poses, valid, polygons, poly_valid, vehicle):
     clear = np.full(B, np.inf)
     for lo in range(0, len(b), CHUNK):
         idx = np.arange(lo, lo + CHUNK).clip(max=len(b) - 1)
-        hit, d = _pose_metrics(jnp.asarray(q[idx]), jnp.asarray(polygons[b[idx]]), jnp.asarray(poly_valid[b[idx]]),
-                               vehicle)
+        hit, d = _pose_metrics(
+            jnp.asarray(q[idx]), jnp.asarray(polygons[b[idx]]), jnp.asarray(poly_valid[b[idx]]), vehicle
+        )
         np.logical_or.at(coll, b[idx], np.asarray(hit))
         np.minimum.at(clear, b[idx], np.asarray(d))
     return coll, clear
@@ -85,8 +87,7 @@ def sweep(n_per_gap: int, gaps, seed: int, config: ParkoutConfig, vehicle: Vehic
     """Scenes with equal front and rear gap ``g`` for each ``g`` in ``gaps``; both models, one batched call each."""
     rng = np.random.default_rng(seed)
     g = np.repeat(np.asarray(gaps, float), n_per_gap)
-    kw: dict[str, Any] = (dict(heading_noise_deg=1.5, offset_noise=0.1, edge_noise=0.03, salt=1e-5)
-                          if noise else {})
+    kw: dict[str, Any] = dict(heading_noise_deg=1.5, offset_noise=0.1, edge_noise=0.03, salt=1e-5) if noise else {}
     scene, info = make_scenes(rng, len(g), vehicle, front_gap=g, rear_gap=g, **kw)
     out = {}
     for model in ("grid", "two_corner"):
@@ -135,8 +136,11 @@ def parkout_suite(args: SuiteArgs) -> dict:
     n = args.n or (8 if args.quick else 64)
     scene, info, out = sweep(n, gaps, args.seed, cfg, car)
     G, Tc = out["grid"], out["two_corner"]
-    m = {"scenes": int(len(info["gap"])), "slot_min_analytic_m": round(float(min_slot_length(car, cfg.margin)), 3),
-         "slot_min_analytic_no_margin_m": round(float(min_slot_length(car)), 3)}
+    m = {
+        "scenes": int(len(info["gap"])),
+        "slot_min_analytic_m": round(float(min_slot_length(car, cfg.margin)), 3),
+        "slot_min_analytic_no_margin_m": round(float(min_slot_length(car)), 3),
+    }
     moves = np.asarray(G["res"].moves)
     length = np.asarray(G["res"].path_length)
     for gval in gaps:
@@ -182,8 +186,11 @@ def parkout_suite(args: SuiteArgs) -> dict:
         m[f"side.{side}.analytic_min_front_gap_m"] = round(float(min_front_gap(car, cfg.margin)), 3)
         m[f"side.{side}.multi_move_min_gap_m"] = min_gap(g2, r["success"])
         m[f"side.{side}.runs_with_collision"] = int(r["collided"].sum())
-        m[f"side.{side}.moves_at_min_gap_mean"] = float(np.mean(r["moves"][g2 == m[f"side.{side}.multi_move_min_gap_m"]])) \
-            if np.isfinite(m[f"side.{side}.multi_move_min_gap_m"]) else float("nan")
+        m[f"side.{side}.moves_at_min_gap_mean"] = (
+            float(np.mean(r["moves"][g2 == m[f"side.{side}.multi_move_min_gap_m"]]))
+            if np.isfinite(m[f"side.{side}.multi_move_min_gap_m"])
+            else float("nan")
+        )
     m["side.left_right_same_outcome_share"] = float(np.mean(sides["left"]["success"] == sides["right"]["success"]))
     # scene families (spare length 1.5 to 3 m)
     examples = {}
@@ -213,8 +220,10 @@ def parkout_suite(args: SuiteArgs) -> dict:
         m[f"{tag}.wall_s"] = round(dt, 3)
         pick = np.nonzero(ok & (np.asarray(res.moves) > 1))[0]
         j = int(pick[0]) if len(pick) else 0
-        examples[fam] = (jax.tree_util.tree_map(lambda a: np.asarray(a)[j], fs),
-                         jax.tree_util.tree_map(lambda a: np.asarray(a)[j], res))
+        examples[fam] = (
+            jax.tree_util.tree_map(lambda a: np.asarray(a)[j], fs),
+            jax.tree_util.tree_map(lambda a: np.asarray(a)[j], res),
+        )
     _plot(args.out, scene, info, out, gaps, cfg, car, examples, (g2, sides))
     return m
 
@@ -233,8 +242,13 @@ def _plot(out_dir, scene, info, out, gaps, cfg, car, examples, side_data):
     g2, sides = side_data
     u = np.unique(g2)
     for side, mk in (("left", "s:"), ("right", "^:")):
-        ax.plot(car.length + 2 * u, [sides[side]["success"][g2 == g].mean() for g in u], mk, ms=3,
-                label=f"noise-free, road on the {side}")
+        ax.plot(
+            car.length + 2 * u,
+            [sides[side]["success"][g2 == g].mean() for g in u],
+            mk,
+            ms=3,
+            label=f"noise-free, road on the {side}",
+        )
     ax.axvline(float(min_slot_length(car, cfg.margin)), color="k", ls=":", label="analytic min (one forward move)")
     ax.set_xlabel("slot length, bumper to bumper [m]")
     ax.set_ylabel("rate")
@@ -256,9 +270,17 @@ def _plot(out_dir, scene, info, out, gaps, cfg, car, examples, side_data):
     res = jax.tree_util.tree_map(lambda x: np.asarray(x)[i], G["res"])
     polys = [p for p, v in zip(np.asarray(one.polygons[0]), np.asarray(one.valid[0])) if v]
     fig, ax = plt.subplots(figsize=(10, 5))
-    plot_parkout(ax, polys, res, car, cfg, cells=cells, stop_y=float(stop_line(car, cfg.c)),
-                 title=f"park-out, gap {info['gap'][i]:.2f} m, {int(moves[i])} moves (one grid read at the start; "
-                       f"noise drawn anew for the picture)")
+    plot_parkout(
+        ax,
+        polys,
+        res,
+        car,
+        cfg,
+        cells=cells,
+        stop_y=float(stop_line(car, cfg.c)),
+        title=f"park-out, gap {info['gap'][i]:.2f} m, {int(moves[i])} moves (one grid read at the start; "
+        f"noise drawn anew for the picture)",
+    )
     fig.tight_layout()
     fig.savefig(os.path.join(out_dir, "parkout_maneuvers.png"), dpi=90)
     plt.close(fig)
@@ -268,9 +290,17 @@ def _plot(out_dir, scene, info, out, gaps, cfg, car, examples, side_data):
         polys = [p for p, v in zip(sc.polygons, sc.valid) if v]
         sc1 = jax.tree_util.tree_map(lambda a: np.asarray(a)[None], sc)
         cells = np.asarray(render_scenes(sc1, 0, cfg, car).cells[0])
-        plot_parkout(ax, polys, res, car, cfg, cells=cells, stop_y=float(stop_line(car, cfg.c)),
-                     title=f"{fam}: {'out' if res.success else 'failed'}, {int(res.moves)} moves"
-                           f"{' (search)' if res.searched else ''}")
+        plot_parkout(
+            ax,
+            polys,
+            res,
+            car,
+            cfg,
+            cells=cells,
+            stop_y=float(stop_line(car, cfg.c)),
+            title=f"{fam}: {'out' if res.success else 'failed'}, {int(res.moves)} moves"
+            f"{' (search)' if res.searched else ''}",
+        )
         if ax is not axs[0, 2]:
             ax.get_legend().remove()
     fig.tight_layout()

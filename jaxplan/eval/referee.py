@@ -33,6 +33,7 @@ which imports ``commonroad.geometry.shape`` and so needs commonroad-io < 2026).
 
 CLI-ish entry: ``experiments/compare_peers.py --judge-only``.
 """
+
 from __future__ import annotations
 
 import json
@@ -51,8 +52,9 @@ def _require():
         import commonroad  # noqa: F401
         import commonroad_dc  # noqa: F401
     except ImportError:
-        raise ImportError(f"the referee needs commonroad-drivability-checker and commonroad-io: "
-                          f"pip install 'jaxplan[{EXTRA}]'") from None
+        raise ImportError(
+            f"the referee needs commonroad-drivability-checker and commonroad-io: pip install 'jaxplan[{EXTRA}]'"
+        ) from None
     try:
         from commonroad_dc.boundary import boundary  # noqa: F401
         from commonroad_dc.collision.collision_detection import pycrcc_collision_dispatch  # noqa: F401
@@ -63,8 +65,10 @@ def _require():
             have = md.version("commonroad-io")
         except md.PackageNotFoundError:
             have = "?"
-        raise ImportError(f"commonroad-drivability-checker cannot load with commonroad-io {have} ({e}); "
-                          f"it needs commonroad-io < 2026: pip install 'jaxplan[{EXTRA}]'") from None
+        raise ImportError(
+            f"commonroad-drivability-checker cannot load with commonroad-io {have} ({e}); "
+            f"it needs commonroad-io < 2026: pip install 'jaxplan[{EXTRA}]'"
+        ) from None
 
 
 class DriveError(ValueError):
@@ -88,8 +92,7 @@ def load_driven(path: str) -> dict:
         if key not in d:
             raise DriveError(f"{path}: missing field {key}")
     v = d["vehicle"]
-    if not isinstance(v, dict) or not all(isinstance(v.get(k), (int, float)) and v[k] > 0
-                                          for k in ("length", "width")):
+    if not isinstance(v, dict) or not all(isinstance(v.get(k), (int, float)) and v[k] > 0 for k in ("length", "width")):
         raise DriveError(f"{path}: field vehicle should be {{'length': L, 'width': W}} with positive sizes")
     if not isinstance(d["dt"], (int, float)) or not d["dt"] > 0:
         raise DriveError(f"{path}: field dt should be a positive number")
@@ -104,8 +107,10 @@ def load_driven(path: str) -> dict:
     steps = st[:, 0] / float(d["dt"])
     if len(st) > 1 and not np.allclose(np.diff(steps), 1.0, atol=1e-3):
         bad = int(np.argmax(~np.isclose(np.diff(steps), 1.0, atol=1e-3)))
-        raise DriveError(f"{path}: field states should have one row per dt (rows {bad} and {bad + 1} are "
-                         f"{st[bad + 1, 0] - st[bad, 0]:g} s apart)")
+        raise DriveError(
+            f"{path}: field states should have one row per dt (rows {bad} and {bad + 1} are "
+            f"{st[bad + 1, 0] - st[bad, 0]:g} s apart)"
+        )
     d["states"] = st
     return d
 
@@ -152,12 +157,17 @@ class Referee:
         self.cc = create_collision_checker(scenario)
         _, self.road = create_road_boundary_obstacle(scenario, method="obb_rectangles")
         # triangulated: without, pycrcc stands each polygon in for its bounding box
-        self.lanelets = create_road_polygons(scenario, method="lanelet_polygons", buffer=1, buf_width=ROAD_TOL,
-                                             triangulate=True)
-        self.objects = [(int(self.id_map.get(o.obstacle_id, o.obstacle_id)), create_collision_object(o), False)
-                        for o in scenario.static_obstacles]
-        self.objects += [(int(self.id_map.get(o.obstacle_id, o.obstacle_id)), create_collision_object(o), True)
-                         for o in scenario.dynamic_obstacles]
+        self.lanelets = create_road_polygons(
+            scenario, method="lanelet_polygons", buffer=1, buf_width=ROAD_TOL, triangulate=True
+        )
+        self.objects = [
+            (int(self.id_map.get(o.obstacle_id, o.obstacle_id)), create_collision_object(o), False)
+            for o in scenario.static_obstacles
+        ]
+        self.objects += [
+            (int(self.id_map.get(o.obstacle_id, o.obstacle_id)), create_collision_object(o), True)
+            for o in scenario.dynamic_obstacles
+        ]
 
     @classmethod
     def from_file(cls, path: str) -> Referee:
@@ -214,16 +224,30 @@ class Referee:
                 first_off = int(k)
             if first_edge is None and self.road.collide(box):
                 first_edge = int(k)
-            if goal is None and self.problem.goal.is_reached(KSState(
-                    time_step=int(k), position=np.array([x, y]), orientation=float(math.remainder(th, 2 * math.pi)),
-                    velocity=float(v), steering_angle=0.0)):
+            if goal is None and self.problem.goal.is_reached(
+                KSState(
+                    time_step=int(k),
+                    position=np.array([x, y]),
+                    orientation=float(math.remainder(th, 2 * math.pi)),
+                    velocity=float(v),
+                    steering_angle=0.0,
+                )
+            ):
                 goal = int(k)
         t = lambda k: None if k is None else round(k * self.dt, 6)  # noqa: E731
-        return {"collided": first_col is not None, "first_collision_time": t(first_col), "collision_obstacles": hit,
-                "off_road": first_off is not None, "first_off_road_time": t(first_off),
-                "boundary_contact": first_edge is not None, "first_boundary_contact_time": t(first_edge),
-                "goal_reached": goal is not None, "goal_time": t(goal), "steps": int(len(st) - 1),
-                "end_time": t(int(ks[-1]))}
+        return {
+            "collided": first_col is not None,
+            "first_collision_time": t(first_col),
+            "collision_obstacles": hit,
+            "off_road": first_off is not None,
+            "first_off_road_time": t(first_off),
+            "boundary_contact": first_edge is not None,
+            "first_boundary_contact_time": t(first_edge),
+            "goal_reached": goal is not None,
+            "goal_time": t(goal),
+            "steps": int(len(st) - 1),
+            "end_time": t(int(ks[-1])),
+        }
 
 
 def judge_file(referee: Referee, path: str, key: str | None = None) -> dict:
@@ -235,7 +259,9 @@ def judge_file(referee: Referee, path: str, key: str | None = None) -> dict:
         raise DriveError(f"{path}: field dt is {d['dt']}, the scenario's is {referee.dt}")
     t0 = float(referee.problem.initial_state.time_step) * referee.dt
     if abs(d["states"][0, 0] - t0) > 1e-6:
-        raise DriveError(f"{path}: field states starts at t = {d['states'][0, 0]:g} s, the scenario's start is {t0:g} s")
+        raise DriveError(
+            f"{path}: field states starts at t = {d['states'][0, 0]:g} s, the scenario's start is {t0:g} s"
+        )
     v = referee.judge(d["states"], float(d["vehicle"]["length"]), float(d["vehicle"]["width"]))
     return {"scenario": str(d["scenario"]), "planner": str(d["planner"]), **v}
 
@@ -249,10 +275,16 @@ def summarize(verdicts: list) -> dict:
     judged = [v for v in verdicts if "goal_reached" in v]
     n, total = len(judged), len(verdicts)
     count = lambda k: sum(bool(v[k]) for v in judged)  # noqa: E731
-    return {"scenarios": total, "judged": n, "goal_reached": count("goal_reached"), "collided": count("collided"),
-            "off_road": count("off_road"), "goal_share": count("goal_reached") / total if total else None,
-            "collision_share": count("collided") / n if n else None,
-            "off_road_share": count("off_road") / n if n else None}
+    return {
+        "scenarios": total,
+        "judged": n,
+        "goal_reached": count("goal_reached"),
+        "collided": count("collided"),
+        "off_road": count("off_road"),
+        "goal_share": count("goal_reached") / total if total else None,
+        "collision_share": count("collided") / n if n else None,
+        "off_road_share": count("off_road") / n if n else None,
+    }
 
 
 def judge_folders(folders: dict, scenarios: dict, progress=None) -> dict:

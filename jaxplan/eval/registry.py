@@ -9,6 +9,7 @@ folder's figures are always those of one run. To keep several runs, give each it
 ``--out``; to run several suites in one run, name them together (``lattice,speed``) or
 use ``all``.
 """
+
 from __future__ import annotations
 
 import ast
@@ -47,8 +48,7 @@ class SuiteArgs:
             checks.append(("n", ca.positive_int, self.n))
         checks.append(("seed", ca.nonnegative_int, self.seed))
         if self.scenarios is not None:
-            checks.append(("scenarios", lambda v: [ca.existing_dir(p) for p in str(v).split(",") if p],
-                           self.scenarios))
+            checks.append(("scenarios", lambda v: [ca.existing_dir(p) for p in str(v).split(",") if p], self.scenarios))
         if self.weights is not None:
             checks.append(("weights", ca.existing_file, self.weights))
         for name, check, value in checks:
@@ -91,9 +91,9 @@ def _first_line(doc: str | None, name: str) -> str:
     para = " ".join((doc or "").strip().split("\n\n")[0].split()).replace("``", "")
     for prefix in (f"Suite {name}:", f"Suite {name}"):
         if para.startswith(prefix):
-            para = para[len(prefix):].strip()
+            para = para[len(prefix) :].strip()
     end = para.find(". ")
-    return para if end < 0 else para[:end + 1]
+    return para if end < 0 else para[: end + 1]
 
 
 @functools.lru_cache(maxsize=64)
@@ -107,8 +107,13 @@ def _module_summaries(path: str, mtime_ns: int) -> dict[str, str]:
         if not isinstance(node, ast.FunctionDef):
             continue
         for dec in node.decorator_list:
-            if (isinstance(dec, ast.Call) and getattr(dec.func, "id", None) == "register" and dec.args
-                    and isinstance(dec.args[0], ast.Constant) and isinstance(dec.args[0].value, str)):
+            if (
+                isinstance(dec, ast.Call)
+                and getattr(dec.func, "id", None) == "register"
+                and dec.args
+                and isinstance(dec.args[0], ast.Constant)
+                and isinstance(dec.args[0].value, str)
+            ):
                 name = dec.args[0].value
                 out[name] = _first_line(ast.get_docstring(node) or mod_doc, name)
     return out
@@ -137,7 +142,9 @@ def suite_names(spec: str) -> list[str]:
     names = sorted(known) if spec == "all" else [s.strip() for s in str(spec).split(",") if s.strip()]
     unknown = [n for n in names if n not in known]
     if unknown or not names:
-        raise ValueError(f"unknown suite {unknown[0] if unknown else spec!r}; known: {', '.join(['all'] + sorted(known))}")
+        raise ValueError(
+            f"unknown suite {unknown[0] if unknown else spec!r}; known: {', '.join(['all'] + sorted(known))}"
+        )
     return list(dict.fromkeys(names))
 
 
@@ -195,16 +202,27 @@ def run_suite(name: str, args: SuiteArgs) -> dict:
         metrics[f"{n}.wall_s"] = round(time.perf_counter() - t0, 3)
     after = _snapshot(args.out)
     ours = {METRICS, RUN}
-    outputs = sorted(p for p, st in after.items() if p not in ours and not p.endswith(".tmp")
-                     and (before.get(p) != st or st[0] >= start_ns))
+    outputs = sorted(
+        p
+        for p, st in after.items()
+        if p not in ours and not p.endswith(".tmp") and (before.get(p) != st or st[0] >= start_ns)
+    )
     path = os.path.join(args.out, METRICS)
     if os.path.exists(path) or os.path.exists(os.path.join(args.out, RUN)):
-        print(f"jaxplan: replacing {path} and {RUN} of an earlier run (one run per folder, never merged)",
-              file=sys.stderr)
+        print(
+            f"jaxplan: replacing {path} and {RUN} of an earlier run (one run per folder, never merged)", file=sys.stderr
+        )
     write_json_atomic(path, metrics)
     from jaxplan import __version__
 
-    write_json_atomic(os.path.join(args.out, RUN), {
-        "jaxplan": __version__, "suites": names, "args": asdict(args), "outputs": outputs,
-        "metrics_sha256": sha256_file(path)})
+    write_json_atomic(
+        os.path.join(args.out, RUN),
+        {
+            "jaxplan": __version__,
+            "suites": names,
+            "args": asdict(args),
+            "outputs": outputs,
+            "metrics_sha256": sha256_file(path),
+        },
+    )
     return metrics

@@ -12,6 +12,7 @@ for shares, bootstrap over runs for means): ``<strategy>.collision_share``,
 ``..._ci95_hi``; paired differences to lazy on the same scenarios; per seed and per kind;
 compute per run.
 """
+
 from __future__ import annotations
 
 import os
@@ -95,7 +96,7 @@ def run_strategies(n: int, seeds, cfg: SimConfig = SimConfig(), keep_logs_of: in
             if seed == keep_logs_of:
                 logs_of_seed[s] = jax.tree.map(np.asarray, logs)
         if seed == keep_logs_of:
-            kept = (sc, kinds, logs_of_seed, {s: {k: table[s][k][-len(kinds):] for k in table[s]} for s in table})
+            kept = (sc, kinds, logs_of_seed, {s: {k: table[s][k][-len(kinds) :] for k in table[s]} for s in table})
     return table, times, kept
 
 
@@ -169,8 +170,9 @@ def figures(table: dict, times: dict, n_runs_per_call: int, rng: np.random.Gener
     # "No more collisions": the paired difference's interval reaches down to zero or below.
     coll_lo = [res[f"claim.lazy_minus_{STRATEGY_NAMES[s]}_collision_share_ci95_lo"] for s in (PERIODIC, IMMEDIATE)]
     res["claim.lazy_no_more_collisions"] = float(all(x <= 0 for x in coll_lo))
-    res["claim.baselines_collide_as_little_as_lazy"] = float(all(
-        res[f"claim.lazy_minus_{STRATEGY_NAMES[s]}_collision_share_ci95_hi"] >= 0 for s in (PERIODIC, IMMEDIATE)))
+    res["claim.baselines_collide_as_little_as_lazy"] = float(
+        all(res[f"claim.lazy_minus_{STRATEGY_NAMES[s]}_collision_share_ci95_hi"] >= 0 for s in (PERIODIC, IMMEDIATE))
+    )
     return res
 
 
@@ -204,23 +206,35 @@ def parkout_figures(n: int, seed: int) -> dict:
 
     pp = ParkoutPlanner()
     sc, _ = parkout_scenarios(seed, n, pp)
-    cfg = SimConfig(planner=pp, supervisor=SupervisorConfig(limits=pp.limits), sensor_range=30.0, lat_sigma=0.0,
-                    steps=300)
+    cfg = SimConfig(
+        planner=pp, supervisor=SupervisorConfig(limits=pp.limits), sensor_range=30.0, lat_sigma=0.0, steps=300
+    )
     d = stop_line(pp.vehicle, pp.config.c)
     res: dict[str, float] = {"parkout.runs_per_strategy": n}
     for s in (LAZY, PERIODIC, IMMEDIATE):
         rows = []
         for i in range(n):
             fin, _ = simulate_host(jax.tree.map(lambda a: a[i], sc), s, cfg)
-            rows.append((int(fin.sup.n_replan), bool(fin.collided),
-                         bool(fin.done) and bool(is_out(fin.pose, d, pp.config)), float(fin.t_done),
-                         int(fin.sup.n_replan_moving)))
+            rows.append(
+                (
+                    int(fin.sup.n_replan),
+                    bool(fin.collided),
+                    bool(fin.done) and bool(is_out(fin.pose, d, pp.config)),
+                    float(fin.t_done),
+                    int(fin.sup.n_replan_moving),
+                )
+            )
         r, c, o, t, mv = (np.array(x) for x in zip(*rows))
         name = STRATEGY_NAMES[s]
-        res.update({f"parkout.{name}.replans_per_run": float(r.mean()),
-                    f"parkout.{name}.collision_share": float(c.mean()), f"parkout.{name}.out_share": float(o.mean()),
-                    f"parkout.{name}.time_to_out_s": float(t[o].mean()) if o.any() else float("nan"),
-                    f"parkout.{name}.replans_while_moving_per_run": float(mv.mean())})
+        res.update(
+            {
+                f"parkout.{name}.replans_per_run": float(r.mean()),
+                f"parkout.{name}.collision_share": float(c.mean()),
+                f"parkout.{name}.out_share": float(o.mean()),
+                f"parkout.{name}.time_to_out_s": float(t[o].mean()) if o.any() else float("nan"),
+                f"parkout.{name}.replans_while_moving_per_run": float(mv.mean()),
+            }
+        )
     return res
 
 
@@ -264,23 +278,27 @@ def plot_timeline(sc, kinds, logs, summary, path, run: int | None = None):
         ax2.step(t, L.queue_size[i, :end], "tab:olive", where="post", alpha=0.7)
         ax2.set_ylabel("collision-queue size [entries]", color="tab:olive")
         for j in np.nonzero(L.replan[i, :end])[0]:
-            ax.axvline(t[j], color=_COLOURS.get(int(L.reason[i, j]), "k"), lw=1,
-                       ls="-" if L.necessary[i, j] else ":")
+            ax.axvline(t[j], color=_COLOURS.get(int(L.reason[i, j]), "k"), lw=1, ls="-" if L.necessary[i, j] else ":")
         inst = np.nonzero(L.installed[i, :end])[0]
         rej = np.nonzero(L.rejected[i, :end])[0]
         ax.plot(t[inst], np.full(len(inst), 6.0), "v", color="C0", ms=5)
         ax.plot(t[rej], np.full(len(rej), 6.0), "x", color="C3", ms=7)
-        ax.set_title(f"{STRATEGY_NAMES[s]}: {int(m['replans'][i])} re-plans ({int(m['unnecessary'][i])} unnecessary, "
-                     f"{int(m['rejected'][i].sum())} plans rejected), success={bool(m['success'][i])}, "
-                     f"collided={bool(m['collided'][i])}", fontsize=9)
+        ax.set_title(
+            f"{STRATEGY_NAMES[s]}: {int(m['replans'][i])} re-plans ({int(m['unnecessary'][i])} unnecessary, "
+            f"{int(m['rejected'][i].sum())} plans rejected), success={bool(m['success'][i])}, "
+            f"collided={bool(m['collided'][i])}",
+            fontsize=9,
+        )
         if row == 0:
-            extra = [Line2D([], [], color="tab:olive", label="collision-queue size (right axis)"),
-                     Line2D([], [], color="tab:green", label="re-plan: goal moved"),
-                     Line2D([], [], color="tab:red", label="re-plan: obstacle"),
-                     Line2D([], [], color="tab:purple", label="re-plan: periodic"),
-                     Line2D([], [], color="k", ls=":", label="dotted: not needed"),
-                     Line2D([], [], color="C0", marker="v", ls="", label="plan installed"),
-                     Line2D([], [], color="C3", marker="x", ls="", label="plan rejected (old kept)")]
+            extra = [
+                Line2D([], [], color="tab:olive", label="collision-queue size (right axis)"),
+                Line2D([], [], color="tab:green", label="re-plan: goal moved"),
+                Line2D([], [], color="tab:red", label="re-plan: obstacle"),
+                Line2D([], [], color="tab:purple", label="re-plan: periodic"),
+                Line2D([], [], color="k", ls=":", label="dotted: not needed"),
+                Line2D([], [], color="C0", marker="v", ls="", label="plan installed"),
+                Line2D([], [], color="C3", marker="x", ls="", label="plan rejected (old kept)"),
+            ]
             h, _ = ax.get_legend_handles_labels()
             ax.legend(handles=h + extra, loc="upper right", fontsize=7, ncol=2)
         if row == 2:
@@ -318,8 +336,11 @@ def plot_summary(res, path):
     """Collision share, success share and re-plans per run per strategy with 95 % intervals."""
     import matplotlib.pyplot as plt
 
-    keys = (("collision_share", "collision share [runs]"), ("success_share", "success share [runs]"),
-            ("replans_per_run", "re-plans per run [count]"))
+    keys = (
+        ("collision_share", "collision share [runs]"),
+        ("success_share", "success share [runs]"),
+        ("replans_per_run", "re-plans per run [count]"),
+    )
     fig, axes = plt.subplots(1, 3, figsize=(13, 3.6))
     for ax, (k, label) in zip(axes, keys):
         vals = np.array([res[f"{n}.{k}"] for n in STRATEGY_NAMES])

@@ -5,6 +5,7 @@ The page shows the figures of ``metrics.json`` and the plots the run recorded in
 marker with the hash of the page; an existing ``report.md`` without a matching marker
 (written by someone else, or edited since) is not overwritten unless ``force``.
 """
+
 from __future__ import annotations
 
 import hashlib
@@ -107,13 +108,17 @@ def write_report(results_dir: str, filename: str = "report.md", force: bool = Fa
         raise ValueError(f"{path}: expected an object of named figures")
     out = os.path.join(results_dir, filename)
     if os.path.exists(out) and not force and not _ours(out):
-        raise ValueError(f"{out}: exists and was not written by `jaxplan report` (or was edited since); "
-                         f"move it away, or pass --force to replace it")
+        raise ValueError(
+            f"{out}: exists and was not written by `jaxplan report` (or was edited since); "
+            f"move it away, or pass --force to replace it"
+        )
     run_path = os.path.join(results_dir, RUN)
     run = read_json(run_path) if os.path.exists(run_path) else None
     if run is not None and run.get("metrics_sha256") not in (None, sha256_file(path)):
-        raise ValueError(f"{run_path}: describes another {METRICS} (an interrupted or mixed run); "
-                         f"run `jaxplan eval` into this folder again")
+        raise ValueError(
+            f"{run_path}: describes another {METRICS} (an interrupted or mixed run); "
+            f"run `jaxplan eval` into this folder again"
+        )
     by_suite: defaultdict[str, dict[str, Any]] = defaultdict(dict)
     for k, v in metrics.items():
         suite, _, name = k.partition(".")

@@ -23,6 +23,7 @@ Figures, measured on the driven states with the geometry core (not the planner's
 The claim (seed 001): with non-blocking boundaries at least 50 % less blind-zone time, no
 forbidden overtake, no more collisions, at most 10 % more travel time.
 """
+
 from __future__ import annotations
 
 import os
@@ -87,7 +88,7 @@ def _records(args: SuiteArgs) -> tuple[list, str, int | None]:
     from jaxplan.scenarios.builtin import builtin_records
 
     recs = builtin_records(quick=args.quick, seed=args.seed)
-    return (recs[:args.n] if args.n else recs), "builtin.", None
+    return (recs[: args.n] if args.n else recs), "builtin.", None
 
 
 @jax.jit
@@ -101,8 +102,16 @@ def _blind_zone_steps(x, y, heading, valid, boxes, ok, moving, length, width, ba
     hit = jnp.zeros(boxes.shape[:-1], bool)
     for side in (1.0, -1.0):
         lat = side * (0.5 * W + 0.5 + 1.5)
-        zone = jnp.stack([boxes[..., 0] + c * lon - s * lat, boxes[..., 1] + s * lon + c * lat,
-                          jnp.full_like(L, back + front), jnp.full_like(L, 3.0), h], -1)
+        zone = jnp.stack(
+            [
+                boxes[..., 0] + c * lon - s * lat,
+                boxes[..., 1] + s * lon + c * lat,
+                jnp.full_like(L, back + front),
+                jnp.full_like(L, 3.0),
+                h,
+            ],
+            -1,
+        )
         hit = hit | box_has_overlap(car, zone)
     return jnp.any(hit & ok & moving[..., None], 1) & valid
 
@@ -136,16 +145,35 @@ def _measure(records, planner, batch, config, log, metrics) -> dict:
     boxes, ok = np.asarray(obs.boxes), np.asarray(obs.valid)
     moving = np.asarray(jax.vmap(obstacle_speed)(obs)) > planner.speed.v_moving
     veh, sp = planner.vehicle, planner.speed
-    blind = np.asarray(_blind_zone_steps(log["x"], log["y"], log["heading"], log["valid"], boxes, ok, moving,
-                                         float(veh.length), float(veh.width), sp.blind_back, sp.blind_front))
+    blind = np.asarray(
+        _blind_zone_steps(
+            log["x"],
+            log["y"],
+            log["heading"],
+            log["valid"],
+            boxes,
+            ok,
+            moving,
+            float(veh.length),
+            float(veh.width),
+            sp.blind_back,
+            sp.blind_front,
+        )
+    )
     nb = np.asarray(log["info"]["no_bypass"])
     dt = config.dt
-    return {"blind_s": blind.sum(1) * dt,
-            "forbidden": _forbidden_overtakes(log, boxes, ok, nb, veh, config.replan_every),
-            "collided": metrics["overlap.collided"], "at_fault": metrics["overlap.at_fault"],
-            "reached": metrics["goal.reached"], "t_goal": metrics["goal.time"],
-            "max_abs_accel": metrics["comfort.max_abs_accel"], "progress": metrics["progress.route_m"],
-            "v": log["v"], "valid": log["valid"]}
+    return {
+        "blind_s": blind.sum(1) * dt,
+        "forbidden": _forbidden_overtakes(log, boxes, ok, nb, veh, config.replan_every),
+        "collided": metrics["overlap.collided"],
+        "at_fault": metrics["overlap.at_fault"],
+        "reached": metrics["goal.reached"],
+        "t_goal": metrics["goal.time"],
+        "max_abs_accel": metrics["comfort.max_abs_accel"],
+        "progress": metrics["progress.route_m"],
+        "v": log["v"],
+        "valid": log["valid"],
+    }
 
 
 def _summary(prefix: str, mw: dict, mo: dict) -> dict:
@@ -169,8 +197,12 @@ def _summary(prefix: str, mw: dict, mo: dict) -> dict:
     out[f"{prefix}blind_zone_reduction"] = round(1 - float(mw["blind_s"].sum()) / bo, 4) if bo > 0 else float("nan")
     red = out[f"{prefix}blind_zone_reduction"]
     ratio = out.get(f"{prefix}travel_time_ratio", float("nan"))
-    holds = (red >= CLAIM_BLIND_REDUCTION and out[f"{prefix}with.forbidden_overtakes"] == 0
-             and out[f"{prefix}with.collisions"] <= out[f"{prefix}without.collisions"] and ratio <= CLAIM_TIME_RATIO)
+    holds = (
+        red >= CLAIM_BLIND_REDUCTION
+        and out[f"{prefix}with.forbidden_overtakes"] == 0
+        and out[f"{prefix}with.collisions"] <= out[f"{prefix}without.collisions"]
+        and ratio <= CLAIM_TIME_RATIO
+    )
     out[f"{prefix}claim_holds"] = int(bool(holds))
     return out
 
@@ -178,11 +210,20 @@ def _summary(prefix: str, mw: dict, mo: dict) -> dict:
 def _per_scene(records, mw, mo) -> list:
     rows = []
     for i, r in enumerate(records):
-        rows.append({"scenario": r.name, "blind_with": float(mw["blind_s"][i]), "blind_without": float(mo["blind_s"][i]),
-                     "forbidden_with": int(mw["forbidden"][i]), "forbidden_without": int(mo["forbidden"][i]),
-                     "collided_with": bool(mw["collided"][i]), "collided_without": bool(mo["collided"][i]),
-                     "t_goal_with": float(mw["t_goal"][i]), "t_goal_without": float(mo["t_goal"][i]),
-                     "max_abs_accel_with": float(mw["max_abs_accel"][i])})
+        rows.append(
+            {
+                "scenario": r.name,
+                "blind_with": float(mw["blind_s"][i]),
+                "blind_without": float(mo["blind_s"][i]),
+                "forbidden_with": int(mw["forbidden"][i]),
+                "forbidden_without": int(mo["forbidden"][i]),
+                "collided_with": bool(mw["collided"][i]),
+                "collided_without": bool(mo["collided"][i]),
+                "t_goal_with": float(mw["t_goal"][i]),
+                "t_goal_without": float(mo["t_goal"][i]),
+                "max_abs_accel_with": float(mw["max_abs_accel"][i]),
+            }
+        )
     return rows
 
 
@@ -206,8 +247,12 @@ def _plot(out_dir, records, mw, mo, config, planner, batch):
     fig.tight_layout()
     fig.savefig(os.path.join(out_dir, "speed_profiles.png"), dpi=90)
     plt.close(fig)
-    plot_st_graph(os.path.join(out_dir, "speed_st_graph.png"), planner, jax.tree_util.tree_map(lambda x: x[idx[0]], batch),
-                  records[idx[0]].name)
+    plot_st_graph(
+        os.path.join(out_dir, "speed_st_graph.png"),
+        planner,
+        jax.tree_util.tree_map(lambda x: x[idx[0]], batch),
+        records[idx[0]].name,
+    )
 
 
 def plot_st_graph(path: str, planner, scene, title: str, step: int = 0) -> str:
@@ -245,8 +290,10 @@ def speed_suite(args: SuiteArgs) -> dict:
     res = {}
     for tag, planner in (("with", PathSpeedPlanner()), ("without", PathSpeedPlanner(nonblocking=False))):
         log, metrics, _ = run_planner(planner, batch, config)
-        log = {k: (np.asarray(getattr(log, k)) if k != "info" else jax.tree_util.tree_map(np.asarray, log.info))
-               for k in ("x", "y", "heading", "v", "valid", "info")}
+        log = {
+            k: (np.asarray(getattr(log, k)) if k != "info" else jax.tree_util.tree_map(np.asarray, log.info))
+            for k in ("x", "y", "heading", "v", "valid", "info")
+        }
         res[tag] = _measure(records, planner, batch, config, log, metrics)
     m = _summary(prefix, res["with"], res["without"])
     m[f"{prefix}scenes"] = len(records)

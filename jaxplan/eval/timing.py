@@ -1,4 +1,5 @@
 """Timing and output helpers shared by the benchmark scripts (``experiments/bench_*.py``)."""
+
 from __future__ import annotations
 
 import json

@@ -9,6 +9,7 @@ and tested on each held-out location, and the speed planner's weights through th
 DP. Without ``--scenarios`` the demonstrations are synthetic (a hidden driver with known
 weights). Figures carry 95 % bootstrap intervals over scenarios (``*_ci_lo``, ``*_ci_hi``).
 """
+
 from __future__ import annotations
 
 import os
@@ -17,10 +18,16 @@ import numpy as np
 
 from jaxplan.eval.registry import SuiteArgs, register
 
-LABELS = {"constant_velocity": "constant velocity", "constant_acceleration": "constant accel.",
-          "idm": "IDM (recorded leader)", "default": "lattice, default weights", "grid": "lattice, grid search",
-          "random_search": "lattice, random search", "weights": "lattice, tuned weights",
-          "oracle": "best in lattice"}
+LABELS = {
+    "constant_velocity": "constant velocity",
+    "constant_acceleration": "constant accel.",
+    "idm": "IDM (recorded leader)",
+    "default": "lattice, default weights",
+    "grid": "lattice, grid search",
+    "random_search": "lattice, random search",
+    "weights": "lattice, tuned weights",
+    "oracle": "best in lattice",
+}
 
 
 def _finish(fig, path):
@@ -59,8 +66,14 @@ def plot_learning_curve(history: dict, metrics: dict, path: str | None, title: s
     return _finish(fig, path)
 
 
-def plot_heldout(metrics: dict, path: str | None, groups=None, methods=None, metric: str = "ade3",
-                 title: str = "held-out demonstrations"):
+def plot_heldout(
+    metrics: dict,
+    path: str | None,
+    groups=None,
+    methods=None,
+    metric: str = "ade3",
+    title: str = "held-out demonstrations",
+):
     """Bar chart of ``metric`` per method with its 95 % interval, one group of bars per
     ``(label, prefix)`` of ``groups`` (e.g. the locations)."""
     from jaxplan.tuning.run import METHODS
@@ -105,8 +118,10 @@ def plot_weights(model, path: str | None):
     ax.set_yticklabels([f"{n} [{UNITS.get(n, '')}]  ({pw[n]:+.3g} per unit)" for n in names], fontsize=7)
     ax.axvline(0, color="k", lw=0.5)
     ax.invert_yaxis()
-    ax.set(xlabel="weight on the normalised feature (unit vector; negative = preferred larger)",
-           title=f"learned cost weights (temperature {model.temperature:.3g})")
+    ax.set(
+        xlabel="weight on the normalised feature (unit vector; negative = preferred larger)",
+        title=f"learned cost weights (temperature {model.temperature:.3g})",
+    )
     fig.tight_layout()
     return _finish(fig, path)
 
@@ -143,9 +158,11 @@ def plot_lattice_demos(run, path: str | None, n: int = 4):
         ax.plot(xy[j, i1[b], :31, 0], xy[j, i1[b], :31, 1], "C2", lw=1.8, label="lattice, tuned weights")
         ax.set_aspect("equal", "datalim")
         ax.set(xlabel="x (m)", ylabel="y (m)")
-        ax.set_title(f"{val.index.scenario[b]} vehicle {val.index.obstacle_id[b]}\nADE3 default "
-                     f"{run.errors['default']['ade3'][b]:.2f} m, tuned {run.errors['weights']['ade3'][b]:.2f} m",
-                     fontsize=8)
+        ax.set_title(
+            f"{val.index.scenario[b]} vehicle {val.index.obstacle_id[b]}\nADE3 default "
+            f"{run.errors['default']['ade3'][b]:.2f} m, tuned {run.errors['weights']['ade3'][b]:.2f} m",
+            fontsize=8,
+        )
     axes[0, 0].legend(fontsize=6)
     fig.tight_layout()
     return _finish(fig, path)
@@ -198,8 +215,7 @@ def load_suite_weights(args: SuiteArgs):
     return load_cost(args.weights)
 
 
-LOCATION_GROUPS = [("all", ""), ("US-101", "us101."), ("Lankershim", "lankershim."),
-                   ("German roads", "german_roads.")]
+LOCATION_GROUPS = [("all", ""), ("US-101", "us101."), ("Lankershim", "lankershim."), ("German roads", "german_roads.")]
 
 
 @register("tune")
@@ -222,36 +238,50 @@ def tune_suite(args: SuiteArgs) -> dict:
         from jaxplan.scenarios.loader import load_folder
 
         folder = load_folder(args.scenarios)
-    train, val, source = demonstrations(folder, n_synthetic=n, seed=args.seed,
-                                        pattern="USA_US101-1[0-2]*" if args.quick and args.scenarios else None)
+    train, val, source = demonstrations(
+        folder, n_synthetic=n, seed=args.seed, pattern="USA_US101-1[0-2]*" if args.quick and args.scenarios else None
+    )
     quick = args.quick
     recorded = source == "recorded" and not quick
-    run = compare_lattice(train, val, steps=60 if quick else RECORDED_STEPS if recorded else 400,
-                          lr=RECORDED_LR if recorded else 0.05, seed=args.seed,
-                          candidate_set="small" if quick or source == "synthetic" else "rich",
-                          idm_grid=SMALL_IDM_GRID if quick or source == "synthetic" else IDM_GRID,
-                          ce_weight=1.0 if source == "synthetic" else 0.0,
-                          n_boot=200 if quick else 1000)
+    run = compare_lattice(
+        train,
+        val,
+        steps=60 if quick else RECORDED_STEPS if recorded else 400,
+        lr=RECORDED_LR if recorded else 0.05,
+        seed=args.seed,
+        candidate_set="small" if quick or source == "synthetic" else "rich",
+        idm_grid=SMALL_IDM_GRID if quick or source == "synthetic" else IDM_GRID,
+        ce_weight=1.0 if source == "synthetic" else 0.0,
+        n_boot=200 if quick else 1000,
+    )
     m = {f"lattice.{k}": v for k, v in run.metrics.items()}
     m["source_recorded"] = int(source == "recorded")
     if folder is not None:
         m["skipped_files"] = len(folder.skipped)
     run.model.save(os.path.join(args.out, "tune_lattice_model.json"))  # `jaxplan eval lattice --weights` reads it
     plot_learning_curve(run.history, run.metrics, os.path.join(args.out, "tune_learning_curve.png"))
-    plot_heldout(run.metrics, os.path.join(args.out, "tune_heldout.png"), LOCATION_GROUPS,
-                 title="held-out vehicles: ADE at 3 s")
+    plot_heldout(
+        run.metrics, os.path.join(args.out, "tune_heldout.png"), LOCATION_GROUPS, title="held-out vehicles: ADE at 3 s"
+    )
     plot_weights(run.model, os.path.join(args.out, "tune_weights.png"))
     plot_lattice_demos(run, os.path.join(args.out, "tune_lattice_demos.png"))
     if source == "recorded" and not quick:
         loc = held_out_locations(recorded_set(folder), seed=args.seed)
         m.update({f"lattice.heldout_location.{k}": v for k, v in loc.items()})
-        plot_heldout(loc, os.path.join(args.out, "tune_heldout_locations.png"),
-                     [(g, p) for g, p in LOCATION_GROUPS if p], title="held-out locations: ADE at 3 s")
+        plot_heldout(
+            loc,
+            os.path.join(args.out, "tune_heldout_locations.png"),
+            [(g, p) for g, p in LOCATION_GROUPS if p],
+            title="held-out locations: ADE at 3 s",
+        )
     if not quick:
         sres = tune_speed(train, val, seed=args.seed, idm_params=run.idm)
         m.update({f"speed.{k}": v for k, v in sres.metrics.items()})
         plot_training(sres.history, os.path.join(args.out, "tune_speed_training.png"), "speed")
         plot_speed_demos(sres, os.path.join(args.out, "tune_speed_demos.png"))
-        plot_heldout(sres.metrics, os.path.join(args.out, "tune_speed_heldout.png"),
-                     title="speed planner, held-out vehicles: station ADE at 3 s along the human path")
+        plot_heldout(
+            sres.metrics,
+            os.path.join(args.out, "tune_speed_heldout.png"),
+            title="speed planner, held-out vehicles: station ADE at 3 s along the human path",
+        )
     return {k: (float(v) if isinstance(v, (float, np.floating)) else v) for k, v in m.items()}

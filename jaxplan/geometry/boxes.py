@@ -1,4 +1,5 @@
 """Oriented boxes, path headings and the car's contour corners."""
+
 from __future__ import annotations
 
 import jax
@@ -117,8 +118,9 @@ def box_separation(boxes_a, boxes_b):
     """
     a, b = jnp.asarray(boxes_a), jnp.asarray(boxes_b)
     unit = lambda h: jnp.stack([jnp.cos(h), jnp.sin(h)], axis=-1)
-    return box_separation_axes(a[..., :2], unit(a[..., 4]), 0.5 * a[..., 2:4],
-                               b[..., :2], unit(b[..., 4]), 0.5 * b[..., 2:4])
+    return box_separation_axes(
+        a[..., :2], unit(a[..., 4]), 0.5 * a[..., 2:4], b[..., :2], unit(b[..., 4]), 0.5 * b[..., 2:4]
+    )
 
 
 def box_has_overlap(boxes_a, boxes_b):

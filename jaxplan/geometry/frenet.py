@@ -6,6 +6,7 @@ adjoining chords), so the normal turns continuously and the Frenet map has a
 unique inverse wherever ``1 - kappa * l > 0``. Beyond both ends the line is
 extended straight along its end headings.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -93,8 +94,10 @@ class ReferenceLine:
         seg = np.linalg.norm(np.diff(xy, axis=-2), axis=-1)
         if np.any(seg <= 0):
             i = int(np.argwhere(seg <= 0)[0, -1])
-            raise ValueError(f"reference line: points {i} and {i + 1} coincide (a repeated point has no heading); "
-                             f"build it with ReferenceLine.from_polyline, which drops repeated points")
+            raise ValueError(
+                f"reference line: points {i} and {i + 1} coincide (a repeated point has no heading); "
+                f"build it with ReferenceLine.from_polyline, which drops repeated points"
+            )
         for name in ("s", "theta", "kappa"):
             a = check_finite(f"reference line {name}", getattr(self, name))
             if a.shape != xy.shape[:-1]:
@@ -111,8 +114,10 @@ def _check_turns(a: np.ndarray) -> None:
     bad = cos_turn < MAX_TURN_COS
     if np.any(bad):
         i = int(np.argwhere(bad)[0, -1]) + 1
-        raise ValueError(f"reference line: turns back on itself at point {i} "
-                         f"(more than {np.degrees(np.arccos(MAX_TURN_COS)):.0f} degrees between segments)")
+        raise ValueError(
+            f"reference line: turns back on itself at point {i} "
+            f"(more than {np.degrees(np.arccos(MAX_TURN_COS)):.0f} degrees between segments)"
+        )
 
 
 @jax.jit
@@ -241,5 +246,5 @@ def frenet_to_cartesian_state(ref: ReferenceLine, s, l, dl, ddl):
     dtheta = jnp.arctan2(dl, one)
     cos_d = jnp.cos(dtheta)
     tan_d = jnp.tan(dtheta)
-    kappa = ((ddl + (dkr * l + kr * dl) * tan_d) * cos_d ** 2 / one + kr) * cos_d / one
+    kappa = ((ddl + (dkr * l + kr * dl) * tan_d) * cos_d**2 / one + kr) * cos_d / one
     return xy, wrap_angle(theta_r + dtheta), kappa

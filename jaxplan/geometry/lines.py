@@ -3,6 +3,7 @@
 Never slope form, so vertical lines need no special case. Parallel lines are
 reported through a ``valid`` flag instead of producing inf.
 """
+
 from __future__ import annotations
 
 import jax.numpy as jnp

@@ -4,6 +4,7 @@ Polygons are ``(..., N, 2)`` arrays of counter-clockwise vertices with an
 optional ``(..., N)`` bool mask whose True entries form a prefix (padding at
 the end). Leading dimensions of the two polygons broadcast against each other.
 """
+
 from __future__ import annotations
 
 from typing import NamedTuple
@@ -275,7 +276,8 @@ def overlap_polygon_tagged(poly_a, poly_b, valid_a=None, valid_b=None) -> Overla
     key = jnp.where(keep, _pseudo_angle(pts - centre[..., None, :]), 10.0)
     idx = jnp.arange(K)
     before = (key[..., None, :] < key[..., :, None]) | (
-        (key[..., None, :] == key[..., :, None]) & (idx[None, :] < idx[:, None]))
+        (key[..., None, :] == key[..., :, None]) & (idx[None, :] < idx[:, None])
+    )
     rank = jnp.sum(before, axis=-1)  # (..., K), a permutation
     # order[r] = the element of rank r (inverse permutation), then gather.
     order = jnp.sum(jnp.where(rank[..., :, None] == idx, idx[:, None], 0), axis=-2)
@@ -284,8 +286,9 @@ def overlap_polygon_tagged(poly_a, poly_b, valid_a=None, valid_b=None) -> Overla
         return jnp.take_along_axis(x, order, axis=-1)
 
     verts = jnp.take_along_axis(pts, order[..., None], axis=-2)
-    return OverlapPolygon(verts, place(keep), place(src).astype(jnp.int32),
-                          place(ia).astype(jnp.int32), place(ib).astype(jnp.int32))
+    return OverlapPolygon(
+        verts, place(keep), place(src).astype(jnp.int32), place(ia).astype(jnp.int32), place(ib).astype(jnp.int32)
+    )
 
 
 def overlap_polygon(poly_a, poly_b, valid_a=None, valid_b=None):

@@ -15,6 +15,7 @@ by every lateral offset. The Cartesian speed is ``ds/dt * sqrt((1 - kappa_r l)^2
 and the acceleration its exact time derivative; ``s`` of the trajectory is the
 running sum of chord lengths.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -197,8 +198,11 @@ class LatticeConfig:
     def lateral_grid(self) -> tuple:
         """``(lateral lanes, offsets, lateral times)``; the lateral lanes are ``lanes`` then the
         hold and goal targets when switched on."""
-        return (len(self.lanes) + int(self.hold_offset) + int(self.goal_offset), self.n_offsets,
-                max(1, len(self.lateral_times)))
+        return (
+            len(self.lanes) + int(self.hold_offset) + int(self.goal_offset),
+            self.n_offsets,
+            max(1, len(self.lateral_times)),
+        )
 
     @property
     def n_lateral(self) -> int:
@@ -226,10 +230,24 @@ class LatticeConfig:
         times, emergency and fallback levels, three lateral times, the hold and goal targets,
         the feasibility filter, safety buffers, the terminal condition and harm selection
         (the road planner gives the lanes' offsets in ``RoadTargets``, ``max_lanes`` of them)."""
-        base: dict[str, Any] = dict(modes=("follow", "stop", "goal"), emergency=True, fallback=True,
-                    lateral_times=(2.0, 3.0, 4.5), hold_offset=True, goal_offset=True, lanes=(-2, -1, 0, 1, 2),
-                    n_offsets=3, offset_span=0.6, buffer_lon=1.0, buffer_lat=0.3, edge_margin=0.25, terminal=True,
-                    near_budget=0.0, near_k=6, d_threshold=150.0)
+        base: dict[str, Any] = dict(
+            modes=("follow", "stop", "goal"),
+            emergency=True,
+            fallback=True,
+            lateral_times=(2.0, 3.0, 4.5),
+            hold_offset=True,
+            goal_offset=True,
+            lanes=(-2, -1, 0, 1, 2),
+            n_offsets=3,
+            offset_span=0.6,
+            buffer_lon=1.0,
+            buffer_lat=0.3,
+            edge_margin=0.25,
+            terminal=True,
+            near_budget=0.0,
+            near_k=6,
+            d_threshold=150.0,
+        )
         base.update(overrides)
         return cls(**base)
 
@@ -259,13 +277,18 @@ class LatticeConfig:
             raise ValueError(f"LatticeConfig.select_temperature must be finite and >= 0, got {self.select_temperature}")
         if self.all_collide not in ("harm", "seed"):
             raise ValueError(f"LatticeConfig.all_collide must be 'harm' or 'seed', got {self.all_collide!r}")
-        if not (self.emergency_a_min < 0 < self.emergency_a_max and self.fallback_decel > 0 and self.emergency_jerk > 0):
-            raise ValueError("LatticeConfig: need emergency_a_min < 0 < emergency_a_max, fallback_decel > 0, "
-                             "emergency_jerk > 0")
+        if not (
+            self.emergency_a_min < 0 < self.emergency_a_max and self.fallback_decel > 0 and self.emergency_jerk > 0
+        ):
+            raise ValueError(
+                "LatticeConfig: need emergency_a_min < 0 < emergency_a_max, fallback_decel > 0, emergency_jerk > 0"
+            )
         lo, hi = self.lon_acc_limits
         if not (lo < 0 < hi) or self.lon_jerk_max <= 0 or self.lat_acc_max <= 0 or self.kappa_max < 0:
-            raise ValueError("LatticeConfig: need lon_acc_limits (lo < 0 < hi), positive jerk, lateral "
-                             "acceleration limits and kappa_max >= 0")
+            raise ValueError(
+                "LatticeConfig: need lon_acc_limits (lo < 0 < hi), positive jerk, lateral "
+                "acceleration limits and kappa_max >= 0"
+            )
         if min(self.buffer_lon, self.buffer_lat, self.edge_margin) < 0 or self.terminal_decel <= 0 or self.near_k < 0:
             raise ValueError("LatticeConfig: buffers and near_k must be >= 0, terminal_decel > 0")
         self.vehicle.validate()
@@ -293,8 +316,7 @@ class PlanState:
     def make(cls, x, y, heading, v, a=0.0, kappa=0.0, v_set=None, d_crossroad=float("inf")) -> PlanState:
         """Host-side constructor with checks; ``v_set`` defaults to ``v``."""
         f = jnp.result_type(float)
-        st = cls(*(jnp.asarray(z, f) for z in (x, y, heading, kappa, v, a, v if v_set is None else v_set,
-                                                d_crossroad)))
+        st = cls(*(jnp.asarray(z, f) for z in (x, y, heading, kappa, v, a, v if v_set is None else v_set, d_crossroad)))
         return st.validate()
 
     @classmethod
@@ -317,8 +339,28 @@ class PlanState:
         return self
 
 
-@pytree_dataclass(data_fields=("traj", "axis", "s", "l", "dl", "v_end", "offset", "level", "speed_index", "lane", "l_target",
-                      "kind", "available", "lat_time", "lane_slot", "profile", "end_time", "s_rel"))
+@pytree_dataclass(
+    data_fields=(
+        "traj",
+        "axis",
+        "s",
+        "l",
+        "dl",
+        "v_end",
+        "offset",
+        "level",
+        "speed_index",
+        "lane",
+        "l_target",
+        "kind",
+        "available",
+        "lat_time",
+        "lane_slot",
+        "profile",
+        "end_time",
+        "s_rel",
+    )
+)
 class Candidates:
     """Every candidate of the lattice, flattened to ``N = G * P`` (see the module docstring).
 
@@ -404,8 +446,9 @@ def _lateral_ids(config: LatticeConfig):
     return np.repeat(np.asarray(ids), O), np.repeat(np.arange(Lw), O)
 
 
-@pytree_dataclass(data_fields=("profiles", "ref_at", "S", "offsets", "lat_ok", "l0", "dl0", "ddl0", "s0", "t", "lon",
-                      "l_target"))
+@pytree_dataclass(
+    data_fields=("profiles", "ref_at", "S", "offsets", "lat_ok", "l0", "dl0", "ddl0", "s0", "t", "lon", "l_target")
+)
 class LatticeParts:
     """What every candidate of one plan is built from (``generate_from`` expands it).
 
@@ -433,8 +476,9 @@ class LatticeParts:
     l_target: Any
 
 
-def lattice_parts(state: PlanState, ref: ReferenceLine, config: LatticeConfig, targets=None, leader=None,
-                  stop_s=None, sl=None) -> LatticeParts:
+def lattice_parts(
+    state: PlanState, ref: ReferenceLine, config: LatticeConfig, targets=None, leader=None, stop_s=None, sl=None
+) -> LatticeParts:
     """The longitudinal profiles and lateral targets of one plan (arguments as ``generate``;
     ``sl``: optional ``(s, l)`` of the car's position on ``ref``, already computed)."""
     from jaxplan.lattice.longitudinal import longitudinal_set
@@ -446,20 +490,31 @@ def lattice_parts(state: PlanState, ref: ReferenceLine, config: LatticeConfig, t
     T = config.n_steps
     t = jnp.arange(T, dtype=dtype) * config.dt
     v0 = jnp.asarray(state.v, dtype)
-    s0, l0, dl0, ddl0 = cartesian_to_frenet_state(ref, jnp.stack([state.x, state.y]).astype(dtype),
-                                                  state.heading, state.kappa, sl)
+    s0, l0, dl0, ddl0 = cartesian_to_frenet_state(
+        ref, jnp.stack([state.x, state.y]).astype(dtype), state.heading, state.kappa, sl
+    )
     _, _, kr0, _ = ref_state(ref, s0)
     # the profiles run in ds/dt along the reference line: ds/dt = v / sqrt((1 - kr l)^2 + l'^2)
-    to_sdot = 1.0 / jnp.sqrt((1.0 - kr0 * l0) ** 2 + dl0 ** 2)
+    to_sdot = 1.0 / jnp.sqrt((1.0 - kr0 * l0) ** 2 + dl0**2)
     sdot0 = v0 * to_sdot
     a0 = jnp.asarray(state.a, dtype) * to_sdot
     lead_s, lead_v, lead_ok = leader if leader is not None else (None, None, False)
     goal_s = jnp.asarray(targets.goal_s, dtype)
     goal_mid = jnp.where(jnp.all(jnp.isfinite(goal_s)), 0.5 * (goal_s[0] + goal_s[1]), jnp.inf)
-    lon = longitudinal_set(sdot0, a0, t, config, lead_s, lead_v, lead_ok,
-                           jnp.inf if stop_s is None else stop_s,
-                           goal_mid - s0 - jnp.asarray(config.vehicle.center_offset, dtype),
-                           targets.goal_t, targets.goal_v, v_grid=v0)
+    lon = longitudinal_set(
+        sdot0,
+        a0,
+        t,
+        config,
+        lead_s,
+        lead_v,
+        lead_ok,
+        jnp.inf if stop_s is None else stop_s,
+        goal_mid - s0 - jnp.asarray(config.vehicle.center_offset, dtype),
+        targets.goal_t,
+        targets.goal_v,
+        v_grid=v0,
+    )
     G = lon.s.shape[0]
     Lw, O, Lt = config.lateral_grid
     offsets, lat_ok = _lateral_targets(config, targets, l0, dtype)
@@ -471,9 +526,20 @@ def lattice_parts(state: PlanState, ref: ReferenceLine, config: LatticeConfig, t
     per_lt = lambda a: jnp.broadcast_to(a[:, None], (Pl, Lt)).reshape(P)
     pos, theta_r, kr, dkr = ref_state(ref, s0 + lon.s)  # once per speed profile
     route_lane = jnp.asarray(targets.route_lane)
-    return LatticeParts((lon.s, lon.v, lon.a), (pos, jnp.cos(theta_r), jnp.sin(theta_r), theta_r, kr, dkr), S,
-                        per_lt(offsets), per_lt(lat_ok), l0, dl0, ddl0, s0, t, lon,
-                        targets.lane_centres.astype(dtype)[route_lane])
+    return LatticeParts(
+        (lon.s, lon.v, lon.a),
+        (pos, jnp.cos(theta_r), jnp.sin(theta_r), theta_r, kr, dkr),
+        S,
+        per_lt(offsets),
+        per_lt(lat_ok),
+        l0,
+        dl0,
+        ddl0,
+        s0,
+        t,
+        lon,
+        targets.lane_centres.astype(dtype)[route_lane],
+    )
 
 
 def stations_finite(parts: LatticeParts):
@@ -506,18 +572,18 @@ def _lateral_paths(parts: LatticeParts, profile, ref_at, offsets, S):
     coeffs = quintic_coeffs(parts.l0, parts.dl0, parts.ddl0, offsets, S)  # (P, 6)
     l, dl, ddl = quintic_eval(coeffs, S, jnp.broadcast_to(s_g, (P, T)))
     one = 1.0 - kr_g * l
-    q = jnp.sqrt(one ** 2 + dl ** 2)
+    q = jnp.sqrt(one**2 + dl**2)
     r_q, r_one = 1.0 / q, 1.0 / one  # two reciprocals per sample instead of six divisions
     cos_d, sin_d, tan_d = one * r_q, dl * r_q, dl * r_one
     d_one = dkr_g * l + kr_g * dl  # -d(one)/ds
-    kappa = ((ddl + d_one * tan_d) * cos_d ** 2 * r_one + kr_g) * cos_d * r_one
+    kappa = ((ddl + d_one * tan_d) * cos_d**2 * r_one + kr_g) * cos_d * r_one
     theta = th_r + atan2(dl, one)
     x = pos_g[:, 0] - l * sr
     y = pos_g[:, 1] + l * cr
     ux, uy = cr * cos_d - sr * sin_d, sr * cos_d + cr * sin_d  # heading unit vector
     speed = sd_g * q
     # d(speed)/dt = s'' q + s'^2 dq/ds, with dq/ds = (one * d(one)/ds + l' l'') / q
-    acc = sdd_g * q + sd_g ** 2 * (dl * ddl - one * d_one) * r_q
+    acc = sdd_g * q + sd_g**2 * (dl * ddl - one * d_one) * r_q
     return x, y, theta, kappa, speed, acc, ux, uy, l, dl
 
 
@@ -529,8 +595,7 @@ def arc_length(x, y):
 
 def _trajectory(fields, t):
     x, y, theta, kappa, speed, acc = fields[:6]
-    return Trajectory(x, y, theta, kappa, speed, acc, jnp.broadcast_to(t, x.shape), arc_length(x, y),
-                      jnp.ones_like(x))
+    return Trajectory(x, y, theta, kappa, speed, acc, jnp.broadcast_to(t, x.shape), arc_length(x, y), jnp.ones_like(x))
 
 
 def candidate_trajectory(parts: LatticeParts, index) -> Trajectory:
@@ -598,19 +663,33 @@ def generate_from(parts: LatticeParts, config: LatticeConfig) -> Candidates:
     times = _lateral_times(config)
     E, V = len(config.escalation), len(config.speed_deltas_kmh)
     speed_index = np.full(G, -1)
-    speed_index[:E * V] = np.tile(np.arange(V), E)
+    speed_index[: E * V] = np.tile(np.arange(V), E)
     lat_times = np.broadcast_to(np.asarray([x if x > 0 else config.horizon for x in times], float)[None], (Pl, Lt))
-    return Candidates(traj, jnp.stack([ux, uy], -1), jnp.broadcast_to(s_abs[:, None], (G, P, T)).reshape(N, T),
-                      l, dl, per_g(lon.v_end), per_p(parts.offsets), per_g(lon.level),
-                      per_g(jnp.asarray(speed_index)), per_p(jnp.asarray(lat_p(lane_ids))), parts.l_target,
-                      per_g(lon.kind), per_g(lon.available) & per_p(parts.lat_ok),
-                      per_p(jnp.asarray(lat_times.reshape(P), f)), per_p(jnp.asarray(lat_p(slots))),
-                      per_g(jnp.arange(G)), per_g(lon.end_time),
-                      jnp.broadcast_to(s_rel[:, None], (G, P, T)).reshape(N, T))
+    return Candidates(
+        traj,
+        jnp.stack([ux, uy], -1),
+        jnp.broadcast_to(s_abs[:, None], (G, P, T)).reshape(N, T),
+        l,
+        dl,
+        per_g(lon.v_end),
+        per_p(parts.offsets),
+        per_g(lon.level),
+        per_g(jnp.asarray(speed_index)),
+        per_p(jnp.asarray(lat_p(lane_ids))),
+        parts.l_target,
+        per_g(lon.kind),
+        per_g(lon.available) & per_p(parts.lat_ok),
+        per_p(jnp.asarray(lat_times.reshape(P), f)),
+        per_p(jnp.asarray(lat_p(slots))),
+        per_g(jnp.arange(G)),
+        per_g(lon.end_time),
+        jnp.broadcast_to(s_rel[:, None], (G, P, T)).reshape(N, T),
+    )
 
 
-def generate(state: PlanState, ref: ReferenceLine, config: LatticeConfig, targets=None, leader=None,
-             stop_s=None) -> Candidates:
+def generate(
+    state: PlanState, ref: ReferenceLine, config: LatticeConfig, targets=None, leader=None, stop_s=None
+) -> Candidates:
     """All candidates of the lattice for one state (any leading batch dims via vmap).
 
     Layout: ``N = G * P``, the longitudinal profile ``g`` major (``jaxplan.lattice.longitudinal``:

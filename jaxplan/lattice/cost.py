@@ -39,6 +39,7 @@ temperature. With ``collision`` much larger than ``level`` times the number of l
 ``level`` much larger than the spread of ``lambda``, its argmin is the exact rule's choice
 as the temperature and ``sep_eps`` go to 0.
 """
+
 from __future__ import annotations
 
 from typing import Any
@@ -48,8 +49,21 @@ import jax.numpy as jnp
 
 from jaxplan.types import check_weights, pytree_dataclass
 
-FEATURES = ("d_lrp", "rho_max", "risk", "speed", "collision", "level_free", "jerk_lon", "jerk_lat", "obstacle",
-            "v_offset", "goal", "infeasible", "unsafe_end")
+FEATURES = (
+    "d_lrp",
+    "rho_max",
+    "risk",
+    "speed",
+    "collision",
+    "level_free",
+    "jerk_lon",
+    "jerk_lat",
+    "obstacle",
+    "v_offset",
+    "goal",
+    "infeasible",
+    "unsafe_end",
+)
 SEED_FEATURES = 6  # the first six are the seed's
 # The exact selection's modes: FREE / ESCALATED (a comfortable level, every check passed),
 # RISK (every candidate collides), EMERGENCY (the emergency or fallback level, every check
@@ -61,8 +75,21 @@ GOAL_CAP = 10.0
 OBSTACLE_SCALE = 2.0
 
 
-WEIGHT_FIELDS = ("alpha", "beta", "gamma", "delta", "collision", "level", "jerk_lon", "jerk_lat", "obstacle",
-                 "v_offset", "goal", "infeasible", "unsafe_end")
+WEIGHT_FIELDS = (
+    "alpha",
+    "beta",
+    "gamma",
+    "delta",
+    "collision",
+    "level",
+    "jerk_lon",
+    "jerk_lat",
+    "obstacle",
+    "v_offset",
+    "goal",
+    "infeasible",
+    "unsafe_end",
+)
 EXTRA_WEIGHTS = ("jerk_lon", "jerk_lat", "obstacle", "v_offset", "goal")  # enter lambda beside the seed's
 
 
@@ -130,7 +157,7 @@ def seed_features(d_lrp, rho, ttc, v_end, v_set, sep_min, level, ttc_min=0.1, se
 
 def costs(weights: CostWeights, features):
     """Linear cost ``(..., N)`` of features ``(..., N, F)`` (the first ``F`` weights)."""
-    return jnp.einsum("...nf,...f->...n", features, weights.vector()[..., :features.shape[-1]])
+    return jnp.einsum("...nf,...f->...n", features, weights.vector()[..., : features.shape[-1]])
 
 
 def lam(weights: CostWeights, features, speed: bool = True):
@@ -233,8 +260,9 @@ def road_features(base, traj, dt, min_sep, v_set, goal_err, feasible, terminal_o
     Returns:
         ``(..., N, len(FEATURES))``.
     """
-    return road_features_from(base, motion_terms(traj, dt, v_set), obstacle_term(min_sep), goal_err, feasible,
-                              terminal_ok, collided)
+    return road_features_from(
+        base, motion_terms(traj, dt, v_set), obstacle_term(min_sep), goal_err, feasible, terminal_ok, collided
+    )
 
 
 def motion_terms(traj, dt, v_set):
@@ -242,7 +270,7 @@ def motion_terms(traj, dt, v_set):
     trajectories ``(..., N, T)`` (``v_set (...)``)."""
     f = traj.v.dtype
     jl = jnp.mean((jnp.diff(traj.a, axis=-1) / dt) ** 2, axis=-1)
-    lat = traj.v ** 2 * traj.kappa
+    lat = traj.v**2 * traj.kappa
     jt = jnp.mean((jnp.diff(lat, axis=-1) / dt) ** 2, axis=-1)
     voff = jnp.mean(jnp.abs(traj.v - jnp.asarray(v_set, f)[..., None, None]), axis=-1)
     return jnp.stack([jl, jt, voff], axis=-1)
@@ -256,8 +284,18 @@ def obstacle_term(min_sep):
 def road_features_from(base, motion, obstacle, goal_err, feasible, terminal_ok, collided):
     """``road_features`` from ``motion_terms (..., N, 3)`` and ``obstacle_term (..., N)``."""
     f = base.dtype
-    extra = jnp.stack([motion[..., 0], motion[..., 1], obstacle, motion[..., 2], goal_err.astype(f),
-                       (~feasible).astype(f), ((~terminal_ok) & ~collided).astype(f)], axis=-1)
+    extra = jnp.stack(
+        [
+            motion[..., 0],
+            motion[..., 1],
+            obstacle,
+            motion[..., 2],
+            goal_err.astype(f),
+            (~feasible).astype(f),
+            ((~terminal_ok) & ~collided).astype(f),
+        ],
+        axis=-1,
+    )
     return jnp.concatenate([base, extra], axis=-1)
 
 
@@ -301,14 +339,15 @@ def goal_error(s, l, v, t, goal_s, goal_l, goal_t, goal_v, center_offset, time_w
     k_in = jnp.argmax(entered, axis=-1)
     t_in = jnp.where(jnp.any(entered, axis=-1), t[k_in], t[-1] + jnp.maximum(lo - s_end, 0.0) / slow)
     left = s > hi[..., None]
-    t_out = jnp.where(jnp.any(left, axis=-1), t[jnp.argmax(left, axis=-1)],
-                      t[-1] + jnp.maximum(hi - s_end, 0.0) / slow)
+    t_out = jnp.where(jnp.any(left, axis=-1), t[jnp.argmax(left, axis=-1)], t[-1] + jnp.maximum(hi - s_end, 0.0) / slow)
     gt, gv, gl = (jnp.asarray(x, f) for x in (goal_t, goal_v, goal_l))
     t0, t1 = gt[..., 0, None], gt[..., 1, None]
     # the stay should overlap the window by GOAL_OVERLAP s (half the window when it is shorter): a
     # plan that only grazes it is missed by the next re-plan's small deviations
-    want = jnp.minimum(jnp.minimum(GOAL_OVERLAP, 0.5 * jnp.maximum(t1 - t0, 0.0)),
-                       0.5 * jnp.maximum(jnp.minimum(t_out, 1e3) - jnp.minimum(t_in, 1e3), 0.0))
+    want = jnp.minimum(
+        jnp.minimum(GOAL_OVERLAP, 0.5 * jnp.maximum(t1 - t0, 0.0)),
+        0.5 * jnp.maximum(jnp.minimum(t_out, 1e3) - jnp.minimum(t_in, 1e3), 0.0),
+    )
     terr = jnp.maximum(want - (jnp.minimum(t_out, t1) - jnp.maximum(t_in, t0)), 0.0)
     terr = jnp.where(jnp.isfinite(t1), terr, jnp.maximum(t_in - 1e3, 0.0) + jnp.maximum(t0 - t_out, 0.0))
     # the state when it is first inside in the window (past the horizon: its end state)
@@ -327,13 +366,31 @@ def goal_error(s, l, v, t, goal_s, goal_l, goal_t, goal_v, center_offset, time_w
     # a tenth of the speed range (at most 1 m/s) and GOAL_INSIDE_L metres inside: not on the edges,
     # which the next plans' small deviations cross
     span_v = jnp.where(jnp.isfinite(gv[..., 1] - gv[..., 0]), gv[..., 1] - gv[..., 0], 0.0)[..., None]
-    err = jnp.minimum(terr, 1e3) / time_weight + out(v_at, gv, jnp.minimum(0.1 * span_v, 1.0)) \
+    err = (
+        jnp.minimum(terr, 1e3) / time_weight
+        + out(v_at, gv, jnp.minimum(0.1 * span_v, 1.0))
         + out(l_at, gl, GOAL_INSIDE_L)
+    )
     return jnp.where(has[..., None], jnp.minimum(err, GOAL_CAP), 0.0)
 
 
-def choose(weights, features, level, available, feasible, free_margin, free, terminal_ok, impact, first_t,
-           risk_cost=None, n_comfort: int = 1, rule: str = "harm", emergency_ok=None, on_road=None):
+def choose(
+    weights,
+    features,
+    level,
+    available,
+    feasible,
+    free_margin,
+    free,
+    terminal_ok,
+    impact,
+    first_t,
+    risk_cost=None,
+    n_comfort: int = 1,
+    rule: str = "harm",
+    emergency_ok=None,
+    on_road=None,
+):
     """The road lattice's exact selection.
 
     Among the available candidates, the feasible ones if any (else all): the candidates that
@@ -396,7 +453,10 @@ def choose(weights, features, level, available, feasible, free_margin, free, ter
     sel = jnp.where(found[..., None], sel_free, sel_risk)
     idx = jnp.argmin(sel, axis=-1)
     lvl = jnp.take_along_axis(level, idx[..., None], axis=-1)[..., 0]
-    mode = jnp.where(~found, RISK, jnp.where(tier > 0, CONSTRAINED,
-                                             jnp.where(lvl == 0, FREE, jnp.where(lvl < n_comfort, ESCALATED, EMERGENCY))))
+    mode = jnp.where(
+        ~found,
+        RISK,
+        jnp.where(tier > 0, CONSTRAINED, jnp.where(lvl == 0, FREE, jnp.where(lvl < n_comfort, ESCALATED, EMERGENCY))),
+    )
     mode = jnp.where(found & swap[..., 0], EMERGENCY, mode)  # taken at the emergency limits
     return idx, mode, sel

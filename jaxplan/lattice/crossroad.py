@@ -6,6 +6,7 @@ with its near edge at ``D_toC + d_margin`` ahead of the car along the reference
 line; candidates that would drive into it collide, so the plan stops before it.
 Under jit the box is always present and its ``valid`` mask says whether it counts.
 """
+
 from __future__ import annotations
 
 import jax.numpy as jnp

@@ -16,6 +16,7 @@ The comfortable levels use the comfortable limits; the emergency and fallback le
 infeasible candidate while a feasible one exists; ``LatticeResult.rejected`` counts the
 reasons.
 """
+
 from __future__ import annotations
 
 import jax.numpy as jnp
@@ -43,16 +44,26 @@ def feasibility(traj, level, config):
     lat_max = jnp.where(emerg, config.emergency_lat_acc_max, config.lat_acc_max) + TOL
     j_max = jnp.where(emerg, config.emergency_jerk_max, config.lon_jerk_max) + TOL
     kap = jnp.max(jnp.abs(traj.kappa), axis=-1)
-    lat = jnp.max(jnp.abs(traj.v ** 2 * traj.kappa), axis=-1)
+    lat = jnp.max(jnp.abs(traj.v**2 * traj.kappa), axis=-1)
     a_min, a_max = jnp.min(traj.a, axis=-1), jnp.max(traj.a, axis=-1)
     if traj.v.shape[-1] > 1:  # and the speed change over each step (what a drive's metric measures)
         fd = jnp.diff(traj.v, axis=-1) / jnp.asarray(config.dt, f)
         a_min, a_max = jnp.minimum(a_min, jnp.min(fd, axis=-1)), jnp.maximum(a_max, jnp.max(fd, axis=-1))
-    jerk = jnp.max(jnp.abs(jnp.diff(traj.a, axis=-1)), axis=-1) / jnp.asarray(config.dt, f) \
-        if traj.a.shape[-1] > 1 else jnp.zeros_like(a_min)
-    reasons = jnp.stack([kap > config.curvature_limit * (1 + TOL) + 1e-4, lat > lat_max,
-                         (a_min < a_lo) | (a_max > a_hi), jerk > j_max,
-                         jnp.min(traj.v, axis=-1) < -TOL], axis=-1)
+    jerk = (
+        jnp.max(jnp.abs(jnp.diff(traj.a, axis=-1)), axis=-1) / jnp.asarray(config.dt, f)
+        if traj.a.shape[-1] > 1
+        else jnp.zeros_like(a_min)
+    )
+    reasons = jnp.stack(
+        [
+            kap > config.curvature_limit * (1 + TOL) + 1e-4,
+            lat > lat_max,
+            (a_min < a_lo) | (a_max > a_hi),
+            jerk > j_max,
+            jnp.min(traj.v, axis=-1) < -TOL,
+        ],
+        axis=-1,
+    )
     if not config.feasibility:
         reasons = jnp.zeros_like(reasons)
     return ~jnp.any(reasons, axis=-1), reasons
@@ -65,7 +76,7 @@ def violation(traj, level, config):
     emerg = level >= len(config.escalation)
     lat_max = jnp.where(emerg, config.emergency_lat_acc_max, config.lat_acc_max)
     kap = jnp.max(jnp.abs(traj.kappa), axis=-1)
-    lat = jnp.max(jnp.abs(traj.v ** 2 * traj.kappa), axis=-1)
+    lat = jnp.max(jnp.abs(traj.v**2 * traj.kappa), axis=-1)
     return jnp.maximum(kap / config.curvature_limit, lat / lat_max)
 
 

@@ -29,6 +29,7 @@ A quintic ``s(t)`` from ``(0, v0, a0)`` to ``(s1, v1, 0)`` at ``T`` is
 after ``T`` the speed ``v1`` is held. Quintics may reverse or exceed the limits: the
 feasibility filter rejects those, the profile is not clamped.
 """
+
 from __future__ import annotations
 
 from typing import Any
@@ -77,12 +78,12 @@ def quintic_profile(v0, a0, s1, v1, T, t):
         (s, v, a) each ``(..., T_samples)``.
     """
     v0, a0, s1, v1, T = jnp.broadcast_arrays(*(jnp.asarray(x, t.dtype) for x in (v0, a0, s1, v1, T)))
-    h = s1 - v0 * T - 0.5 * a0 * T ** 2
+    h = s1 - v0 * T - 0.5 * a0 * T**2
     h1 = v1 - v0 - a0 * T
     h2 = -a0
-    c3 = (10 * h - 4 * h1 * T + 0.5 * h2 * T ** 2) / T ** 3
-    c4 = (-15 * h + 7 * h1 * T - h2 * T ** 2) / T ** 4
-    c5 = (6 * h - 3 * h1 * T + 0.5 * h2 * T ** 2) / T ** 5
+    c3 = (10 * h - 4 * h1 * T + 0.5 * h2 * T**2) / T**3
+    c4 = (-15 * h + 7 * h1 * T - h2 * T**2) / T**4
+    c5 = (6 * h - 3 * h1 * T + 0.5 * h2 * T**2) / T**5
     e = lambda x: x[..., None]
     x = jnp.minimum(t, e(T))
     s = x * (e(v0) + x * (0.5 * e(a0) + x * (e(c3) + x * (e(c4) + x * e(c5)))))
@@ -102,8 +103,20 @@ def n_profiles(config) -> int:
     return n + 3 * bool(config.emergency) + bool(config.fallback)
 
 
-def longitudinal_set(sdot0, a0, t, config, leader_s=None, leader_v=None, leader_ok=False, stop_s=jnp.inf,
-                     goal_s=jnp.inf, goal_t=(0.0, jnp.inf), goal_v=(-jnp.inf, jnp.inf), v_grid=None) -> Longitudinal:
+def longitudinal_set(
+    sdot0,
+    a0,
+    t,
+    config,
+    leader_s=None,
+    leader_v=None,
+    leader_ok=False,
+    stop_s=jnp.inf,
+    goal_s=jnp.inf,
+    goal_t=(0.0, jnp.inf),
+    goal_v=(-jnp.inf, jnp.inf),
+    v_grid=None,
+) -> Longitudinal:
     """Every longitudinal profile of ``config`` (see the module docstring), for one car.
 
     Args:
@@ -132,8 +145,18 @@ def longitudinal_set(sdot0, a0, t, config, leader_s=None, leader_v=None, leader_
         s, v, a = jerk_profile(v0, a0, v_end, t, config.jerk, config.a_min, config.a_max)
     else:
         s, v, a = accel_profile(v0, v_end, t, config.a_min, config.a_max)
-    parts = [(s, v, a, v_end, jnp.repeat(jnp.arange(E), len(config.speed_deltas_kmh)),
-              jnp.full(v_end.shape, CRUISE), jnp.ones(v_end.shape, bool), jnp.full(v_end.shape, jnp.inf, f))]
+    parts = [
+        (
+            s,
+            v,
+            a,
+            v_end,
+            jnp.repeat(jnp.arange(E), len(config.speed_deltas_kmh)),
+            jnp.full(v_end.shape, CRUISE),
+            jnp.ones(v_end.shape, bool),
+            jnp.full(v_end.shape, jnp.inf, f),
+        )
+    ]
     modes = set(config.modes)
     ends = jnp.asarray(config.end_times, f)
     nt = len(config.end_times)
@@ -164,8 +187,9 @@ def longitudinal_set(sdot0, a0, t, config, leader_s=None, leader_v=None, leader_
         natural = 2.5 * dd / jnp.maximum(v0, 0.5)
         T = jnp.concatenate([ends, natural[None]])
         T = jnp.clip(T, 0.5, 30.0)
-        parts.append(quintic_part(jnp.broadcast_to(dd, T.shape), jnp.zeros_like(T), T, STOP,
-                                  jnp.broadcast_to(ok, T.shape)))
+        parts.append(
+            quintic_part(jnp.broadcast_to(dd, T.shape), jnp.zeros_like(T), T, STOP, jnp.broadcast_to(ok, T.shape))
+        )
     if "goal" in modes:
         gs = jnp.asarray(goal_s, f)
         lo, hi = jnp.asarray(goal_t[0], f), jnp.asarray(goal_t[1], f)
@@ -177,23 +201,48 @@ def longitudinal_set(sdot0, a0, t, config, leader_s=None, leader_v=None, leader_
         hi_c = jnp.where(jnp.isfinite(hi), hi, jnp.maximum(lo_c, natural) * 2.0 + 1.0)
         T = lo_c + jnp.asarray([0.2, 0.5, 0.8], f) * (hi_c - lo_c)
         T = jnp.where(jnp.isfinite(hi), T, jnp.maximum(T, natural))
-        v_fin = jnp.clip(jnp.clip(2.0 * jnp.where(ok, gs, 0.0) / jnp.maximum(T, 0.5) - v0, 0.0, config.v_max),
-                         jnp.maximum(vlo, 0.0), jnp.minimum(vhi, config.v_max))
+        v_fin = jnp.clip(
+            jnp.clip(2.0 * jnp.where(ok, gs, 0.0) / jnp.maximum(T, 0.5) - v0, 0.0, config.v_max),
+            jnp.maximum(vlo, 0.0),
+            jnp.minimum(vhi, config.v_max),
+        )
         parts.append(quintic_part(jnp.broadcast_to(gs, T.shape), v_fin, T, GOAL, jnp.broadcast_to(ok, T.shape)))
     if config.emergency:
         ve = jnp.stack([jnp.zeros_like(v0), 0.5 * v0])
-        s, v, a = jerk_profile(v0, a0, ve, t, config.emergency_jerk, EMERGENCY_SHARE * config.emergency_a_min,
-                               config.a_max)
+        s, v, a = jerk_profile(
+            v0, a0, ve, t, config.emergency_jerk, EMERGENCY_SHARE * config.emergency_a_min, config.a_max
+        )
         up = jnp.minimum(v0 + ESCAPE_DV, config.v_max)[None]
-        su, vu, au = jerk_profile(v0, a0, up, t, config.emergency_jerk, config.a_min,
-                                  EMERGENCY_SHARE * config.emergency_a_max)
-        parts.append((jnp.concatenate([s, su]), jnp.concatenate([v, vu]), jnp.concatenate([a, au]),
-                      jnp.concatenate([ve, up]), jnp.full((3,), E), jnp.full((3,), EMERGENCY), jnp.ones((3,), bool),
-                      jnp.full((3,), jnp.inf, f)))
+        su, vu, au = jerk_profile(
+            v0, a0, up, t, config.emergency_jerk, config.a_min, EMERGENCY_SHARE * config.emergency_a_max
+        )
+        parts.append(
+            (
+                jnp.concatenate([s, su]),
+                jnp.concatenate([v, vu]),
+                jnp.concatenate([a, au]),
+                jnp.concatenate([ve, up]),
+                jnp.full((3,), E),
+                jnp.full((3,), EMERGENCY),
+                jnp.ones((3,), bool),
+                jnp.full((3,), jnp.inf, f),
+            )
+        )
     if config.fallback:
-        s, v, a = jerk_profile(v0, a0, jnp.zeros((1,), f), t, config.emergency_jerk, -config.fallback_decel,
-                               config.a_max)
-        parts.append((s, v, a, jnp.zeros((1,), f), jnp.full((1,), E + 1), jnp.full((1,), FALLBACK),
-                      jnp.ones((1,), bool), jnp.full((1,), jnp.inf, f)))
+        s, v, a = jerk_profile(
+            v0, a0, jnp.zeros((1,), f), t, config.emergency_jerk, -config.fallback_decel, config.a_max
+        )
+        parts.append(
+            (
+                s,
+                v,
+                a,
+                jnp.zeros((1,), f),
+                jnp.full((1,), E + 1),
+                jnp.full((1,), FALLBACK),
+                jnp.ones((1,), bool),
+                jnp.full((1,), jnp.inf, f),
+            )
+        )
     cat = [jnp.concatenate([p[i] for p in parts]) for i in range(8)]
     return Longitudinal(cat[0], cat[1], cat[2], cat[3], cat[4], cat[5], cat[6], cat[7])

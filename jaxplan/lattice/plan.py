@@ -1,4 +1,5 @@
 """One jitted lattice plan: candidates, collision risk, features, costs, exact and smooth choice."""
+
 from __future__ import annotations
 
 import dataclasses
@@ -51,9 +52,31 @@ from jaxplan.lattice.targets import RoadTargets, extents, goal_region_ahead, lan
 from jaxplan.types import Obstacles, is_concrete, pytree_dataclass
 
 
-@pytree_dataclass(data_fields=("candidates", "features", "cost", "selection_cost", "collided", "first_t", "ttc",
-                      "min_sep", "chosen", "mode", "obstacles", "finite", "ok", "feasible", "reasons",
-                      "collided_margin", "terminal_ok", "impact", "l_target", "off_road", "trajectory"))
+@pytree_dataclass(
+    data_fields=(
+        "candidates",
+        "features",
+        "cost",
+        "selection_cost",
+        "collided",
+        "first_t",
+        "ttc",
+        "min_sep",
+        "chosen",
+        "mode",
+        "obstacles",
+        "finite",
+        "ok",
+        "feasible",
+        "reasons",
+        "collided_margin",
+        "terminal_ok",
+        "impact",
+        "l_target",
+        "off_road",
+        "trajectory",
+    )
+)
 class LatticeResult:
     """Everything one plan computed (``N`` candidates, ``T`` steps, any leading batch dims).
 
@@ -112,8 +135,7 @@ class LatticeResult:
         if self.trajectory is not None:
             return self.trajectory
         i = self.chosen[..., None, None]
-        return jax.tree_util.tree_map(lambda f: jnp.take_along_axis(f, i, axis=-2)[..., 0, :],
-                                      self.candidates.traj)
+        return jax.tree_util.tree_map(lambda f: jnp.take_along_axis(f, i, axis=-2)[..., 0, :], self.candidates.traj)
 
     def rejected(self) -> dict:
         """Host side: how many available candidates the feasibility filter rejected, and why
@@ -162,14 +184,32 @@ def _kinematics(cand: Candidates, ref, targets, config, v_set, t, stations_ok):
     # written out (about 5 % of a kinematic plan at N = 994)
     total = jnp.sum(cand.l + tr.kappa + tr.v + tr.a, axis=-1)
     veh = config.vehicle
-    out = dict(feasible=feasible, reasons=reasons, emergency_ok=emergency_ok, viol=violation(tr, cand.level, config),
-               rho=jnp.max(jnp.abs(tr.kappa), axis=-1),
-               d_lane=jnp.mean(jnp.abs(cand.l[..., None] - centres), axis=-2),  # (N, Ln): d_lrp to each lane
-               motion=motion_terms(tr, config.dt, v_set),
-               goal=goal_error(cand.s, cand.l, tr.v, t, targets.goal_s, targets.goal_l, targets.goal_t,
-                               targets.goal_v, jnp.asarray(veh.center_offset, f), config.goal_weight_time),
-               finite=jnp.isfinite(total) & stations_ok,
-               s_end=cand.s[:, -1], l_end=cand.l[:, -1], v_last=tr.v[:, -1], s_rel_end=cand.s_rel[:, -1])
+    out = dict(
+        feasible=feasible,
+        reasons=reasons,
+        emergency_ok=emergency_ok,
+        viol=violation(tr, cand.level, config),
+        rho=jnp.max(jnp.abs(tr.kappa), axis=-1),
+        d_lane=jnp.mean(jnp.abs(cand.l[..., None] - centres), axis=-2),  # (N, Ln): d_lrp to each lane
+        motion=motion_terms(tr, config.dt, v_set),
+        goal=goal_error(
+            cand.s,
+            cand.l,
+            tr.v,
+            t,
+            targets.goal_s,
+            targets.goal_l,
+            targets.goal_t,
+            targets.goal_v,
+            jnp.asarray(veh.center_offset, f),
+            config.goal_weight_time,
+        ),
+        finite=jnp.isfinite(total) & stations_ok,
+        s_end=cand.s[:, -1],
+        l_end=cand.l[:, -1],
+        v_last=tr.v[:, -1],
+        s_rel_end=cand.s_rel[:, -1],
+    )
     if targets.road_edges is not None:  # coming closer to a road edge than edge_margin, or leaving the road,
         # counts as touching an obstacle's buffer
         cl, cr = edge_clearance(ref, cand, targets.road_edges, veh)
@@ -188,8 +228,15 @@ def _kinematics(cand: Candidates, ref, targets, config, v_set, t, stations_ok):
     return out
 
 
-def _plan(state: PlanState, ref: ReferenceLine, obstacles: Obstacles, config: LatticeConfig,
-          weights: CostWeights, targets: RoadTargets | None = None, keep_candidates: bool = True) -> LatticeResult:
+def _plan(
+    state: PlanState,
+    ref: ReferenceLine,
+    obstacles: Obstacles,
+    config: LatticeConfig,
+    weights: CostWeights,
+    targets: RoadTargets | None = None,
+    keep_candidates: bool = True,
+) -> LatticeResult:
     f = ref.xy.dtype
     if targets is None:
         targets = RoadTargets.from_config(config, f)
@@ -222,22 +269,34 @@ def _plan(state: PlanState, ref: ReferenceLine, obstacles: Obstacles, config: La
         hits = _collisions(cand, obs, t, config)
     else:  # only the virtual stop box, valid before a crossroad: checked only then, on candidates generated
         # again inside the branch (so that without it no candidate's trajectory is written out)
-        hits = jax.lax.cond(jnp.any(obs.valid), lambda: _collisions(generate_from(parts, config), obs, t, config),
-                            lambda: _no_collisions(cand.level.shape[0], T, f))
+        hits = jax.lax.cond(
+            jnp.any(obs.valid),
+            lambda: _collisions(generate_from(parts, config), obs, t, config),
+            lambda: _no_collisions(cand.level.shape[0], T, f),
+        )
     sep, risk, collided_m = hits["sep"], hits["risk"], hits["collided_margin"] | kin["near_edge"]
     first_t, impact = hits["first_t"], hits["impact"]
     off_road = kin["off_road"]
     feasible, reasons = kin["feasible"], kin["reasons"]
     if config.terminal and K:
-        terminal_ok = _terminal(ref, kin["s_end"], kin["l_end"], kin["v_last"], obs, sl, ext, v_along, front, half_w,
-                                config)
+        terminal_ok = _terminal(
+            ref, kin["s_end"], kin["l_end"], kin["v_last"], obs, sl, ext, v_along, front, half_w, config
+        )
     else:
         terminal_ok = jnp.ones(risk.collided.shape, bool)
     route = jnp.asarray(targets.route_lane)
-    base = seed_features(kin["d_lane"][:, route], kin["rho"], risk.ttc, cand.v_end, state.v_set,
-                         hits["sep_min"], cand.level, config.ttc_min, config.sep_eps)
-    feats = road_features_from(base, kin["motion"], hits["obstacle"], kin["goal"], feasible, terminal_ok,
-                               risk.collided)
+    base = seed_features(
+        kin["d_lane"][:, route],
+        kin["rho"],
+        risk.ttc,
+        cand.v_end,
+        state.v_set,
+        hits["sep_min"],
+        cand.level,
+        config.ttc_min,
+        config.sep_eps,
+    )
+    feats = road_features_from(base, kin["motion"], hits["obstacle"], kin["goal"], feasible, terminal_ok, risk.collided)
     # a candidate with a NaN / inf in its trajectory, separations or features is never chosen
     finite = kin["finite"] & hits["sep_finite"] & jnp.all(jnp.isfinite(feats), axis=-1)
     avail = cand.available & finite
@@ -249,9 +308,23 @@ def _plan(state: PlanState, ref: ReferenceLine, obstacles: Obstacles, config: La
     n_comfort = len(config.escalation)
     risk_cost = weights.gamma * feats[:, 2]
     on_road = _least_off_road(off_road, kin["edge_excess"], pool & ~risk.collided)
-    idx, mode, sel = choose(weights, feats, cand.level, avail, use, ~collided_m, ~risk.collided, terminal_ok,
-                            impact, first_t, risk_cost, n_comfort, config.all_collide,
-                            avail & kin["emergency_ok"] & ~off_road, on_road)
+    idx, mode, sel = choose(
+        weights,
+        feats,
+        cand.level,
+        avail,
+        use,
+        ~collided_m,
+        ~risk.collided,
+        terminal_ok,
+        impact,
+        first_t,
+        risk_cost,
+        n_comfort,
+        config.all_collide,
+        avail & kin["emergency_ok"] & ~off_road,
+        on_road,
+    )
     mode = jnp.where(jnp.any(avail), mode, INVALID)
     ok_plan = jnp.take(finite, idx)
     chosen_traj = candidate_trajectory(parts, idx)
@@ -261,15 +334,42 @@ def _plan(state: PlanState, ref: ReferenceLine, obstacles: Obstacles, config: La
         mean = lambda a: jnp.sum(jnp.where(use_w, w_soft[:, None] * a, 0.0), axis=0)  # noqa: E731
         # headings averaged about the exact choice's (no wrap at +-pi)
         theta = chosen_traj.theta + mean(wrap_angle(cand.traj.theta - chosen_traj.theta))
-        chosen_traj = dataclasses.replace(chosen_traj, x=mean(cand.traj.x), y=mean(cand.traj.y), theta=theta,
-                                          kappa=mean(cand.traj.kappa), v=mean(cand.traj.v), a=mean(cand.traj.a),
-                                          s=mean(cand.traj.s))
+        chosen_traj = dataclasses.replace(
+            chosen_traj,
+            x=mean(cand.traj.x),
+            y=mean(cand.traj.y),
+            theta=theta,
+            kappa=mean(cand.traj.kappa),
+            v=mean(cand.traj.v),
+            a=mean(cand.traj.a),
+            s=mean(cand.traj.s),
+        )
     if not keep_candidates:  # the per-candidate figures and the choice, not every trajectory
         cand = dataclasses.replace(cand, traj=None, axis=None, s=None, l=None, dl=None, s_rel=None)
         sep = None
-    return LatticeResult(cand, feats, costs(weights, feats), sel, risk.collided | ~finite, risk.first_t, risk.ttc,
-                         sep, idx, mode, obs, finite, ok_plan, feasible, reasons, collided_m, terminal_ok, impact,
-                         l_target, off_road, chosen_traj)
+    return LatticeResult(
+        cand,
+        feats,
+        costs(weights, feats),
+        sel,
+        risk.collided | ~finite,
+        risk.first_t,
+        risk.ttc,
+        sep,
+        idx,
+        mode,
+        obs,
+        finite,
+        ok_plan,
+        feasible,
+        reasons,
+        collided_m,
+        terminal_ok,
+        impact,
+        l_target,
+        off_road,
+        chosen_traj,
+    )
 
 
 def _collisions(cand: Candidates, obs: Obstacles, t, config: LatticeConfig) -> dict:
@@ -299,18 +399,32 @@ def _collisions(cand: Candidates, obs: Obstacles, t, config: LatticeConfig) -> d
     else:
         sep = sep_m = min_separation_axes(center, cand.axis, half, obs)
     first_t, impact = first_contact(sep, t, center, cand.axis, cand.traj.v, obs, half, config.dt)
-    return dict(sep=sep, risk=risk_from_separation(sep, t), collided_margin=jnp.any(sep_m < 0, axis=-1),
-                first_t=first_t, impact=impact, sep_min=jnp.min(sep, axis=-1), obstacle=obstacle_term(sep),
-                sep_finite=jnp.all(jnp.isfinite(sep), axis=-1))
+    return dict(
+        sep=sep,
+        risk=risk_from_separation(sep, t),
+        collided_margin=jnp.any(sep_m < 0, axis=-1),
+        first_t=first_t,
+        impact=impact,
+        sep_min=jnp.min(sep, axis=-1),
+        obstacle=obstacle_term(sep),
+        sep_finite=jnp.all(jnp.isfinite(sep), axis=-1),
+    )
 
 
 def _no_collisions(N: int, T: int, f) -> dict:
     """``_collisions``' result without any valid obstacle (every separation ``BIG``)."""
     no = jnp.zeros((N,), bool)
     inf = jnp.full((N,), jnp.inf, f)
-    return dict(sep=jnp.full((N, T), BIG, f), risk=Risk(jnp.full((N, T), BIG, f), no, inf, inf), collided_margin=no,
-                first_t=inf, impact=jnp.zeros((N,), f), sep_min=jnp.full((N,), BIG, f),
-                obstacle=obstacle_term(jnp.full((N, 1), BIG, f)), sep_finite=~no)
+    return dict(
+        sep=jnp.full((N, T), BIG, f),
+        risk=Risk(jnp.full((N, T), BIG, f), no, inf, inf),
+        collided_margin=no,
+        first_t=inf,
+        impact=jnp.zeros((N,), f),
+        sep_min=jnp.full((N,), BIG, f),
+        obstacle=obstacle_term(jnp.full((N, 1), BIG, f)),
+        sep_finite=~no,
+    )
 
 
 ROAD_TOL = 0.1  # m: a candidate's box may reach this far past a road edge (map seams, edge sampling)
@@ -380,8 +494,11 @@ def _terminal(ref, s_e, l_e, v_e, obs, sl, ext, v_along, front, half_w, config):
     el = jnp.concatenate([el, 0.5 * box[3][None]])
     vo = jnp.concatenate([vo, jnp.zeros((1,), vo.dtype)])
     valid = jnp.concatenate([valid, obs.valid[-1:, -1]])
-    rel = valid[None] & (jnp.abs(lo[None] - l_e[:, None]) < el[None] + half_w + config.buffer_lat) \
+    rel = (
+        valid[None]
+        & (jnp.abs(lo[None] - l_e[:, None]) < el[None] + half_w + config.buffer_lat)
         & (so[None] > s_e[:, None])
+    )
     gap = so[None] - es[None] - (s_e[:, None] + front) - config.buffer_lon
     need = jnp.maximum(v_e[:, None] ** 2 - vo[None] ** 2, 0.0) / (2 * config.terminal_decel) + config.terminal_gap
     return jnp.all(~rel | (gap >= need), axis=-1)
@@ -420,9 +537,11 @@ _plan_jit = jit(_plan, options=NO_YNN, static_argnames=("config", "keep_candidat
 def _plan_batch_jit(state, reference_line, obstacles, config, weights, targets=None, keep_candidates=True):
     if targets is None:
         return jax.vmap(lambda s, r, o: _plan(s, r, o, config, weights, None, keep_candidates))(
-            state, reference_line, obstacles)
+            state, reference_line, obstacles
+        )
     return jax.vmap(lambda s, r, o, g: _plan(s, r, o, config, weights, g, keep_candidates))(
-        state, reference_line, obstacles, targets)
+        state, reference_line, obstacles, targets
+    )
 
 
 def _check_shapes(where: str, state: PlanState, ref: ReferenceLine, obstacles: Obstacles, batch: int):
@@ -431,11 +550,15 @@ def _check_shapes(where: str, state: PlanState, ref: ReferenceLine, obstacles: O
     if got == (batch,) * 3:
         return
     if batch == 0:
-        raise ValueError(f"{where}: plans one state at a time, got batch dimensions (state {got[0]}, reference line "
-                         f"{got[1]}, obstacles {got[2]}); use jaxplan.lattice.plan_batch or jax.vmap(plan) for batches")
-    raise ValueError(f"{where}: needs one leading batch dimension on the state, the reference line and the obstacles, "
-                     f"got (state {got[0]}, reference line {got[1]}, obstacles {got[2]}); use jaxplan.lattice.plan "
-                     f"for one state")
+        raise ValueError(
+            f"{where}: plans one state at a time, got batch dimensions (state {got[0]}, reference line "
+            f"{got[1]}, obstacles {got[2]}); use jaxplan.lattice.plan_batch or jax.vmap(plan) for batches"
+        )
+    raise ValueError(
+        f"{where}: needs one leading batch dimension on the state, the reference line and the obstacles, "
+        f"got (state {got[0]}, reference line {got[1]}, obstacles {got[2]}); use jaxplan.lattice.plan "
+        f"for one state"
+    )
 
 
 def _validate(state, reference_line, obstacles, config, weights):
@@ -448,9 +571,15 @@ def _validate(state, reference_line, obstacles, config, weights):
         weights.validate()
 
 
-def plan(state: PlanState, reference_line: ReferenceLine, obstacles: Obstacles,
-         config: LatticeConfig = LatticeConfig(), weights: CostWeights | None = None,
-         targets: RoadTargets | None = None, keep_candidates: bool = True) -> LatticeResult:
+def plan(
+    state: PlanState,
+    reference_line: ReferenceLine,
+    obstacles: Obstacles,
+    config: LatticeConfig = LatticeConfig(),
+    weights: CostWeights | None = None,
+    targets: RoadTargets | None = None,
+    keep_candidates: bool = True,
+) -> LatticeResult:
     """Plan once: every candidate of the lattice, its risk and cost, and the choice.
 
     Host-side checks run on concrete inputs (under jit they are skipped; then check
@@ -482,20 +611,30 @@ def plan(state: PlanState, reference_line: ReferenceLine, obstacles: Obstacles,
     return _plan_jit(state, reference_line, obstacles, config, weights, targets, keep_candidates)
 
 
-def plan_batch(state: PlanState, reference_line: ReferenceLine, obstacles: Obstacles,
-               config: LatticeConfig = LatticeConfig(), weights: CostWeights | None = None,
-               targets: RoadTargets | None = None, keep_candidates: bool = True) -> LatticeResult:
+def plan_batch(
+    state: PlanState,
+    reference_line: ReferenceLine,
+    obstacles: Obstacles,
+    config: LatticeConfig = LatticeConfig(),
+    weights: CostWeights | None = None,
+    targets: RoadTargets | None = None,
+    keep_candidates: bool = True,
+) -> LatticeResult:
     """``plan`` over a leading batch dimension ``B`` of the state, the reference line and the
     obstacles (and of ``targets`` when given; ``config`` and ``weights`` are shared; default
     weights if None; ``keep_candidates`` as in ``plan``)."""
     weights = CostWeights() if weights is None else weights
     _check_shapes("plan_batch", state, reference_line, obstacles, 1)
-    sizes = {"state": jnp.shape(state.x)[0], "reference line": jnp.shape(reference_line.xy)[0],
-             "obstacles": jnp.shape(obstacles.boxes)[0]}
+    sizes = {
+        "state": jnp.shape(state.x)[0],
+        "reference line": jnp.shape(reference_line.xy)[0],
+        "obstacles": jnp.shape(obstacles.boxes)[0],
+    }
     if len(set(sizes.values())) > 1:
         raise ValueError(f"plan_batch: batch sizes differ ({', '.join(f'{k} {v}' for k, v in sizes.items())})")
     # scalar state fields (PlanState.make's defaults) are shared by the batch
-    state = jax.tree_util.tree_map(lambda f: jnp.broadcast_to(f, (sizes["state"],) + jnp.shape(f)[1:])
-                                   if jnp.ndim(f) == 0 else f, state)
+    state = jax.tree_util.tree_map(
+        lambda f: jnp.broadcast_to(f, (sizes["state"],) + jnp.shape(f)[1:]) if jnp.ndim(f) == 0 else f, state
+    )
     _validate(state, reference_line, obstacles, config, weights)
     return _plan_batch_jit(state, reference_line, obstacles, config, weights, targets, keep_candidates)

@@ -21,6 +21,7 @@ road (``Scene.route_end_s``).
 ``ok`` is False when every candidate collides (mode RISK) or the plan is not finite (INVALID);
 ``info`` has the mode, the candidates the feasibility filter rejected and the target lane.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -55,8 +56,9 @@ def goal_speed(v_set, s_centre, goal_s, goal_t, goal_v=None, reach=None):
     d_far = jnp.where(has, goal_s[1] - s_centre, jnp.inf)
     d_near = jnp.where(has, goal_s[0] - s_centre, 0.0)
     v_hi = jnp.where(goal_t[0] > 0.1, jnp.maximum(d_far, 0.0) / jnp.maximum(goal_t[0], 0.1), jnp.inf)
-    v_lo = jnp.where(jnp.isfinite(goal_t[1]) & (goal_t[1] > 0.1), jnp.maximum(d_near, 0.0) / jnp.maximum(goal_t[1], 0.1),
-                     0.0)
+    v_lo = jnp.where(
+        jnp.isfinite(goal_t[1]) & (goal_t[1] > 0.1), jnp.maximum(d_near, 0.0) / jnp.maximum(goal_t[1], 0.1), 0.0
+    )
     v = jnp.maximum(jnp.minimum(v_set, v_hi), jnp.minimum(v_lo, GOAL_SPEEDUP * v_set))
     if goal_v is not None:
         # near the goal (its region within reach, not yet passed) aim inside its speed range, a
@@ -64,8 +66,11 @@ def goal_speed(v_set, s_centre, goal_s, goal_t, goal_v=None, reach=None):
         lo, hi = goal_v[0], goal_v[1]
         span = jnp.where(jnp.isfinite(hi - lo), hi - lo, 0.0)
         near = has & (d_near < reach) & (d_far > 0.0)
-        v_in = jnp.clip(v, jnp.where(jnp.isfinite(lo), lo + 0.1 * span, -jnp.inf),
-                        jnp.where(jnp.isfinite(hi), hi - 0.1 * span, jnp.inf))
+        v_in = jnp.clip(
+            v,
+            jnp.where(jnp.isfinite(lo), lo + 0.1 * span, -jnp.inf),
+            jnp.where(jnp.isfinite(hi), hi - 0.1 * span, jnp.inf),
+        )
         v = jnp.where(near, jnp.maximum(v_in, 0.0), v)
     return jnp.where(has, v, v_set)
 
@@ -138,10 +143,19 @@ class LatticePlanner:
         idx = start + jnp.arange(M)
         # lanes running the other way are offered for borrowing (LatticeConfig.borrow_gain; inf: never)
         borrow = jnp.isfinite(cfg.borrow_gain) & lane_valid & ~lane_ok
-        targets = RoadTargets(lane_offset[idx], (lane_ok | borrow)[idx], jnp.clip(scene.own_lane - start, 0, M - 1),
-                              ctx.route_end_s, ctx.goal_s, ctx.goal_l, ctx.goal_t, ctx.goal_v,
-                              jnp.stack([ctx.obstacle_s, ctx.obstacle_l], -1), borrow[idx],
-                              jnp.stack([scene.road_left, scene.road_right], -1))
+        targets = RoadTargets(
+            lane_offset[idx],
+            (lane_ok | borrow)[idx],
+            jnp.clip(scene.own_lane - start, 0, M - 1),
+            ctx.route_end_s,
+            ctx.goal_s,
+            ctx.goal_l,
+            ctx.goal_t,
+            ctx.goal_v,
+            jnp.stack([ctx.obstacle_s, ctx.obstacle_l], -1),
+            borrow[idx],
+            jnp.stack([scene.road_left, scene.road_right], -1),
+        )
         return _plan(state, scene.route, ctx.obstacles, cfg, params, targets)
 
     def describe(self, info: dict) -> str:
@@ -154,5 +168,8 @@ class LatticePlanner:
         res = self.plan_result(params, scene, ego, step)
         traj = res.chosen_trajectory()
         rejected = jnp.sum(res.candidates.available & ~res.feasible)
-        return PlanOutput(traj, (res.mode != RISK) & (res.mode != INVALID) & res.ok,
-                          {"mode": res.mode, "rejected": rejected, "l_target": res.l_target})
+        return PlanOutput(
+            traj,
+            (res.mode != RISK) & (res.mode != INVALID) & res.ok,
+            {"mode": res.mode, "rejected": rejected, "l_target": res.l_target},
+        )

@@ -33,6 +33,7 @@ back to 0 ends (``a0^2 / (2J) > v0``), ``a0`` is raised to ``-sqrt(2 J v0)``, so
 
 All functions broadcast: ``v0, a0, v_end`` are ``(...)``, ``t`` is ``(..., T)``.
 """
+
 from __future__ import annotations
 
 import jax.numpy as jnp
@@ -60,8 +61,8 @@ def _eval_segments(t, v_start, a_start, jerks, durations, v_hold):
         vi, ai, ji, di, T0 = (x[..., None] for x in (vi, ai, ji, di, start))
         tau = jnp.clip(t - T0, 0.0, di)
         inside = (t >= T0) & (t < T0 + di)
-        s = s + vi * tau + 0.5 * ai * tau ** 2 + ji * tau ** 3 / 6.0
-        v = jnp.where(inside, vi + ai * tau + 0.5 * ji * tau ** 2, v)
+        s = s + vi * tau + 0.5 * ai * tau**2 + ji * tau**3 / 6.0
+        v = jnp.where(inside, vi + ai * tau + 0.5 * ji * tau**2, v)
         a = jnp.where(inside, ai + ji * tau, a)
         start = start + di[..., 0]
     after = t >= start[..., None]
@@ -118,17 +119,25 @@ def jerk_profile_params(v0, a0, v_end, jerk=2.0, a_min=-3.0, a_max=2.0):
     sigma = jnp.where(dv >= a0 * jnp.abs(a0) / (2 * J), 1.0, -1.0)
     a0p, dvp = sigma * a0, sigma * dv
     cap = jnp.where(sigma > 0, a_max, -a_min)
-    ap_tri = safe_sqrt(0.5 * (2 * J * dvp + a0p ** 2))  # finite gradient at 0 (end speed = start speed)
+    ap_tri = safe_sqrt(0.5 * (2 * J * dvp + a0p**2))  # finite gradient at 0 (end speed = start speed)
     tri = ap_tri <= cap
     ap = jnp.where(tri, ap_tri, cap)
     sgn1 = jnp.where(ap >= a0p, 1.0, -1.0)
     t1 = jnp.abs(ap - a0p) / J
-    dv1 = sgn1 * (ap ** 2 - a0p ** 2) / (2 * J)
-    dv3 = ap ** 2 / (2 * J)
+    dv1 = sgn1 * (ap**2 - a0p**2) / (2 * J)
+    dv3 = ap**2 / (2 * J)
     t2 = jnp.where(tri, 0.0, jnp.maximum((dvp - dv1 - dv3) / jnp.maximum(ap, 1e-9), 0.0))
     t3 = ap / J
-    return {"a0": a0, "a_peak": sigma * ap, "j1": sigma * sgn1 * J, "j3": -sigma * J,
-            "t1": t1, "t2": t2, "t3": t3, "t_end": t1 + t2 + t3}
+    return {
+        "a0": a0,
+        "a_peak": sigma * ap,
+        "j1": sigma * sgn1 * J,
+        "j3": -sigma * J,
+        "t1": t1,
+        "t2": t2,
+        "t3": t3,
+        "t_end": t1 + t2 + t3,
+    }
 
 
 def jerk_profile(v0, a0, v_end, t, jerk=2.0, a_min=-3.0, a_max=2.0):
@@ -152,6 +161,5 @@ def jerk_profile(v0, a0, v_end, t, jerk=2.0, a_min=-3.0, a_max=2.0):
     v2 = v1 + ap * p["t2"]
     v3 = v2 + ap * p["t3"] + 0.5 * p["j3"] * p["t3"] ** 2
     zero = jnp.zeros_like(ap)
-    s, v, a = _eval_segments(t, [v0, v1, v2], [a0, ap, ap], [p["j1"], zero, p["j3"]],
-                             [p["t1"], p["t2"], p["t3"]], v3)
+    s, v, a = _eval_segments(t, [v0, v1, v2], [a0, ap, ap], [p["j1"], zero, p["j3"]], [p["t1"], p["t2"], p["t3"]], v3)
     return _no_reverse(s, v, a)

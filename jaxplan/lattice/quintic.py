@@ -11,6 +11,7 @@ reference line), a 5th-degree polynomial from the car's ``(l0, l0', l0'')`` to
 
 (no linear solve).
 """
+
 from __future__ import annotations
 
 import jax.numpy as jnp
@@ -21,13 +22,15 @@ from jaxplan.geometry.frenet import ReferenceLine, ref_state, to_frenet, wrap_an
 def quintic_coeffs(l0, dl0, ddl0, l1, S):
     """Coefficients ``(..., 6)`` (ascending powers of s) of the quintic from
     ``(l0, dl0, ddl0)`` at 0 to ``(l1, 0, 0)`` at ``S``; all args ``(...)``, ``S > 0``."""
-    l0, dl0, ddl0, l1, S = jnp.broadcast_arrays(*(jnp.asarray(x, jnp.result_type(float)) for x in (l0, dl0, ddl0, l1, S)))
-    h = l1 - (l0 + dl0 * S + 0.5 * ddl0 * S ** 2)
+    l0, dl0, ddl0, l1, S = jnp.broadcast_arrays(
+        *(jnp.asarray(x, jnp.result_type(float)) for x in (l0, dl0, ddl0, l1, S))
+    )
+    h = l1 - (l0 + dl0 * S + 0.5 * ddl0 * S**2)
     h1 = -(dl0 + ddl0 * S)
     h2 = -ddl0
-    c3 = (10 * h - 4 * h1 * S + 0.5 * h2 * S ** 2) / S ** 3
-    c4 = (-15 * h + 7 * h1 * S - h2 * S ** 2) / S ** 4
-    c5 = (6 * h - 3 * h1 * S + 0.5 * h2 * S ** 2) / S ** 5
+    c3 = (10 * h - 4 * h1 * S + 0.5 * h2 * S**2) / S**3
+    c4 = (-15 * h + 7 * h1 * S - h2 * S**2) / S**4
+    c5 = (6 * h - 3 * h1 * S + 0.5 * h2 * S**2) / S**5
     return jnp.stack([l0, dl0, 0.5 * ddl0, c3, c4, c5], axis=-1)
 
 
@@ -63,5 +66,5 @@ def cartesian_to_frenet_state(ref: ReferenceLine, xy, theta, kappa, sl=None):
     one = 1.0 - kr * l
     tan_d, cos_d = jnp.tan(d), jnp.cos(d)
     dl = one * tan_d
-    ddl = -(dkr * l + kr * dl) * tan_d + one / cos_d ** 2 * (kappa * one / cos_d - kr)
+    ddl = -(dkr * l + kr * dl) * tan_d + one / cos_d**2 * (kappa * one / cos_d - kr)
     return s, l, dl, ddl

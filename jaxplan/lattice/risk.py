@@ -9,6 +9,7 @@ interpolated between the last free and the first colliding sample (exact for two
 boxes closing at constant velocity without rotation; ``0`` when already
 overlapping at ``t = 0``; ``inf`` without collision).
 """
+
 from __future__ import annotations
 
 from typing import Any
@@ -87,8 +88,7 @@ def min_separation_axes(center, axis, half, obstacles: Obstacles):
     return jnp.min(sep, axis=-2)
 
 
-def min_separation_broad(center, axis, half, obstacles: Obstacles, group_size: int, budget: int,
-                         margin: float = 1.0):
+def min_separation_broad(center, axis, half, obstacles: Obstacles, group_size: int, budget: int, margin: float = 1.0):
     """``min_separation_axes`` with a broad phase over groups of candidates.
 
     Candidates come in groups of ``group_size`` (for the lattice: the lateral offsets
@@ -115,8 +115,11 @@ def min_separation_broad(center, axis, half, obstacles: Obstacles, group_size: i
     cg, ug = center.reshape(G, P, T, 2), axis.reshape(G, P, T, 2)
     lo, hi = jnp.min(cg, axis=1), jnp.max(cg, axis=1)  # (G, T, 2)
     mid = 0.5 * (lo + hi)
-    r_car = jnp.sqrt(jnp.sum(jnp.asarray(half) ** 2, -1)) if jnp.ndim(half) == 1 else \
-        jnp.max(jnp.sqrt(jnp.sum(half ** 2, -1)))
+    r_car = (
+        jnp.sqrt(jnp.sum(jnp.asarray(half) ** 2, -1))
+        if jnp.ndim(half) == 1
+        else jnp.max(jnp.sqrt(jnp.sum(half**2, -1)))
+    )
     r_grp = 0.5 * safe_norm(hi - lo) + r_car  # (G, T); hi = lo at t = 0
     r_obs = safe_norm(oh)  # (K, T)
     d = safe_norm(mid[:, None] - oc[None]) - r_grp[:, None] - r_obs[None]  # (G, K, T)
@@ -128,8 +131,9 @@ def min_separation_broad(center, axis, half, obstacles: Obstacles, group_size: i
     def sparse(_):
         g, k, t = jnp.nonzero(near, size=budget, fill_value=0)
         ok = jnp.arange(budget) < count
-        sep = box_separation_axes(cg[g, :, t], ug[g, :, t], half, oc[k, t][:, None], ou[k, t][:, None],
-                                  oh[k, t][:, None])  # (M, P)
+        sep = box_separation_axes(
+            cg[g, :, t], ug[g, :, t], half, oc[k, t][:, None], ou[k, t][:, None], oh[k, t][:, None]
+        )  # (M, P)
         sep = jnp.where(ok[:, None], sep, BIG)
         ms = jnp.broadcast_to(stand_in[:, None, :], (G, P, T))
         return ms.at[g, :, t].min(sep).reshape(N, T)
@@ -176,8 +180,9 @@ def inflate(obstacles: Obstacles, buffer_lon: float, buffer_lat: float) -> Obsta
     return Obstacles(b + grow, obstacles.valid, obstacles.t, obstacles.static)
 
 
-def min_separation_topk(center, axis, half, obstacles: Obstacles, group_size: int, k: int,
-                        buffer=(0.0, 0.0), group_valid=None):
+def min_separation_topk(
+    center, axis, half, obstacles: Obstacles, group_size: int, k: int, buffer=(0.0, 0.0), group_valid=None
+):
     """Minimum separation to the plain and to the inflated obstacles with a fixed-size broad phase.
 
     Candidates come in groups of ``group_size`` (the lattice: the offsets and lateral times of
@@ -215,8 +220,9 @@ def min_separation_topk(center, axis, half, obstacles: Obstacles, group_size: in
     r_car = jnp.sqrt(jnp.sum(jnp.asarray(half) ** 2, -1))
     r_grp = 0.5 * jnp.linalg.norm(hi - lo, axis=-1) + r_car  # (G, T)
     r_obs = jnp.linalg.norm(ohi, axis=-1)  # (K, T)
-    d = jnp.linalg.norm(mid[:, :, None] - jnp.swapaxes(oc, 0, 1)[None], axis=-1) - r_grp[..., None] \
-        - r_obs.T[None]  # (G, T, K)
+    d = (
+        jnp.linalg.norm(mid[:, :, None] - jnp.swapaxes(oc, 0, 1)[None], axis=-1) - r_grp[..., None] - r_obs.T[None]
+    )  # (G, T, K)
     ok = obstacles.valid.T[None]
     if group_valid is not None:
         ok = ok & group_valid[:, None, None]
@@ -261,8 +267,9 @@ def first_contact(sep, t, center, axis, speed, obstacles: Obstacles, half, dt):
     take = lambda a: jnp.take_along_axis(a, k[:, None, None], axis=1)[:, 0]  # (N, T, 2) -> (N, 2)
     c, u = take(center), take(axis)
     s_k = jnp.take_along_axis(speed, k[:, None], axis=1)[:, 0]
-    sep_k = box_separation_axes(c[:, None], u[:, None], half, oc[:, k].swapaxes(0, 1), ou[:, k].swapaxes(0, 1),
-                                oh[:, k].swapaxes(0, 1))  # (N, K)
+    sep_k = box_separation_axes(
+        c[:, None], u[:, None], half, oc[:, k].swapaxes(0, 1), ou[:, k].swapaxes(0, 1), oh[:, k].swapaxes(0, 1)
+    )  # (N, K)
     j = jnp.argmin(sep_k, axis=-1)
     v_obs = vel[j, k]  # (N, 2)
     rel = s_k[:, None] * u - v_obs

@@ -12,6 +12,7 @@ extent overlaps the car's corridor (``|l_o - l| < ext_l + width / 2``) and whose
 ahead, the nearest rear bumper; it is the leader, and a stop point when it moves slower
 than ``STOPPED_SPEED``.
 """
+
 from __future__ import annotations
 
 from typing import Any
@@ -25,8 +26,21 @@ STOPPED_SPEED = 0.5  # m/s: slower obstacles ahead are stopped for
 HOLD_LANE, GOAL_LANE = 100, 101  # lane ids of the "hold the current offset" and "goal offset" lateral targets
 
 
-@pytree_dataclass(data_fields=("lane_centres", "lane_ok", "route_lane", "stop_s", "goal_s", "goal_l", "goal_t", "goal_v",
-                      "obstacle_sl", "lane_borrow", "road_edges"))
+@pytree_dataclass(
+    data_fields=(
+        "lane_centres",
+        "lane_ok",
+        "route_lane",
+        "stop_s",
+        "goal_s",
+        "goal_l",
+        "goal_t",
+        "goal_v",
+        "obstacle_sl",
+        "lane_borrow",
+        "road_edges",
+    )
+)
 class RoadTargets:
     """Per-plan targets (each field unbatched; add leading axes for ``plan_batch``).
 
@@ -64,9 +78,17 @@ class RoadTargets:
         f = dtype or jnp.result_type(float)
         lanes = jnp.asarray(config.lanes, f) * config.lane_width
         inf = jnp.asarray(jnp.inf, f)
-        return cls(lanes, jnp.ones(lanes.shape, bool), jnp.asarray(list(config.lanes).index(config.target_lane)),
-                   inf, jnp.stack([inf, inf]), jnp.stack([-inf, inf]), jnp.stack([jnp.zeros_like(inf), inf]),
-                   jnp.stack([-inf, inf]), None)
+        return cls(
+            lanes,
+            jnp.ones(lanes.shape, bool),
+            jnp.asarray(list(config.lanes).index(config.target_lane)),
+            inf,
+            jnp.stack([inf, inf]),
+            jnp.stack([-inf, inf]),
+            jnp.stack([jnp.zeros_like(inf), inf]),
+            jnp.stack([-inf, inf]),
+            None,
+        )
 
 
 def goal_region_ahead(goal_s, s_centre):
@@ -86,7 +108,9 @@ def extents(ref, boxes, s):
     """Half extents along and across the line ``(..., 2)`` of boxes ``(..., 5)`` centred at arc lengths ``s``."""
     d = boxes[..., 4] - ref_state(ref, s)[1]
     c, sn = jnp.abs(jnp.cos(d)), jnp.abs(jnp.sin(d))
-    return jnp.stack([0.5 * (boxes[..., 2] * c + boxes[..., 3] * sn), 0.5 * (boxes[..., 2] * sn + boxes[..., 3] * c)], -1)
+    return jnp.stack(
+        [0.5 * (boxes[..., 2] * c + boxes[..., 3] * sn), 0.5 * (boxes[..., 2] * sn + boxes[..., 3] * c)], -1
+    )
 
 
 def speed_along(sl, valid, dt):

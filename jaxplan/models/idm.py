@@ -6,6 +6,7 @@ values: the ``idm`` baseline planner (``jaxplan.baselines.idm``), the imitation 
 tuning suite (``jaxplan.tuning.traffic``) and the simulator's reactive agents
 (``jaxplan.sim.agents``).
 """
+
 from __future__ import annotations
 
 import jax.numpy as jnp

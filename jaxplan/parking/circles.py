@@ -6,6 +6,7 @@ direction of travel: for the backward curve the travel heading is the car's
 heading + pi. Beyond its end a curve continues straight (the pure-pursuit
 look-ahead needs points past the end).
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -31,7 +32,7 @@ def front_corner_radius(vehicle, margin=0.0):
     """
     R = turning_radius(vehicle)
     a = vehicle.wheelbase + vehicle.front_overhang + margin
-    return jnp.sqrt((R + 0.5 * vehicle.width + margin) ** 2 + a ** 2)
+    return jnp.sqrt((R + 0.5 * vehicle.width + margin) ** 2 + a**2)
 
 
 def stop_line(vehicle, c=1.0):
@@ -51,7 +52,7 @@ def min_front_gap(vehicle, margin=0.0, corner_y=None):
     R = turning_radius(vehicle)
     rho = front_corner_radius(vehicle, margin)
     cy = 0.5 * vehicle.width if corner_y is None else corner_y
-    xf = jnp.sqrt(jnp.maximum(rho ** 2 - (R - cy) ** 2, 0.0))
+    xf = jnp.sqrt(jnp.maximum(rho**2 - (R - cy) ** 2, 0.0))
     return xf - (vehicle.wheelbase + vehicle.front_overhang)
 
 
@@ -179,8 +180,11 @@ def backward_curve(pose, R, theta1, theta2, cap, extension=3.0):
     """
     th = wrap_angle(pose[..., 2])
     line = jnp.abs(th) < theta1
-    start = jnp.where(line[..., None], jnp.stack([pose[..., 0], 0.0 * th, jnp.pi + 0.0 * th], -1),
-                      jnp.stack([pose[..., 0], pose[..., 1], th + jnp.pi], -1))
+    start = jnp.where(
+        line[..., None],
+        jnp.stack([pose[..., 0], 0.0 * th, jnp.pi + 0.0 * th], -1),
+        jnp.stack([pose[..., 0], pose[..., 1], th + jnp.pi], -1),
+    )
     arc = R * jnp.maximum(theta2 - th, 0.0)
     l0 = jnp.where(line, cap + 0.0 * R, arc)
     k0 = jnp.where(line, 0.0, 1.0 / R)

@@ -1,4 +1,5 @@
 """``ParkoutConfig``: the static sizes and thresholds of the park-out planner."""
+
 from __future__ import annotations
 
 import dataclasses
@@ -102,8 +103,17 @@ class ParkoutConfig:
         for f in ("rows", "cols", "steps", "back_steps", "max_moves", "arc_steps", "beam"):
             if int(getattr(self, f)) < 1:
                 raise ValueError(f"ParkoutConfig.{f} must be >= 1")
-        for f in ("cell", "dl", "look_ahead", "steer_rate", "back_cap", "v_forward", "v_reverse", "accel",
-                  "steer_speed"):
+        for f in (
+            "cell",
+            "dl",
+            "look_ahead",
+            "steer_rate",
+            "back_cap",
+            "v_forward",
+            "v_reverse",
+            "accel",
+            "steer_speed",
+        ):
             v = getattr(self, f)
             if not (math.isfinite(v) and v > 0):
                 raise ValueError(f"ParkoutConfig.{f} must be positive, got {v}")
@@ -152,8 +162,10 @@ class ParkoutConfig:
         diag = np.hypot(np.max(vehicle.length) + 2 * self.margin, np.max(vehicle.width) + 2 * self.margin)
         need = int(np.ceil(diag / self.cell)) + 3
         if self.scan_rows < need:
-            raise ValueError(f"ParkoutConfig.scan_rows={self.scan_rows} does not cover a footprint of "
-                             f"diagonal {diag:.2f} m on {self.cell} m cells; use at least {need}")
+            raise ValueError(
+                f"ParkoutConfig.scan_rows={self.scan_rows} does not cover a footprint of "
+                f"diagonal {diag:.2f} m on {self.cell} m cells; use at least {need}"
+            )
 
     @classmethod
     def for_vehicle(cls, vehicle, **overrides) -> ParkoutConfig:
@@ -180,7 +192,12 @@ class ParkoutConfig:
         y_min = -math.ceil(2 * (0.5 * W + 1.5)) / 2
         y_max = math.ceil(W + base.c + L - ro)
         diag = math.hypot(L + 2 * base.margin, W + 2 * base.margin)
-        fields: dict[str, Any] = dict(x_min=float(x_min), y_min=float(y_min), cols=int(round((x_max - x_min) / h)),
-                      rows=int(round((y_max - y_min) / h)), scan_rows=int(math.ceil(diag / h)) + 3)
+        fields: dict[str, Any] = dict(
+            x_min=float(x_min),
+            y_min=float(y_min),
+            cols=int(round((x_max - x_min) / h)),
+            rows=int(round((y_max - y_min) / h)),
+            scan_rows=int(math.ceil(diag / h)) + 3,
+        )
         fields.update(overrides)
         return dataclasses.replace(base, **fields)

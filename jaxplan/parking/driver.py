@@ -11,6 +11,7 @@ table is computed once and shared by all lanes (looked up by offset, never copie
 ``park_out`` renders each scene's grid (once, at the start, in the slot frame)
 and calls ``plan_grids``; the two-corner baseline uses points instead of grids.
 """
+
 from __future__ import annotations
 
 import functools
@@ -82,8 +83,9 @@ def _run_seed(starts, models, n_real, config, vehicle, slots):
         nxt = q + rank
         take = fin & (nxt < n_real)
         new = jax.vmap(init_one)(starts[jnp.clip(nxt, 0, C - 1)])
-        state = jax.tree_util.tree_map(lambda a, b: jnp.where(take.reshape((-1,) + (1,) * (a.ndim - 1)), b, a),
-                                       state, new)
+        state = jax.tree_util.tree_map(
+            lambda a, b: jnp.where(take.reshape((-1,) + (1,) * (a.ndim - 1)), b, a), state, new
+        )
         scene = jnp.where(take, nxt, jnp.where(fin, -1, scene))
         return state, scene, q + jnp.sum(fin), outs
 
@@ -128,8 +130,9 @@ def _run_search(starts, models, ids, n_ids, config, vehicle, table, slots):
         nxt = nq + jnp.cumsum(fin) - 1
         take = fin & (nxt < n_ids)
         new = jax.vmap(start)(jnp.where(take, nxt, -1))
-        lanes = jax.tree_util.tree_map(lambda a, b: jnp.where(take.reshape((-1,) + (1,) * (a.ndim - 1)), b, a),
-                                       lanes, new)
+        lanes = jax.tree_util.tree_map(
+            lambda a, b: jnp.where(take.reshape((-1,) + (1,) * (a.ndim - 1)), b, a), lanes, new
+        )
         lane_q = jnp.where(take, nxt, jnp.where(fin, -1, lane_q))
         return lanes, lane_q, nq + jnp.sum(fin), outs
 
@@ -182,8 +185,16 @@ def _plan_models(starts, models, config: ParkoutConfig, vehicle, slots=None) -> 
         if len(failed):
             Q = _bucket(len(failed))
             ids = jnp.asarray(np.concatenate([failed, np.zeros(Q - len(failed), int)]), jnp.int32)
-            sr = _run_search(st, m, ids, jnp.asarray(len(failed), jnp.int32), config, vehicle, table,
-                             min(SEARCH_SLOTS, max(1, Q // 2)))
+            sr = _run_search(
+                st,
+                m,
+                ids,
+                jnp.asarray(len(failed), jnp.int32),
+                config,
+                vehicle,
+                table,
+                min(SEARCH_SLOTS, max(1, Q // 2)),
+            )
         searches.append((failed, sr))
     parts = []
     for (lo, hi, _, _, res), (failed, sr) in zip(jobs, searches):
@@ -197,8 +208,13 @@ def _plan_models(starts, models, config: ParkoutConfig, vehicle, slots=None) -> 
     return jax.tree_util.tree_map(lambda *a: np.concatenate(a), *parts)
 
 
-def plan_grids(starts, grids: Grid, config: ParkoutConfig = ParkoutConfig(),
-               vehicle: VehicleParams = VehicleParams(), slots: int | None = None) -> ParkoutResult:
+def plan_grids(
+    starts,
+    grids: Grid,
+    config: ParkoutConfig = ParkoutConfig(),
+    vehicle: VehicleParams = VehicleParams(),
+    slots: int | None = None,
+) -> ParkoutResult:
     """Whole park-outs of ``n`` scenes from their grids (planning only; host driver, jitted kernels).
 
     Args:
@@ -216,9 +232,13 @@ def plan_grids(starts, grids: Grid, config: ParkoutConfig = ParkoutConfig(),
         if np.ndim(starts) != 2:
             raise ValueError(f"starts: expected (n, 3), got {np.shape(starts)}")
     dtype = jnp.result_type(float)
-    return _plan_models(jnp.asarray(starts, dtype), GridModel(jnp.asarray(grids.cells, bool),
-                                                              jnp.asarray(grids.pose, dtype)),
-                        config, vehicle, slots)
+    return _plan_models(
+        jnp.asarray(starts, dtype),
+        GridModel(jnp.asarray(grids.cells, bool), jnp.asarray(grids.pose, dtype)),
+        config,
+        vehicle,
+        slots,
+    )
 
 
 def render_scenes(scene: ParkingScene, seed: int, config, vehicle) -> Grid:
@@ -239,9 +259,15 @@ def render_scenes(scene: ParkingScene, seed: int, config, vehicle) -> Grid:
     return Grid(cells=all_cells, pose=jnp.zeros((n, 3), jnp.result_type(float)))
 
 
-def park_out(scene: ParkingScene, key=None, config: ParkoutConfig = ParkoutConfig(),
-             vehicle: VehicleParams = VehicleParams(), model: str = "grid", slots: int | None = None,
-             timing: dict | None = None) -> ParkoutResult:
+def park_out(
+    scene: ParkingScene,
+    key=None,
+    config: ParkoutConfig = ParkoutConfig(),
+    vehicle: VehicleParams = VehicleParams(),
+    model: str = "grid",
+    slots: int | None = None,
+    timing: dict | None = None,
+) -> ParkoutResult:
     """Drive out of the slot: read the grid once at the start, plan every move, drive them.
 
     Args:
@@ -276,7 +302,8 @@ def park_out(scene: ParkingScene, key=None, config: ParkoutConfig = ParkoutConfi
     else:
         t1 = t0
         ref = starts[:, :2] + jnp.asarray(vehicle.center_offset, dtype) * jnp.stack(
-            [jnp.cos(starts[:, 2]), jnp.sin(starts[:, 2])], -1)
+            [jnp.cos(starts[:, 2]), jnp.sin(starts[:, 2])], -1
+        )
         pts, ok = two_corner_points(scene.polygons, scene.valid, ref)
         res = _plan_models(starts, PointModel(pts, ok), config, vehicle, slots)
     if timing is not None:

@@ -18,6 +18,7 @@ right. Families:
   range, unknown 1 m patches (0.5 % of them, beyond 3 m of the car), 3 cm edge
   noise and false positives.
 """
+
 from __future__ import annotations
 
 from typing import Any
@@ -31,8 +32,14 @@ from jaxplan.types import VehicleParams
 FAMILIES = ("standard", "right", "wall", "stopped", "angled", "sensor")
 
 
-def family_scenes(name: str, rng: np.random.Generator, n: int, vehicle: VehicleParams = VehicleParams(),
-                  spare: tuple[float, float] | np.ndarray = (1.5, 3.0), **overrides):
+def family_scenes(
+    name: str,
+    rng: np.random.Generator,
+    n: int,
+    vehicle: VehicleParams = VehicleParams(),
+    spare: tuple[float, float] | np.ndarray = (1.5, 3.0),
+    **overrides,
+):
     """``n`` slot-frame scenes of family ``name``; returns (``ParkingScene``, info dict with ``side`` too).
 
     ``spare``: range of front gap + rear gap in metres (or an ``(n,)`` array).
@@ -72,13 +79,25 @@ def scene_dicts(scene, info, vehicle: VehicleParams, rng: np.random.Generator):
     starts = np.asarray(scene.start, float)
     for i in range(len(starts)):
         road = float(rng.uniform(-np.pi, np.pi))
-        frame = SlotFrame(origin=tuple(rng.uniform(-200, 200, 2)), heading=road,
-                          sign=1 if info["side"][i] == LEFT else -1)
+        frame = SlotFrame(
+            origin=tuple(rng.uniform(-200, 200, 2)), heading=road, sign=1 if info["side"][i] == LEFT else -1
+        )
         start = axle_to_centre(frame.to_world_pose(starts[i]), vehicle)
-        obs = [{"polygon": np.round(frame.to_world_xy(polys[i, k]), 6).tolist()}
-               for k in range(polys.shape[1]) if valid[i, k]]
-        out.append({"vehicle": {f: float(getattr(vehicle, f)) for f in
-                                ("length", "width", "wheelbase", "rear_overhang", "max_steer")},
-                    "start": {"x": float(start[0]), "y": float(start[1]), "heading": float(start[2])},
-                    "road_heading": road, "side": str(info["side"][i]), "obstacles": obs})
+        obs = [
+            {"polygon": np.round(frame.to_world_xy(polys[i, k]), 6).tolist()}
+            for k in range(polys.shape[1])
+            if valid[i, k]
+        ]
+        out.append(
+            {
+                "vehicle": {
+                    f: float(getattr(vehicle, f))
+                    for f in ("length", "width", "wheelbase", "rear_overhang", "max_steer")
+                },
+                "start": {"x": float(start[0]), "y": float(start[1]), "heading": float(start[2])},
+                "road_heading": road,
+                "side": str(info["side"][i]),
+                "obstacles": obs,
+            }
+        )
     return out

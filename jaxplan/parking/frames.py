@@ -6,6 +6,7 @@ whichever is nearer the car's heading) and Y towards the road. A road on the
 car's right is mirrored (Y points right in the world), so the planner always
 sees the road on its left; poses map back with the heading mirrored too.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -42,8 +43,7 @@ class SlotFrame:
             road += np.pi
         off = float(vehicle.length) / 2 - float(vehicle.rear_overhang)
         axle = np.asarray(centre_xy, float) - off * np.array([np.cos(heading), np.sin(heading)])
-        return cls(origin=(float(axle[0]), float(axle[1])), heading=float(wrap(road)),
-                   sign=1 if side == LEFT else -1)
+        return cls(origin=(float(axle[0]), float(axle[1])), heading=float(wrap(road)), sign=1 if side == LEFT else -1)
 
     def _axes(self):
         c, s = np.cos(self.heading), np.sin(self.heading)
@@ -82,13 +82,11 @@ def axle_to_centre(poses, vehicle):
     """Rear-axle poses ``(..., 3)`` to box-centre poses (numpy)."""
     p = np.asarray(poses, float)
     off = float(vehicle.length) / 2 - float(vehicle.rear_overhang)
-    return np.concatenate([p[..., :2] + off * np.stack([np.cos(p[..., 2]), np.sin(p[..., 2])], -1),
-                           p[..., 2:3]], -1)
+    return np.concatenate([p[..., :2] + off * np.stack([np.cos(p[..., 2]), np.sin(p[..., 2])], -1), p[..., 2:3]], -1)
 
 
 def centre_to_axle(poses, vehicle):
     """Box-centre poses ``(..., 3)`` to rear-axle poses (numpy)."""
     p = np.asarray(poses, float)
     off = float(vehicle.length) / 2 - float(vehicle.rear_overhang)
-    return np.concatenate([p[..., :2] - off * np.stack([np.cos(p[..., 2]), np.sin(p[..., 2])], -1),
-                           p[..., 2:3]], -1)
+    return np.concatenate([p[..., :2] - off * np.stack([np.cos(p[..., 2]), np.sin(p[..., 2])], -1), p[..., 2:3]], -1)

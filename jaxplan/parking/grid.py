@@ -11,6 +11,7 @@ The collision check works on a *cell table*: for every row and column the
 column of the next occupied cell at or right of it (``cell_table``), so a row
 interval is one look-up.
 """
+
 from __future__ import annotations
 
 import dataclasses

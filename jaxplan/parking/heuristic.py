@@ -7,6 +7,7 @@ and config by value iteration on a ``(y, heading)`` lattice (host side, numpy):
 moves are arcs of ``step`` metres at the search's steering levels, forward or
 backward, and the value is interpolated bilinearly between lattice points.
 """
+
 from __future__ import annotations
 
 import functools
@@ -82,9 +83,20 @@ def cost_to_go(vehicle, config: ParkoutConfig, step: float = 0.3, dy: float = 0.
 
     d = float(np.max(stop_line(vehicle, config.c)))
     y_lo, y_hi = config.y_min, config.y_min + config.rows * config.cell
-    v, y0, ddy, dth = _table(float(np.min(vehicle.wheelbase)), float(np.min(vehicle.max_steer)), d,
-                             config.out_heading, config.out_tol, tuple(config.steer_levels), step, dy, nth,
-                             y_lo, y_hi, 400)
+    v, y0, ddy, dth = _table(
+        float(np.min(vehicle.wheelbase)),
+        float(np.min(vehicle.max_steer)),
+        d,
+        config.out_heading,
+        config.out_tol,
+        tuple(config.steer_levels),
+        step,
+        dy,
+        nth,
+        y_lo,
+        y_hi,
+        400,
+    )
     return CostToGo(v, y0, ddy, dth)
 
 

@@ -6,6 +6,7 @@ occupancy grid's cell table and frame pose) or a ``PointModel`` (the two-corner
 baseline's points); ``hits_fn`` turns either into ``poses (..., 3) -> (...)
 bool`` with a margin.
 """
+
 from __future__ import annotations
 
 import functools
@@ -53,8 +54,9 @@ def grid_model(grid: Grid) -> GridModel:
 def hits_fn(model, vehicle, config: ParkoutConfig):
     """``check(poses (..., 3), margin=...) -> (...) bool`` for a ``GridModel`` or ``PointModel``."""
     if isinstance(model, GridModel):
-        return functools.partial(footprint_hits_grid, model.table, model.pose, vehicle=vehicle, config=config,
-                                 base=model.base)
+        return functools.partial(
+            footprint_hits_grid, model.table, model.pose, vehicle=vehicle, config=config, base=model.base
+        )
 
     def check(poses, margin=0.0):
         return footprint_hits_points(model.points, model.ok, poses, vehicle=vehicle, margin=margin)
@@ -108,8 +110,13 @@ def _pad(r: Rollout, T: int) -> Rollout:
     if n == T:
         return r
     rep = lambda x, fill: jnp.concatenate([x, jnp.broadcast_to(fill, (T - n,) + x.shape[1:])], 0)  # noqa: E731
-    return r._replace(poses=rep(r.poses, r.poses[-1]), gear=rep(r.gear, r.gear[-1]), steer=rep(r.steer, r.steer[-1]),
-                      s=rep(r.s, r.s[-1]), valid=rep(r.valid, False))
+    return r._replace(
+        poses=rep(r.poses, r.poses[-1]),
+        gear=rep(r.gear, r.gear[-1]),
+        steer=rep(r.steer, r.steer[-1]),
+        s=rep(r.s, r.s[-1]),
+        valid=rep(r.valid, False),
+    )
 
 
 def _plan(pose, check, vehicle, config: ParkoutConfig) -> Plan:
@@ -118,10 +125,26 @@ def _plan(pose, check, vehicle, config: ParkoutConfig) -> Plan:
     hits = functools.partial(check, margin=margin)
     R = turning_radius(vehicle)
     d = stop_line(vehicle, config.c)
-    f = rollout(pose, forward_curve(pose, R, d + config.overshoot), hits, vehicle, config, d + 0.0 * pose[1],
-                config.out_heading, steps=config.steps)
-    b = rollout(pose, backward_curve(pose, R, config.theta1, config.theta2, config.back_cap), hits, vehicle, config,
-                None, config.out_heading, steps=config.back_steps)
+    f = rollout(
+        pose,
+        forward_curve(pose, R, d + config.overshoot),
+        hits,
+        vehicle,
+        config,
+        d + 0.0 * pose[1],
+        config.out_heading,
+        steps=config.steps,
+    )
+    b = rollout(
+        pose,
+        backward_curve(pose, R, config.theta1, config.theta2, config.back_cap),
+        hits,
+        vehicle,
+        config,
+        None,
+        config.out_heading,
+        steps=config.back_steps,
+    )
     return choose(f, _pad(b, config.steps), margin, vehicle, config)
 
 
@@ -130,7 +153,7 @@ def _batched(fn, pose, *args):
     lead = pose.shape[:-1]
     if not lead:
         return fn(pose, *args)
-    flat = jax.tree_util.tree_map(lambda x: x.reshape((-1,) + x.shape[len(lead):]), (pose, args))
+    flat = jax.tree_util.tree_map(lambda x: x.reshape((-1,) + x.shape[len(lead) :]), (pose, args))
     out = jax.vmap(fn)(flat[0], *flat[1])
     return jax.tree_util.tree_map(lambda x: x.reshape(lead + x.shape[1:]), out)
 
@@ -154,8 +177,9 @@ def _check_inputs(pose, grid: Grid, config: ParkoutConfig, vehicle):
         raise ValueError("pose: contains NaN or inf")
 
 
-def plan_parkout(pose, grid: Grid, config: ParkoutConfig = ParkoutConfig(),
-                 vehicle: VehicleParams = VehicleParams()) -> Plan:
+def plan_parkout(
+    pose, grid: Grid, config: ParkoutConfig = ParkoutConfig(), vehicle: VehicleParams = VehicleParams()
+) -> Plan:
     """Plan one park-out move with the seed's two curves on an occupancy grid (jitted).
 
     Args:
@@ -225,10 +249,20 @@ def loop_init(start, config: ParkoutConfig) -> LoopState:
     M, T = config.max_moves, config.steps
     dtype = start.dtype
     f = jnp.zeros((), bool)
-    return LoopState(jnp.zeros((), jnp.int32), start, f, f, f, jnp.zeros((), jnp.int32),
-                     jnp.stack([start[1], wrap_angle(start[2])]), jnp.zeros((M, T, 3), dtype),
-                     jnp.zeros((M, T), bool), jnp.zeros((M,), jnp.int32), jnp.zeros((M, T), dtype),
-                     jnp.zeros((M,), dtype))
+    return LoopState(
+        jnp.zeros((), jnp.int32),
+        start,
+        f,
+        f,
+        f,
+        jnp.zeros((), jnp.int32),
+        jnp.stack([start[1], wrap_angle(start[2])]),
+        jnp.zeros((M, T, 3), dtype),
+        jnp.zeros((M, T), bool),
+        jnp.zeros((M,), jnp.int32),
+        jnp.zeros((M, T), dtype),
+        jnp.zeros((M,), dtype),
+    )
 
 
 PROGRESS_EPS = 0.01  # m of lateral offset or rad of heading that count as progress
@@ -259,13 +293,19 @@ def apply_plan(st: LoopState, plan: Plan, config: ParkoutConfig) -> LoopState:
     kk = jnp.minimum(k, config.max_moves - 1)
     done = st.done | now_stuck | out | (go & (stall >= 2)) | (go & (k + 1 >= config.max_moves))
     return LoopState(
-        k=jnp.where(go, k + 1, k), pose=end, done=done, success=st.success | out, stuck=st.stuck | now_stuck,
-        stall=stall, best=jnp.where(go, jnp.maximum(st.best, yt), st.best),
+        k=jnp.where(go, k + 1, k),
+        pose=end,
+        done=done,
+        success=st.success | out,
+        stuck=st.stuck | now_stuck,
+        stall=stall,
+        best=jnp.where(go, jnp.maximum(st.best, yt), st.best),
         poses=st.poses.at[kk].set(jnp.where(go, tr.poses, st.poses[kk])),
         valid=st.valid.at[kk].set(jnp.where(go, tr.valid, st.valid[kk])),
         gear=st.gear.at[kk].set(jnp.where(go, tr.gear[0].astype(jnp.int32), st.gear[kk])),
         steer=st.steer.at[kk].set(jnp.where(go, tr.steer, st.steer[kk])),
-        length=st.length.at[kk].set(jnp.where(go, tr.length, st.length[kk])))
+        length=st.length.at[kk].set(jnp.where(go, tr.length, st.length[kk])),
+    )
 
 
 def choose(f: Rollout, b: Rollout, margin, vehicle, config: ParkoutConfig) -> Plan:
@@ -282,8 +322,18 @@ def loop_result(st: LoopState, searched=False) -> ParkoutResult:
     ends = jnp.take_along_axis(st.poses, n[:, None, None], axis=1)  # (M, 1, 3)
     poses = jnp.where(st.valid[..., None], st.poses, ends)
     poses = jnp.where(st.valid.any(-1)[:, None, None], poses, st.pose)
-    return ParkoutResult(poses, st.valid, st.gear, st.steer, st.success, st.stuck & ~st.success,
-                         jnp.sum(st.gear != 0), jnp.sum(st.length), st.pose, jnp.asarray(searched))
+    return ParkoutResult(
+        poses,
+        st.valid,
+        st.gear,
+        st.steer,
+        st.success,
+        st.stuck & ~st.success,
+        jnp.sum(st.gear != 0),
+        jnp.sum(st.length),
+        st.pose,
+        jnp.asarray(searched),
+    )
 
 
 def seed_loop(start, model, config: ParkoutConfig, vehicle) -> ParkoutResult:
@@ -294,8 +344,7 @@ def seed_loop(start, model, config: ParkoutConfig, vehicle) -> ParkoutResult:
         model: ``GridModel`` or ``PointModel`` of this scene.
     """
     check = hits_fn(model, vehicle, config)
-    st = lax.while_loop(lambda s: ~s.done, lambda s: seed_step(s, check, vehicle, config),
-                        loop_init(start, config))
+    st = lax.while_loop(lambda s: ~s.done, lambda s: seed_step(s, check, vehicle, config), loop_init(start, config))
     return loop_result(st)
 
 
@@ -305,13 +354,14 @@ def _seed_loop_jit(start, model, config, vehicle):
     if not lead:
         return seed_loop(start, model, config, vehicle)
     n = math.prod(lead)
-    flat = jax.tree_util.tree_map(lambda x: x.reshape((n,) + x.shape[len(lead):]), (start, model))
+    flat = jax.tree_util.tree_map(lambda x: x.reshape((n,) + x.shape[len(lead) :]), (start, model))
     out = jax.vmap(lambda s, m: seed_loop(s, m, config, vehicle))(*flat)
     return jax.tree_util.tree_map(lambda x: x.reshape(lead + x.shape[1:]), out)
 
 
-def park_out_grid(start, grid: Grid, config: ParkoutConfig = ParkoutConfig(),
-                  vehicle: VehicleParams = VehicleParams()) -> ParkoutResult:
+def park_out_grid(
+    start, grid: Grid, config: ParkoutConfig = ParkoutConfig(), vehicle: VehicleParams = VehicleParams()
+) -> ParkoutResult:
     """The seed loop on given grids, in one jitted call (no search; see ``plan_grids`` for the fast
     batch driver with the search). ``start (..., 3)``, ``grid.cells (..., rows, cols)``."""
     if is_concrete(start, grid, vehicle):

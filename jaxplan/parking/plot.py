@@ -1,4 +1,5 @@
 """Picture of one park-out: obstacles, the grid the planner saw, every move and the car's outline."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -9,8 +10,9 @@ from jaxplan.parking.scene_file import car_outline
 IDENTITY = SlotFrame(origin=(0.0, 0.0), heading=0.0, sign=1)
 
 
-def plot_parkout(ax, polygons, result, vehicle, config, frame: SlotFrame = IDENTITY, cells=None,
-                 stop_y=None, title=None):
+def plot_parkout(
+    ax, polygons, result, vehicle, config, frame: SlotFrame = IDENTITY, cells=None, stop_y=None, title=None
+):
     """Draw one park-out on a matplotlib axis, in the world frame of ``frame``.
 
     Args:
@@ -28,14 +30,28 @@ def plot_parkout(ax, polygons, result, vehicle, config, frame: SlotFrame = IDENT
         v = config.y_min + h * np.arange(config.rows + 1)
         uu, vv = np.meshgrid(u, v)
         w = frame.to_world_xy(np.stack([uu, vv], -1))
-        ax.pcolormesh(w[..., 0], w[..., 1], np.ma.masked_where(~c, c.astype(float)), cmap="Greys", vmin=0,
-                      vmax=2.5, shading="flat", rasterized=True)
+        ax.pcolormesh(
+            w[..., 0],
+            w[..., 1],
+            np.ma.masked_where(~c, c.astype(float)),
+            cmap="Greys",
+            vmin=0,
+            vmax=2.5,
+            shading="flat",
+            rasterized=True,
+        )
         edge = frame.to_world_xy(np.array([[u[0], v[0]], [u[-1], v[0]], [u[-1], v[-1]], [u[0], v[-1]]]))
-        ax.add_patch(MplPolygon(edge, closed=True, fill=False, ls=":", ec="0.5", lw=0.8,
-                                label="grid extent (outside = occupied)"))
+        ax.add_patch(
+            MplPolygon(
+                edge, closed=True, fill=False, ls=":", ec="0.5", lw=0.8, label="grid extent (outside = occupied)"
+            )
+        )
     for i, p in enumerate(polygons):
-        ax.add_patch(MplPolygon(np.asarray(p), closed=True, fc="0.35", ec="k", lw=0.6, alpha=0.8,
-                                label="obstacles" if i == 0 else None))
+        ax.add_patch(
+            MplPolygon(
+                np.asarray(p), closed=True, fc="0.35", ec="k", lw=0.6, alpha=0.8, label="obstacles" if i == 0 else None
+            )
+        )
     poses, valid, gear = (np.asarray(a) for a in (result.poses, result.valid, result.gear))
     pts = [frame.to_world_xy(np.zeros(2))]
     first = {1: True, -1: True}
@@ -44,15 +60,19 @@ def plot_parkout(ax, polygons, result, vehicle, config, frame: SlotFrame = IDENT
             continue
         q = axle_to_centre(frame.to_world_pose(poses[m][valid[m]]), vehicle)
         col = "C0" if gear[m] > 0 else "C3"
-        ax.plot(q[:, 0], q[:, 1], color=col, lw=1.8,
-                label=("forward" if gear[m] > 0 else "reverse") if first[int(gear[m])] else None)
+        ax.plot(
+            q[:, 0],
+            q[:, 1],
+            color=col,
+            lw=1.8,
+            label=("forward" if gear[m] > 0 else "reverse") if first[int(gear[m])] else None,
+        )
         first[int(gear[m])] = False
         for j in range(0, len(q), 10):
             ax.add_patch(MplPolygon(car_outline(q[j], vehicle), closed=True, fill=False, ec=col, lw=0.3, alpha=0.5))
         ax.add_patch(MplPolygon(car_outline(q[-1], vehicle), closed=True, fill=False, ec=col, lw=1.0))
         pts.append(q[:, :2])
-    start = axle_to_centre(frame.to_world_pose(poses[0, 0] if gear[0] != 0 else np.asarray(result.final_pose)),
-                           vehicle)
+    start = axle_to_centre(frame.to_world_pose(poses[0, 0] if gear[0] != 0 else np.asarray(result.final_pose)), vehicle)
     ax.add_patch(MplPolygon(car_outline(start, vehicle), closed=True, fill=False, ec="k", lw=1.6, label="start"))
     if bool(result.success):
         fin = axle_to_centre(frame.to_world_pose(np.asarray(result.final_pose)), vehicle)

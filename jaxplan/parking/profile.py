@@ -4,6 +4,7 @@
 Between moves the car stands still while it turns the wheels to the next move's
 first steering angle at ``config.steer_speed``.
 """
+
 from __future__ import annotations
 
 import jax

@@ -1,4 +1,5 @@
 """Pure-pursuit rollout of a kinematic bicycle along a reference curve (``lax.scan``)."""
+
 from __future__ import annotations
 
 from collections.abc import Callable
@@ -48,8 +49,17 @@ class Rollout(NamedTuple):
         p = jnp.where(self.valid[..., None], self.poses, self.end_pose[..., None, :])
         kappa = jnp.tan(self.steer) / vehicle.wheelbase
         z = jnp.zeros_like(self.s)
-        return Trajectory(x=p[..., 0], y=p[..., 1], theta=p[..., 2], kappa=kappa, v=self.gear * speed, a=z,
-                          t=jnp.abs(self.s) / speed, s=self.s, gear=self.gear)
+        return Trajectory(
+            x=p[..., 0],
+            y=p[..., 1],
+            theta=p[..., 2],
+            kappa=kappa,
+            v=self.gear * speed,
+            a=z,
+            t=jnp.abs(self.s) / speed,
+            s=self.s,
+            gear=self.gear,
+        )
 
     @property
     def end_pose(self):
@@ -118,8 +128,16 @@ def project(tr: Track, p, s_min):
 BACKTRACK = 0.1  # m the projection may move back along the curve between steps
 
 
-def rollout(pose, curve: Curve, hits: Callable, vehicle, config: ParkoutConfig, stop_y=None,
-            stop_heading=0.0, steps: int | None = None) -> Rollout:
+def rollout(
+    pose,
+    curve: Curve,
+    hits: Callable,
+    vehicle,
+    config: ParkoutConfig,
+    stop_y=None,
+    stop_heading=0.0,
+    steps: int | None = None,
+) -> Rollout:
     """Drive one curve by pure pursuit and cut it at the first collision.
 
     Each step projects the rear axle onto the curve, aims at the point
@@ -159,9 +177,16 @@ def finish_rollout(poses, exists, goal, steer, clear, gear, config: ParkoutConfi
     nv = jnp.sum(valid)
     k = jnp.arange(T)
     s = gear * config.dl * jnp.minimum(k, jnp.maximum(nv - 1, 0)).astype(dtype)
-    return Rollout(poses=poses, gear=jnp.broadcast_to(gear, (T,)), steer=steer, s=s,
-                   valid=valid, length=config.dl * jnp.maximum(nv - 1, 0).astype(dtype),
-                   complete=jnp.any(goal & valid), cut=jnp.any(exists & ~clear))
+    return Rollout(
+        poses=poses,
+        gear=jnp.broadcast_to(gear, (T,)),
+        steer=steer,
+        s=s,
+        valid=valid,
+        length=config.dl * jnp.maximum(nv - 1, 0).astype(dtype),
+        complete=jnp.any(goal & valid),
+        cut=jnp.any(exists & ~clear),
+    )
 
 
 class CurveGeometry(NamedTuple):

@@ -6,6 +6,7 @@ from a sensor) cuts a grid row's centre line in intervals; the intervals go into
 a difference array and one running sum per row fills the cells. A cell is
 *blocked* when it is occupied or unknown; the planner treats both alike.
 """
+
 from __future__ import annotations
 
 import functools
@@ -82,7 +83,7 @@ def polygon_row_intervals(poly, valid, y_rows, jitter_y=0.0, jitter_x=0.0):
     x = jnp.where(cross & valid[None, :, None], x0 + t * (x1 - x0) + jitter_x, jnp.inf)
     xs = jnp.sort(x, axis=-1)
     m = poly.shape[-2] // 2
-    lo, hi = xs[..., 0:2 * m:2], xs[..., 1:2 * m:2]
+    lo, hi = xs[..., 0 : 2 * m : 2], xs[..., 1 : 2 * m : 2]
     return lo, hi, jnp.isfinite(lo) & jnp.isfinite(hi)
 
 
@@ -128,9 +129,14 @@ def sensor_poses(car_pose, vehicle: VehicleParams):
     """
     a, ro, w = vehicle.length - vehicle.rear_overhang, vehicle.rear_overhang, 0.5 * vehicle.width
     mirror = 0.5 * vehicle.wheelbase + 0.3
-    rel = jnp.stack([jnp.stack([a, 0.0 * a, 0.0 * a]), jnp.stack([-ro, 0.0 * a, jnp.pi + 0.0 * a]),
-                     jnp.stack([mirror + 0.0 * a, w, 0.5 * jnp.pi + 0.0 * a]),
-                     jnp.stack([mirror + 0.0 * a, -w, -0.5 * jnp.pi + 0.0 * a])]).astype(car_pose.dtype)
+    rel = jnp.stack(
+        [
+            jnp.stack([a, 0.0 * a, 0.0 * a]),
+            jnp.stack([-ro, 0.0 * a, jnp.pi + 0.0 * a]),
+            jnp.stack([mirror + 0.0 * a, w, 0.5 * jnp.pi + 0.0 * a]),
+            jnp.stack([mirror + 0.0 * a, -w, -0.5 * jnp.pi + 0.0 * a]),
+        ]
+    ).astype(car_pose.dtype)
     xy = from_frame(car_pose, rel[:, :2])
     return jnp.concatenate([xy, (car_pose[2] + rel[:, 2])[:, None]], axis=-1)
 
@@ -142,8 +148,9 @@ class Layers(NamedTuple):
     unknown: jnp.ndarray
 
 
-def render_layers(scene: ParkingScene, pose, key, config: ParkoutConfig, vehicle: VehicleParams,
-                  car_pose=None, sensors: bool = True) -> Layers:
+def render_layers(
+    scene: ParkingScene, pose, key, config: ParkoutConfig, vehicle: VehicleParams, car_pose=None, sensors: bool = True
+) -> Layers:
     """The occupied and unknown cells of one scene in the grid frame at ``pose (3,)``.
 
     Args:
@@ -180,7 +187,7 @@ def render_layers(scene: ParkingScene, pose, key, config: ParkoutConfig, vehicle
         lo_s, hi_s, ok_s = shadow_row_intervals(poly, scene.valid, to_frame(pose, sp[:2]), yr)
         shadow = _fill(lo_s, hi_s, ok_s, config)
         rel = to_frame(sp, world)
-        return ~shadow & (rel[..., 0] >= 0) & (jnp.sum(rel * rel, -1) <= scene.sensor_range ** 2)
+        return ~shadow & (rel[..., 0] >= 0) & (jnp.sum(rel * rel, -1) <= scene.sensor_range**2)
 
     if sensors:
         seen = jnp.any(jax.vmap(seen_by)(sensor_poses(car, vehicle)), axis=0)
@@ -190,8 +197,9 @@ def render_layers(scene: ParkingScene, pose, key, config: ParkoutConfig, vehicle
     return Layers(occupied=occ & ~under, unknown=unknown & ~under & ~occ)
 
 
-def render_grid(scene: ParkingScene, pose, key, config: ParkoutConfig, vehicle: VehicleParams,
-                car_pose=None, sensors: bool = True) -> Grid:
+def render_grid(
+    scene: ParkingScene, pose, key, config: ParkoutConfig, vehicle: VehicleParams, car_pose=None, sensors: bool = True
+) -> Grid:
     """The grid of one scene in the frame at ``pose (3,)``: blocked = occupied or unknown (``render_layers``)."""
     lay = render_layers(scene, pose, key, config, vehicle, car_pose, sensors)
     return Grid(cells=lay.occupied | lay.unknown, pose=jnp.asarray(pose, jnp.result_type(float)))
@@ -205,8 +213,9 @@ def _render_batch(scenes, keys, config, vehicle, sensors):
     return jax.vmap(one)(scenes, keys)
 
 
-def render_grids(scenes: ParkingScene, seed: int, config: ParkoutConfig, vehicle: VehicleParams,
-                 first: int = 0) -> Grid:
+def render_grids(
+    scenes: ParkingScene, seed: int, config: ParkoutConfig, vehicle: VehicleParams, first: int = 0
+) -> Grid:
     """Grids ``(n, rows, cols)`` of a batch of scenes ``(n,)`` in the slot frame (jitted, one call).
 
     Scene ``i`` gets the noise of key ``(seed, first + i)``.

@@ -13,6 +13,7 @@ centre of the car's box; ``side`` is where the road lies seen from the parked
 car. Obstacle outlines are simple polygons (no self-crossings) of at least
 three vertices, either orientation.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -67,8 +68,9 @@ def _num(v, where, src):
 
 def _obj(v, where, src, fields):
     if not isinstance(v, dict):
-        raise SceneError(f"{src}: {where or 'scene'}: expected an object with {', '.join(fields)}, "
-                         f"got {type(v).__name__}")
+        raise SceneError(
+            f"{src}: {where or 'scene'}: expected an object with {', '.join(fields)}, got {type(v).__name__}"
+        )
     pre = f"{where}." if where else ""
     extra = sorted(set(v) - set(fields))
     if extra:
@@ -81,6 +83,7 @@ def _obj(v, where, src, fields):
 
 def _segments_cross(p, q, a, b):
     """Proper crossings of segments p-q (..., 2) with a-b (..., 2) (numpy; touching is not)."""
+
     def orient(o, u, w):
         return (u[..., 0] - o[..., 0]) * (w[..., 1] - o[..., 1]) - (u[..., 1] - o[..., 1]) * (w[..., 0] - o[..., 0])
 
@@ -142,23 +145,26 @@ def problem_from_dict(d, source: str = "scene") -> ParkoutProblem:
     if vals["wheelbase"] + vals["rear_overhang"] > vals["length"]:
         raise SceneError(f"{src}: vehicle.wheelbase: wheelbase + rear_overhang exceeds length")
     if vals["max_steer"] >= math.radians(60):
-        raise SceneError(f"{src}: vehicle.max_steer: {vals['max_steer']} rad is not below 60 degrees "
-                         f"(angles are in radians)")
+        raise SceneError(
+            f"{src}: vehicle.max_steer: {vals['max_steer']} rad is not below 60 degrees (angles are in radians)"
+        )
     vehicle = VehicleParams(**vals)
     st = _obj(d["start"], "start", src, START_FIELDS)
     sx, sy, sh = (_num(st[f], f"start.{f}", src) for f in START_FIELDS)
     road = _num(d["road_heading"], "road_heading", src)
     side = d["side"]
     if side not in (LEFT, RIGHT):
-        raise SceneError(f"{src}: side: must be \"left\" or \"right\", got {json.dumps(side)[:40]}")
+        raise SceneError(f'{src}: side: must be "left" or "right", got {json.dumps(side)[:40]}')
     mis = abs(wrap(sh - road))
     mis = min(mis, math.pi - mis)
     if math.degrees(mis) > MAX_MISALIGNMENT_DEG:
-        raise SceneError(f"{src}: start.heading: {math.degrees(mis):.0f} degrees from road_heading; a parallel "
-                         f"park-out needs the car within {MAX_MISALIGNMENT_DEG:.0f} degrees of the road")
+        raise SceneError(
+            f"{src}: start.heading: {math.degrees(mis):.0f} degrees from road_heading; a parallel "
+            f"park-out needs the car within {MAX_MISALIGNMENT_DEG:.0f} degrees of the road"
+        )
     obs = d["obstacles"]
     if not isinstance(obs, list):
-        raise SceneError(f"{src}: obstacles: expected a list of {{\"polygon\": [[x, y], ...]}}")
+        raise SceneError(f'{src}: obstacles: expected a list of {{"polygon": [[x, y], ...]}}')
     car = car_outline((sx, sy, sh), vehicle)
     polys = []
     for i, o in enumerate(obs):
@@ -177,7 +183,7 @@ def problem_from_dict(d, source: str = "scene") -> ParkoutProblem:
             raise SceneError(f"{src}: {where}.polygon: repeated consecutive vertex")
         scale = max(1.0, float(np.abs(p - p.mean(0)).max()))
         area = 0.5 * np.sum(p[:, 0] * np.roll(p[:, 1], -1) - np.roll(p[:, 0], -1) * p[:, 1])
-        if abs(area) <= 1e-9 * scale ** 2:
+        if abs(area) <= 1e-9 * scale**2:
             raise SceneError(f"{src}: {where}.polygon: zero area")
         if not _simple(p):
             raise SceneError(f"{src}: {where}.polygon: edges cross each other (not a simple polygon)")
@@ -198,7 +204,7 @@ def slot_scene(polygons, start, **sensor) -> ParkingScene:
     valid = np.zeros(len(arr), bool)
     for i, p in enumerate(polygons):
         arr[i, : len(p)] = p
-        arr[i, len(p):] = p[-1]
+        arr[i, len(p) :] = p[-1]
         valid[i] = True
     if not polygons:
         arr[0] = [[1e3, 1e3], [1e3 + 1, 1e3], [1e3, 1e3 + 1]]
@@ -219,8 +225,9 @@ def stack_scenes(scenes) -> ParkingScene:
         v = np.concatenate([v, np.zeros(k - len(v), bool)])
         return dataclasses.replace(s, polygons=p, valid=v)
 
-    return jax.tree_util.tree_map(lambda *a: jnp.asarray(np.stack([np.asarray(x) for x in a])),
-                                  *[pad(s) for s in scenes])
+    return jax.tree_util.tree_map(
+        lambda *a: jnp.asarray(np.stack([np.asarray(x) for x in a])), *[pad(s) for s in scenes]
+    )
 
 
 def load_problem(path: str) -> ParkoutProblem:
@@ -263,8 +270,11 @@ def result_states(result, problem: ParkoutProblem, config, speeds=None):
 
 def write_result(out_dir: str, success: bool, moves: int, states, v=None, t=None) -> str:
     """Write ``OUT/parkout.json`` (atomically) and return its path."""
-    doc = {"success": bool(success), "moves": int(moves),
-           "states": [[round(float(a), 4) for a in s[:3]] + [int(s[3])] for s in states]}
+    doc = {
+        "success": bool(success),
+        "moves": int(moves),
+        "states": [[round(float(a), 4) for a in s[:3]] + [int(s[3])] for s in states],
+    }
     if v is not None:
         doc["v"] = [round(float(a), 4) for a in v]
         doc["t"] = [round(float(a), 4) for a in t]

@@ -1,4 +1,5 @@
 """Park-out scenes: ``ParkingScene`` (obstacle polygons, start pose, sensor model) and the slot generator."""
+
 from __future__ import annotations
 
 import dataclasses
@@ -48,17 +49,34 @@ class ParkingScene:
     unknown_patches: Any
 
     @classmethod
-    def make(cls, polygons, valid=None, start=None, *, edge_noise=0.0, salt=0.0, occlusion=False,
-             sensor_range=np.inf, unknown_patches=0.0) -> ParkingScene:
+    def make(
+        cls,
+        polygons,
+        valid=None,
+        start=None,
+        *,
+        edge_noise=0.0,
+        salt=0.0,
+        occlusion=False,
+        sensor_range=np.inf,
+        unknown_patches=0.0,
+    ) -> ParkingScene:
         """A scene (or batch) with default start pose and an ideal sensor; validated."""
         p = np.asarray(polygons, np.float64)
         lead = p.shape[:-3]
         f = lambda x, dt=np.float32: jnp.asarray(np.broadcast_to(np.asarray(x, dt), lead))  # noqa: E731
         v = np.ones(p.shape[:-2], bool) if valid is None else np.asarray(valid, bool)
         st = np.zeros(lead + (3,)) if start is None else np.asarray(start, np.float64)
-        scene = cls(polygons=jnp.asarray(p, jnp.float32), valid=jnp.asarray(v), start=jnp.asarray(st, jnp.float32),
-                    edge_noise=f(edge_noise), salt=f(salt), occlusion=f(occlusion, bool),
-                    sensor_range=f(sensor_range), unknown_patches=f(unknown_patches))
+        scene = cls(
+            polygons=jnp.asarray(p, jnp.float32),
+            valid=jnp.asarray(v),
+            start=jnp.asarray(st, jnp.float32),
+            edge_noise=f(edge_noise),
+            salt=f(salt),
+            occlusion=f(occlusion, bool),
+            sensor_range=f(sensor_range),
+            unknown_patches=f(unknown_patches),
+        )
         return scene.validate()
 
     @property
@@ -131,13 +149,30 @@ def hash_uniform_at(seed, ints, stream: int = 0, dtype=jnp.float32):
     return (x >> 8).astype(dtype) * (1.0 / (1 << 24))
 
 
-def make_scenes(rng: np.random.Generator, n: int, vehicle: VehicleParams = VehicleParams(), *,
-                front_gap=1.0, rear_gap=1.0, heading_noise_deg=0.0, offset_noise=0.0,
-                edge_noise=0.0, salt=0.0, clutter: int = 3, curb_gap: tuple[float, float] = (0.25, 0.45),
-                other_width: tuple[float, float] = (1.75, 1.95),
-                other_length: tuple[float, float] = (4.2, 5.0), other_yaw_deg=1.0,
-                other_shift=0.0, wall_y=None, stopped_x=None, stopped_y=None,
-                occlusion=False, sensor_range=np.inf, unknown_patches=0.0):
+def make_scenes(
+    rng: np.random.Generator,
+    n: int,
+    vehicle: VehicleParams = VehicleParams(),
+    *,
+    front_gap=1.0,
+    rear_gap=1.0,
+    heading_noise_deg=0.0,
+    offset_noise=0.0,
+    edge_noise=0.0,
+    salt=0.0,
+    clutter: int = 3,
+    curb_gap: tuple[float, float] = (0.25, 0.45),
+    other_width: tuple[float, float] = (1.75, 1.95),
+    other_length: tuple[float, float] = (4.2, 5.0),
+    other_yaw_deg=1.0,
+    other_shift=0.0,
+    wall_y=None,
+    stopped_x=None,
+    stopped_y=None,
+    occlusion=False,
+    sensor_range=np.inf,
+    unknown_patches=0.0,
+):
     """Random parallel-slot scenes around a parked car (host-side, numpy), in the slot frame.
 
     The curb runs along X; the car's rear axle sits at the origin with a heading
@@ -187,25 +222,49 @@ def make_scenes(rng: np.random.Generator, n: int, vehicle: VehicleParams = Vehic
     boxes[:, CURB] = np.stack([np.zeros(n), yc - 0.15, np.full(n, 60.0), np.full(n, 0.3), np.zeros(n)], -1)
     valid = np.ones((n, K), bool)
     wy = vec(wall_y)
-    boxes[:, WALL] = np.stack([np.zeros(n), np.nan_to_num(wy) + 0.25, np.full(n, 60.0), np.full(n, 0.5),
-                               np.zeros(n)], -1)
+    boxes[:, WALL] = np.stack(
+        [np.zeros(n), np.nan_to_num(wy) + 0.25, np.full(n, 60.0), np.full(n, 0.5), np.zeros(n)], -1
+    )
     valid[:, WALL] = np.isfinite(wy)
     sx, sy = vec(stopped_x), vec(stopped_y)
     sl, sw = rng.uniform(*other_length, n), rng.uniform(*other_width, n)
-    boxes[:, STOPPED] = np.stack([np.nan_to_num(sx) + 0.5 * sl, np.nan_to_num(sy), sl, sw,
-                                  np.radians(2.0) * rng.standard_normal(n)], -1)
+    boxes[:, STOPPED] = np.stack(
+        [np.nan_to_num(sx) + 0.5 * sl, np.nan_to_num(sy), sl, sw, np.radians(2.0) * rng.standard_normal(n)], -1
+    )
     valid[:, STOPPED] = np.isfinite(sx) & np.isfinite(sy)
     for j in range(clutter):
         size = rng.uniform(0.2, 0.6, (n, 2))
-        boxes[:, 7 + j] = np.stack([rng.uniform(-8, 8, n), yc - 0.3 - size[:, 1] / 2 - rng.uniform(0, 2.5, n),
-                                    size[:, 0], size[:, 1], rng.uniform(-np.pi, np.pi, n)], -1)
+        boxes[:, 7 + j] = np.stack(
+            [
+                rng.uniform(-8, 8, n),
+                yc - 0.3 - size[:, 1] / 2 - rng.uniform(0, 2.5, n),
+                size[:, 0],
+                size[:, 1],
+                rng.uniform(-np.pi, np.pi, n),
+            ],
+            -1,
+        )
     start = np.stack([np.zeros(n), np.zeros(n), th0], -1)
     fc = boxes[:, FRONT_CAR]
     cs, sn = np.cos(fc[:, 4]), np.sin(fc[:, 4])
     corner_y = fc[:, 1] - 0.5 * fc[:, 2] * sn * np.sign(cs) + 0.5 * fc[:, 3] * np.abs(cs)
-    info = {"front_gap": gf, "rear_gap": gr, "slot_length": gf + gr + L, "front_corner_y": corner_y,
-            "start": start, "boxes": boxes}
+    info = {
+        "front_gap": gf,
+        "rear_gap": gr,
+        "slot_length": gf + gr + L,
+        "front_corner_y": corner_y,
+        "start": start,
+        "boxes": boxes,
+    }
     poly = np.asarray(box_corners(jnp.asarray(boxes.reshape(-1, 5)))).reshape(n, K, 4, 2)
-    scene = ParkingScene.make(poly, valid, start, edge_noise=edge_noise, salt=salt, occlusion=occlusion,
-                              sensor_range=sensor_range, unknown_patches=unknown_patches)
+    scene = ParkingScene.make(
+        poly,
+        valid,
+        start,
+        edge_noise=edge_noise,
+        salt=salt,
+        occlusion=occlusion,
+        sensor_range=sensor_range,
+        unknown_patches=unknown_patches,
+    )
     return scene, info

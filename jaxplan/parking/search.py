@@ -17,6 +17,7 @@ not dropped by ``PROGRESS`` for ``PATIENCE`` depths, or after ``config.max_moves
 Each arc is one move: the car stops at its end (to change gear or to turn the
 wheels at standstill).
 """
+
 from __future__ import annotations
 
 import functools
@@ -156,24 +157,47 @@ def search_steps(check, config: ParkoutConfig, vehicle, table: CostToGo, dtype):
         k = c.depth
         dead = ~jnp.any(alive) | (wait >= PATIENCE) | (k + 1 >= M)
         return _Carry(
-            depth=k + 1, done=found | dead, found=found, pose=endpose[pick], cost=cost[pick],
-            gear=gp[prim[pick]].astype(jnp.int32), alive=alive, best_h=jnp.minimum(best, c.best_h), wait=wait,
-            h_pose=c.h_pose.at[k + 1].set(endpose[pick]), h_parent=c.h_parent.at[k].set(node[pick]),
-            h_prim=c.h_prim.at[k].set(prim[pick]), h_end=c.h_end.at[k].set(ends[pick]),
-            h_key=c.h_key.at[k + 1].set(key[pick]), h_alive=c.h_alive.at[k + 1].set(alive),
-            sol=jnp.where(found, jnp.stack([node[i_sol], prim[i_sol], ends[i_sol]]), c.sol))
+            depth=k + 1,
+            done=found | dead,
+            found=found,
+            pose=endpose[pick],
+            cost=cost[pick],
+            gear=gp[prim[pick]].astype(jnp.int32),
+            alive=alive,
+            best_h=jnp.minimum(best, c.best_h),
+            wait=wait,
+            h_pose=c.h_pose.at[k + 1].set(endpose[pick]),
+            h_parent=c.h_parent.at[k].set(node[pick]),
+            h_prim=c.h_prim.at[k].set(prim[pick]),
+            h_end=c.h_end.at[k].set(ends[pick]),
+            h_key=c.h_key.at[k + 1].set(key[pick]),
+            h_alive=c.h_alive.at[k + 1].set(alive),
+            sol=jnp.where(found, jnp.stack([node[i_sol], prim[i_sol], ends[i_sol]]), c.sol),
+        )
 
     def init(start):
         """The root alone (one node, not a beam of copies) expanded to the first depth."""
         pose0 = jnp.broadcast_to(start, (B, 3))
         alive0 = jnp.arange(B) == 0
         zi = jnp.zeros((M, B), jnp.int32)
-        root = _Carry(jnp.zeros((), jnp.int32), jnp.zeros((), bool), jnp.zeros((), bool), start[None],
-                      jnp.zeros((1,), dtype), jnp.zeros((1,), jnp.int32), jnp.ones((1,), bool),
-                      jnp.asarray(jnp.inf, dtype), jnp.zeros((), jnp.int32),
-                      jnp.zeros((M + 1, B, 3), dtype).at[0].set(pose0), zi, zi, zi,
-                      jnp.zeros((M + 1, B), jnp.int32).at[0].set(_key(pose0)),
-                      jnp.zeros((M + 1, B), bool).at[0].set(alive0), jnp.zeros((3,), jnp.int32))
+        root = _Carry(
+            jnp.zeros((), jnp.int32),
+            jnp.zeros((), bool),
+            jnp.zeros((), bool),
+            start[None],
+            jnp.zeros((1,), dtype),
+            jnp.zeros((1,), jnp.int32),
+            jnp.ones((1,), bool),
+            jnp.asarray(jnp.inf, dtype),
+            jnp.zeros((), jnp.int32),
+            jnp.zeros((M + 1, B, 3), dtype).at[0].set(pose0),
+            zi,
+            zi,
+            zi,
+            jnp.zeros((M + 1, B), jnp.int32).at[0].set(_key(pose0)),
+            jnp.zeros((M + 1, B), bool).at[0].set(alive0),
+            jnp.zeros((3,), jnp.int32),
+        )
         return body(root)
 
     def depth(c):
@@ -210,7 +234,4 @@ def _finish(c: _Carry, start, kap, gp, steer_p, config: ParkoutConfig, dtype) ->
     gear = jnp.where(use, gp[prim], 0).astype(jnp.int32)
     steer = jnp.broadcast_to(jnp.where(use, steer_p[prim], 0.0)[:, None], (M, T)).astype(dtype)
     length = jnp.sum(jnp.where(use, end.astype(dtype) * dl, 0.0))
-    return ParkoutResult(poses, valid, gear, steer, c.found, ~c.found, jnp.sum(use), length, final,
-                         jnp.asarray(True))
-
-
+    return ParkoutResult(poses, valid, gear, steer, c.found, ~c.found, jnp.sum(use), length, final, jnp.asarray(True))

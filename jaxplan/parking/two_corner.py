@@ -1,4 +1,5 @@
 """Baseline obstacle model: each obstacle reduced to its two corners nearest the car."""
+
 from __future__ import annotations
 
 import jax.numpy as jnp

@@ -9,6 +9,7 @@ Dubins path of the flipped poses (heading + pi) driven backwards.
 
 All functions are elementwise over leading batch dimensions.
 """
+
 from __future__ import annotations
 
 from typing import NamedTuple
@@ -132,8 +133,10 @@ def _advance(pose, sign, length, radius):
     arc_x = x + sign * radius * (jnp.sin(h2) - jnp.sin(h))
     arc_y = y - sign * radius * (jnp.cos(h2) - jnp.cos(h))
     straight = sign == 0
-    return jnp.stack([jnp.where(straight, x + length * jnp.cos(h), arc_x),
-                      jnp.where(straight, y + length * jnp.sin(h), arc_y), h2], -1)
+    return jnp.stack(
+        [jnp.where(straight, x + length * jnp.cos(h), arc_x), jnp.where(straight, y + length * jnp.sin(h), arc_y), h2],
+        -1,
+    )
 
 
 def end_pose(path: DubinsPath):

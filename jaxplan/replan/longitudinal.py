@@ -12,6 +12,7 @@ sub-trajectory, or a brake-stop point). The same law gives
   supervisor's prediction of where the car will be after the planning latency
   (``advance``).
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -52,7 +53,7 @@ def profile_speed(s_abs, leg_start, leg_end, v_in, vmax, accel, decel):
         leg_start, leg_end: ``(N,)`` arc length where each point's leg starts / ends (its stop point).
         v_in: ``(N,)`` speed at the leg start; vmax: ``(N,)`` top speed.
     """
-    up = jnp.sqrt(v_in ** 2 + 2 * accel * jnp.maximum(s_abs - leg_start, 0.0))
+    up = jnp.sqrt(v_in**2 + 2 * accel * jnp.maximum(s_abs - leg_start, 0.0))
     down = jnp.sqrt(2 * decel * jnp.maximum(leg_end - s_abs, 0.0))
     v = jnp.minimum(vmax, jnp.minimum(up, down))
     return jnp.where((s_abs >= leg_start - 1e-6) & (s_abs <= leg_end + 1e-6), v, 0.0)
@@ -83,8 +84,15 @@ def arrival_times(s_abs, s0, v0, s_stop, vmax, limits: MotionLimits):
     ahead = (s_abs >= s0 - 1e-6) & (s_abs <= s_stop + 1e-6)
     # Point 0 of the estimate is the car itself: shift arc lengths so the car sits at s0.
     s = jnp.maximum(s_abs, s0)
-    v = profile_speed(s, leg_start, leg_end, jnp.full((n,), v0, s_abs.dtype), jnp.full((n,), vmax, s_abs.dtype),
-                      limits.accel, limits.decel)
+    v = profile_speed(
+        s,
+        leg_start,
+        leg_end,
+        jnp.full((n,), v0, s_abs.dtype),
+        jnp.full((n,), vmax, s_abs.dtype),
+        limits.accel,
+        limits.decel,
+    )
     # Time from s0 to the first point ahead: (s_1 - s0) at the mean of v0 and v_1.
     j0 = jnp.argmax(ahead)
     t0 = (s[j0] - s0) / jnp.maximum(0.5 * (v0 + v[j0]), 0.05)

@@ -10,6 +10,7 @@ supervisor's intermediate destinations are the park-out planner's own re-plan
 points. Poses are in the scene's initial frame (the parked car's start pose is
 the origin), as the park-out planner expects.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -40,9 +41,16 @@ class ParkoutPlanner:
         cfg, veh = self.config, self.vehicle
         dtype = r.obstacles.dtype
         z = jnp.zeros((), dtype)
-        scene = ParkingScene(polygons=box_corners(r.obstacles), valid=r.obstacles_valid,
-                             start=jnp.asarray(r.start, dtype), edge_noise=z, salt=z, occlusion=jnp.zeros((), bool),
-                             sensor_range=z + jnp.inf, unknown_patches=z)
+        scene = ParkingScene(
+            polygons=box_corners(r.obstacles),
+            valid=r.obstacles_valid,
+            start=jnp.asarray(r.start, dtype),
+            edge_noise=z,
+            salt=z,
+            occlusion=jnp.zeros((), bool),
+            sensor_range=z + jnp.inf,
+            unknown_patches=z,
+        )
         grid = render_grid(scene, jnp.zeros(3, dtype), jnp.zeros((2,), jnp.uint32), cfg, veh, sensors=False)
 
         def move(carry, _):
@@ -50,12 +58,15 @@ class ParkoutPlanner:
             p = plan_parkout(pose, grid, cfg, veh)
             tr = p.trajectory
             go = ~done & (tr.length >= cfg.min_progress)
-            return ((jnp.where(go, tr.end_pose, pose), done | ~go | p.out, out | (go & p.out)),
-                    (tr.poses, tr.gear, tr.valid & go))
+            return (
+                (jnp.where(go, tr.end_pose, pose), done | ~go | p.out, out | (go & p.out)),
+                (tr.poses, tr.gear, tr.valid & go),
+            )
 
         f = jnp.zeros((), bool)
-        (_, _, out), (poses, gear, valid) = jax.lax.scan(move, (jnp.asarray(r.start, dtype), f, f), None,
-                                                         length=cfg.max_moves)
+        (_, _, out), (poses, gear, valid) = jax.lax.scan(
+            move, (jnp.asarray(r.start, dtype), f, f), None, length=cfg.max_moves
+        )
         poses, gear, valid = poses.reshape(-1, 3), gear.reshape(-1).astype(jnp.int32), valid.reshape(-1)
         order = jnp.argsort(~valid, stable=True)  # driven points first, in order
         poses, gear, valid = poses[order], gear[order], valid[order]
@@ -69,8 +80,7 @@ class ParkoutPlanner:
         return finish_plan(poses[:, :2], poses[:, 2], gear, valid, jnp.abs(r.speed), self.limits, ok & out)
 
 
-def parkout_scenarios(seed: int, n: int, planner: ParkoutPlanner = ParkoutPlanner(), phantom: bool = True,
-                      **scene_kw):
+def parkout_scenarios(seed: int, n: int, planner: ParkoutPlanner = ParkoutPlanner(), phantom: bool = True, **scene_kw):
     """``n`` park-out runs for the closed loop (host side): ``jaxplan.parking.make_scenes``
     slots, the parked cars and clutter as real obstacles, and (``phantom``) a false
     positive on the nominal way out that shows for 0.6 s when the car comes within 3 m.
@@ -92,8 +102,19 @@ def parkout_scenarios(seed: int, n: int, planner: ParkoutPlanner = ParkoutPlanne
     boxes = jnp.asarray(info["boxes"], jnp.float32)
     valid = jnp.asarray(scene.valid)
     z3 = jnp.zeros((n, 3))
-    req = PlanRequest(z3, jnp.zeros(n), jnp.ones(n, jnp.int32), jnp.ones(n, jnp.int32), z3, boxes,
-                      jnp.zeros(boxes.shape[:-1] + (2,)), valid, jnp.zeros(n, bool), z3, z3)
+    req = PlanRequest(
+        z3,
+        jnp.zeros(n),
+        jnp.ones(n, jnp.int32),
+        jnp.ones(n, jnp.int32),
+        z3,
+        boxes,
+        jnp.zeros(boxes.shape[:-1] + (2,)),
+        valid,
+        jnp.zeros(n, bool),
+        z3,
+        z3,
+    )
     nominal = jax.jit(jax.vmap(planner))(req)
     last = jnp.sum(nominal.valid, -1) - 1
     take = lambda a: jnp.take_along_axis(a, last[:, None], -1)[:, 0]  # noqa: E731
@@ -101,15 +122,36 @@ def parkout_scenarios(seed: int, n: int, planner: ParkoutPlanner = ParkoutPlanne
     # The phantom sits on the nominal path two thirds of the way along it.
     j = (2 * last) // 3
     pick = lambda a: jnp.take_along_axis(a, j[:, None], -1)[:, 0]  # noqa: E731
-    ph = jnp.stack([pick(nominal.traj.x) + 2.0 * jnp.cos(pick(nominal.traj.theta)),
-                    pick(nominal.traj.y) + 2.0 * jnp.sin(pick(nominal.traj.theta)),
-                    jnp.full(n, 0.6), jnp.full(n, 0.6), jnp.zeros(n)], -1)[:, None]
+    ph = jnp.stack(
+        [
+            pick(nominal.traj.x) + 2.0 * jnp.cos(pick(nominal.traj.theta)),
+            pick(nominal.traj.y) + 2.0 * jnp.sin(pick(nominal.traj.theta)),
+            jnp.full(n, 0.6),
+            jnp.full(n, 0.6),
+            jnp.zeros(n),
+        ],
+        -1,
+    )[:, None]
     keys = jax.random.split(jax.random.PRNGKey(seed), n)
-    sc = Scenario(start=z3, goal=goal, park=jnp.zeros(n, bool), goal_bias=z3, goal_sigma=jnp.zeros(n),
-                  yaw_sigma=jnp.zeros(n), real=boxes, real_valid=valid, phantom=ph,
-                  phantom_valid=jnp.full((n, 1), phantom), phantom_range=jnp.full((n, 1), 3.0),
-                  phantom_dur=jnp.full((n, 1), 0.6), dyn_point=jnp.zeros((n, 1, 2)),
-                  dyn_dir=jnp.tile(jnp.array([[[1.0, 0.0]]]), (n, 1, 1)), dyn_speed=jnp.ones((n, 1)),
-                  dyn_size=jnp.ones((n, 1, 2)), dyn_range=jnp.zeros((n, 1)), dyn_valid=jnp.zeros((n, 1), bool),
-                  key=jnp.asarray(keys))
+    sc = Scenario(
+        start=z3,
+        goal=goal,
+        park=jnp.zeros(n, bool),
+        goal_bias=z3,
+        goal_sigma=jnp.zeros(n),
+        yaw_sigma=jnp.zeros(n),
+        real=boxes,
+        real_valid=valid,
+        phantom=ph,
+        phantom_valid=jnp.full((n, 1), phantom),
+        phantom_range=jnp.full((n, 1), 3.0),
+        phantom_dur=jnp.full((n, 1), 0.6),
+        dyn_point=jnp.zeros((n, 1, 2)),
+        dyn_dir=jnp.tile(jnp.array([[[1.0, 0.0]]]), (n, 1, 1)),
+        dyn_speed=jnp.ones((n, 1)),
+        dyn_size=jnp.ones((n, 1, 2)),
+        dyn_range=jnp.zeros((n, 1)),
+        dyn_valid=jnp.zeros((n, 1), bool),
+        key=jnp.asarray(keys),
+    )
     return sc, nominal

@@ -29,6 +29,7 @@ pull-forward / goal-region targets, and a large
 penalty for a collision (the cheapest colliding candidate is returned with ``ok = False``
 when none is free; the supervisor then keeps its old plan).
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -83,8 +84,7 @@ class ApproachPlanner:
     n_rev: int = 72
     back_up: float = 3.5
     pull_forward: float = 2.5
-    pre_poses: tuple = ((8.0, -4.5, -0.7853981633974483), (9.5, -4.0, -0.7853981633974483),
-                        (7.0, -6.0, -1.2))
+    pre_poses: tuple = ((8.0, -4.5, -0.7853981633974483), (9.5, -4.0, -0.7853981633974483), (7.0, -6.0, -1.2))
     chord_offsets: tuple = (2.5, -2.5)
     obstacle_clearance: float = 0.6
     goal_tol: tuple = (0.2, 0.1)
@@ -140,8 +140,9 @@ class ApproachPlanner:
         d = q[:2] - goal[:2]
         dist = jnp.linalg.norm(d)
         shift = d * jnp.minimum(1.0, self.goal_tol[0] / jnp.maximum(dist, 1e-9))
-        dh = jnp.clip(jnp.arctan2(jnp.sin(q[2] - goal[2]), jnp.cos(q[2] - goal[2])), -self.goal_tol[1],
-                      self.goal_tol[1])
+        dh = jnp.clip(
+            jnp.arctan2(jnp.sin(q[2] - goal[2]), jnp.cos(q[2] - goal[2])), -self.goal_tol[1], self.goal_tol[1]
+        )
         near = jnp.concatenate([goal[:2] + shift, (goal[2] + dh)[None]])
         return jnp.where(self.in_region(r.prev_end, goal), r.prev_end, near)
 
@@ -225,8 +226,9 @@ class ApproachPlanner:
         theta = jnp.concatenate([back[:, 2], fwd[:, 2], rev[:, 2]])
         kap = jnp.concatenate([jnp.zeros(self.n_back), kf, kr])  # d heading / d (unsigned) s
         gear = jnp.concatenate([-jnp.ones(self.n_back), jnp.ones(self.n_fwd), -jnp.ones(self.n_rev)]).astype(jnp.int32)
-        leg_valid = jnp.concatenate([jnp.full((self.n_back,), valid_b), jnp.full((self.n_fwd,), valid_f),
-                                     jnp.full((self.n_rev,), valid_r)])
+        leg_valid = jnp.concatenate(
+            [jnp.full((self.n_back,), valid_b), jnp.full((self.n_fwd,), valid_f), jnp.full((self.n_rev,), valid_r)]
+        )
         # Valid legs to the front (index arithmetic); pad with the last valid point.
         nb = jnp.where(valid_b, self.n_back, 0)
         nf = jnp.where(valid_f, self.n_fwd, 0)
@@ -242,12 +244,14 @@ class ApproachPlanner:
         theta, kap, gear = theta[src], kap[src], gear[src]
         theta = jnp.where(any_valid, theta, start[2])
         # Unwrap headings so interpolation between points is smooth.
-        theta = theta[0] + jnp.concatenate([jnp.zeros(1), jnp.cumsum(jnp.arctan2(jnp.sin(jnp.diff(theta)),
-                                                                                  jnp.cos(jnp.diff(theta))))])
+        theta = theta[0] + jnp.concatenate(
+            [jnp.zeros(1), jnp.cumsum(jnp.arctan2(jnp.sin(jnp.diff(theta)), jnp.cos(jnp.diff(theta))))]
+        )
         # Nothing to drive is a plan only when the car already stands at its (region) target.
         final_target = jnp.where(has_rev, rev_goal, fwd_end)
-        at_target = (jnp.linalg.norm(final_target[:2] - start[:2]) < 1e-3) & \
-            (jnp.abs(jnp.sin(0.5 * (final_target[2] - start[2]))) < 1e-3)
+        at_target = (jnp.linalg.norm(final_target[:2] - start[:2]) < 1e-3) & (
+            jnp.abs(jnp.sin(0.5 * (final_target[2] - start[2]))) < 1e-3
+        )
         first_gear = jnp.where(valid_b, -1, jnp.where(valid_f, 1, jnp.where(valid_r, -1, jnp.sign(r.speed))))
         gear_ok = ~moving | (first_gear == jnp.sign(r.speed))
         length = self.reverse_weight * (back_len + jnp.where(valid_r, len_r, 0.0)) + jnp.where(valid_f, len_f, 0.0)
@@ -256,8 +260,12 @@ class ApproachPlanner:
         close = (e_pos <= self.end_tol[0]) & (e_yaw <= self.end_tol[1])
         reaches = ok_f & (ok_r | ~has_rev) & (any_valid | at_target) & gear_ok & close
         approach = park & ~final_leg  # j indexes the pre-poses; else 0: goal, 1: goal region, 2+: unused
-        extra = (self.back_up_cost * (valid_b | (pull_len > 0)) + self.region_cost * (~approach & (j == 1))
-                 + 1e6 * ~reaches + 1e6 * (~approach & (j > 1)))
+        extra = (
+            self.back_up_cost * (valid_b | (pull_len > 0))
+            + self.region_cost * (~approach & (j == 1))
+            + 1e6 * ~reaches
+            + 1e6 * (~approach & (j > 1))
+        )
         return xy, theta, kap, gear, valid, length + extra, reaches
 
     def candidates(self, r: PlanRequest):
@@ -285,8 +293,7 @@ class ApproachPlanner:
         z = jnp.zeros(r.obstacles.shape[:1], r.obstacles.dtype)
 
         def collides(bx, t, v):
-            sep = plan_separation(bx, t, v, r.obstacles, r.obstacles_vel, z, r.obstacles_valid, self.before,
-                                  self.after)
+            sep = plan_separation(bx, t, v, r.obstacles, r.obstacles_vel, z, r.obstacles_valid, self.before, self.after)
             return jnp.any(sep < 0)
 
         hit = jax.vmap(collides)(boxes, plans.traj.t, valid)
@@ -301,8 +308,9 @@ def nominal_forward_path(planner: ApproachPlanner, start, goal, park: bool, n: i
     ``goal`` (direct, through the pre-pose whose two legs are shortest; for placing scenario obstacles)."""
     import numpy as np
 
-    return np.asarray(_nominal_jit(planner, n)(jnp.asarray(start, jnp.float32), jnp.asarray(goal, jnp.float32),
-                                               jnp.asarray(park)))
+    return np.asarray(
+        _nominal_jit(planner, n)(jnp.asarray(start, jnp.float32), jnp.asarray(goal, jnp.float32), jnp.asarray(park))
+    )
 
 
 _NOMINAL: dict = {}
@@ -310,6 +318,7 @@ _NOMINAL: dict = {}
 
 def _nominal_jit(planner, n):
     if (planner, n) not in _NOMINAL:
+
         def fwd(start, goal, park):
             pres = jnp.stack([planner.pre(goal, j) for j in range(len(planner.pre_poses))])
             R = planner.radius

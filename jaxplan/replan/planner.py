@@ -8,6 +8,7 @@ planner of :mod:`jaxplan.replan.path_planner`, the park-out planner through
 ``finish_plan`` turns a geometric path into a plan with the speed profile and
 time stamps of the shared longitudinal model (:mod:`jaxplan.replan.longitudinal`).
 """
+
 from __future__ import annotations
 
 from typing import NamedTuple
@@ -96,6 +97,15 @@ def finish_plan(xy, theta, gear, valid, v0, limits: MotionLimits, ok, kappa=None
         kappa = jnp.concatenate([jnp.where(ds > 1e-6, dth / jnp.where(ds > 1e-6, ds, 1.0), 0.0), jnp.zeros(1)])
     sgn = leg_gear.astype(xy.dtype)
     s_signed = jnp.concatenate([jnp.zeros(1), jnp.cumsum(ds * sgn[1:])])
-    traj = Trajectory(x=xy[:, 0], y=xy[:, 1], theta=theta, kappa=jnp.where(valid, kappa, 0.0), v=sgn * speed, a=acc,
-                      t=t, s=s_signed, gear=gear)
+    traj = Trajectory(
+        x=xy[:, 0],
+        y=xy[:, 1],
+        theta=theta,
+        kappa=jnp.where(valid, kappa, 0.0),
+        v=sgn * speed,
+        a=acc,
+        t=t,
+        s=s_signed,
+        gear=gear,
+    )
     return Plan(traj, valid, s_abs, jnp.asarray(ok))

@@ -12,6 +12,7 @@ The planner (its candidates, with a margin), the supervisor's collision points, 
 check of a new plan before installing it, and the re-anchoring of remembered collision
 points on a new plan all call ``plan_separation``.
 """
+
 from __future__ import annotations
 
 import jax.numpy as jnp

@@ -15,6 +15,7 @@ The queue survives re-plans: on a new plan every entry is re-anchored
 (``ObstacleMemory``), meets the new plan, or at ``inf`` (kept, but not
 binding) when the new plan passes clear of it.
 """
+
 from __future__ import annotations
 
 from typing import NamedTuple
@@ -49,15 +50,17 @@ class ObstacleMemory(NamedTuple):
 
 
 def memory_init(k: int, dtype=jnp.float32) -> ObstacleMemory:
-    return ObstacleMemory(jnp.zeros((k, 5), dtype), jnp.zeros((k, 2), dtype), jnp.zeros((k,), dtype),
-                          jnp.zeros((k,), bool))
+    return ObstacleMemory(
+        jnp.zeros((k, 5), dtype), jnp.zeros((k, 2), dtype), jnp.zeros((k,), dtype), jnp.zeros((k,), bool)
+    )
 
 
 def memory_update(m: ObstacleMemory, slot, box, vel, t, push) -> ObstacleMemory:
     """Remember slot ``slot``'s obstacle ``box (5,)``, ``vel (2,)`` seen at ``t`` when ``push``."""
     hit = (jnp.arange(m.t.shape[0]) == slot) & push
-    return ObstacleMemory(jnp.where(hit[:, None], box, m.box), jnp.where(hit[:, None], vel, m.vel),
-                          jnp.where(hit, t, m.t), m.valid | hit)
+    return ObstacleMemory(
+        jnp.where(hit[:, None], box, m.box), jnp.where(hit[:, None], vel, m.vel), jnp.where(hit, t, m.t), m.valid | hit
+    )
 
 
 class BrakeStop(NamedTuple):
@@ -70,16 +73,26 @@ class BrakeStop(NamedTuple):
 
 
 def queue_init(size: int = 32, dtype=jnp.float32) -> CollisionQueue:
-    return CollisionQueue(jnp.zeros((size,), dtype), jnp.zeros((size,), dtype), jnp.zeros((size, 2), dtype),
-                          jnp.zeros((size,), jnp.int32), jnp.zeros((size,), bool))
+    return CollisionQueue(
+        jnp.zeros((size,), dtype),
+        jnp.zeros((size,), dtype),
+        jnp.zeros((size, 2), dtype),
+        jnp.zeros((size,), jnp.int32),
+        jnp.zeros((size,), bool),
+    )
 
 
 def queue_push(q: CollisionQueue, t, s, xy, push=True, slot=0) -> CollisionQueue:
     """Insert ``(t, s, xy, slot)`` when ``push``: into a free place, else over the oldest entry."""
     at = jnp.argmin(jnp.where(q.valid, q.t, -jnp.inf))
     hit = (jnp.arange(q.t.shape[0]) == at) & push
-    return CollisionQueue(jnp.where(hit, t, q.t), jnp.where(hit, s, q.s), jnp.where(hit[:, None], xy, q.xy),
-                          jnp.where(hit, slot, q.slot).astype(jnp.int32), q.valid | hit)
+    return CollisionQueue(
+        jnp.where(hit, t, q.t),
+        jnp.where(hit, s, q.s),
+        jnp.where(hit[:, None], xy, q.xy),
+        jnp.where(hit, slot, q.slot).astype(jnp.int32),
+        q.valid | hit,
+    )
 
 
 def queue_reanchor(q: CollisionQueue, slot_s, slot_xy) -> CollisionQueue:
@@ -130,8 +143,9 @@ def first_collision_point(car_boxes, start, end, obs_boxes, obs_valid):
     Returns:
         (index ``()``, found ``()``); index is ``end`` when nothing collides.
     """
-    idx, _, found = collision_arc_length(car_boxes, jnp.zeros(car_boxes.shape[:1], car_boxes.dtype), start, end,
-                                         obs_boxes, obs_valid)
+    idx, _, found = collision_arc_length(
+        car_boxes, jnp.zeros(car_boxes.shape[:1], car_boxes.dtype), start, end, obs_boxes, obs_valid
+    )
     return idx, found
 
 
@@ -148,8 +162,9 @@ def collision_arc_length(car_boxes, s_path, start, end, obs_boxes, obs_valid):
     """
     i = jnp.arange(car_boxes.shape[0])
     sep = box_separation(car_boxes[:, None, :], obs_boxes[None, :, :])
-    sep = jnp.min(jnp.where(obs_valid[None, :] & ((i >= start) & (i <= end))[:, None], sep, jnp.inf), axis=-1,
-                  initial=jnp.inf)
+    sep = jnp.min(
+        jnp.where(obs_valid[None, :] & ((i >= start) & (i <= end))[:, None], sep, jnp.inf), axis=-1, initial=jnp.inf
+    )
     idx, s, found = first_contact(sep, s_path, start)
     return jnp.where(found, idx, end).astype(jnp.int32), s, found
 

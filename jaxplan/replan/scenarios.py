@@ -9,6 +9,7 @@ plan (the planner's plan to the true goal): a real static box beside the path
 (probability ``p_real``), up to two phantoms on it (``p_phantom`` each) and a
 pedestrian that crosses it (``p_dyn``).
 """
+
 from __future__ import annotations
 
 import jax
@@ -21,9 +22,18 @@ from jaxplan.replan.simulator import Scenario
 R, P, D = 1, 2, 1
 
 
-def sample_scenarios(seed: int, n: int, kind: str = "park", planner: ApproachPlanner = ApproachPlanner(),
-                     max_bias: float = 0.8, p_real: float = 0.5, p_phantom: float = 0.6, p_dyn: float = 0.35,
-                     goal_sigma: float = 0.15, yaw_sigma: float = 0.02) -> Scenario:
+def sample_scenarios(
+    seed: int,
+    n: int,
+    kind: str = "park",
+    planner: ApproachPlanner = ApproachPlanner(),
+    max_bias: float = 0.8,
+    p_real: float = 0.5,
+    p_phantom: float = 0.6,
+    p_dyn: float = 0.35,
+    goal_sigma: float = 0.15,
+    yaw_sigma: float = 0.02,
+) -> Scenario:
     """``n`` scenarios of ``kind`` ``"park"`` or ``"drive"``, stacked on a leading axis.
 
     Goal noise: ``goal_sigma`` m (drives: at most 0.1) and ``yaw_sigma`` rad per observation;
@@ -66,12 +76,28 @@ def sample_scenarios(seed: int, n: int, kind: str = "park", planner: ApproachPla
         p, h = on_path(0.35, 0.8)
         sgn = rng.choice([-1.0, 1.0])
         dyn_dir = sgn * np.array([[-np.sin(h), np.cos(h)]])
-        out.append(Scenario(
-            start=start, goal=goal, park=np.array(park), goal_bias=bias,
-            goal_sigma=np.array(goal_sigma if park else min(goal_sigma, 0.1)), yaw_sigma=np.array(yaw_sigma),
-            real=real, real_valid=real_valid, phantom=np.array(ph), phantom_valid=np.array(ph_valid),
-            phantom_range=rng.uniform(6, 10, P), phantom_dur=rng.uniform(0.2, 1.0, P),
-            dyn_point=p[None], dyn_dir=dyn_dir, dyn_speed=rng.uniform(1.0, 1.5, D), dyn_size=np.array([[0.6, 0.6]]),
-            dyn_range=rng.uniform(9, 13, D), dyn_valid=np.array([rng.uniform() < p_dyn]), key=keys[i]))
+        out.append(
+            Scenario(
+                start=start,
+                goal=goal,
+                park=np.array(park),
+                goal_bias=bias,
+                goal_sigma=np.array(goal_sigma if park else min(goal_sigma, 0.1)),
+                yaw_sigma=np.array(yaw_sigma),
+                real=real,
+                real_valid=real_valid,
+                phantom=np.array(ph),
+                phantom_valid=np.array(ph_valid),
+                phantom_range=rng.uniform(6, 10, P),
+                phantom_dur=rng.uniform(0.2, 1.0, P),
+                dyn_point=p[None],
+                dyn_dir=dyn_dir,
+                dyn_speed=rng.uniform(1.0, 1.5, D),
+                dyn_size=np.array([[0.6, 0.6]]),
+                dyn_range=rng.uniform(9, 13, D),
+                dyn_valid=np.array([rng.uniform() < p_dyn]),
+                key=keys[i],
+            )
+        )
     stacked = jax.tree.map(lambda *a: np.stack(a), *out)
     return jax.tree.map(lambda a: jnp.asarray(a, jnp.float32) if a.dtype == np.float64 else jnp.asarray(a), stacked)

@@ -26,6 +26,7 @@ of ``plan_chunk``), so its cost follows the number of re-plans, not the batch si
 ``simulate_host`` runs the same jitted halves of a step in a Python loop for one
 scenario and calls the planner only on re-plans: for planners that are not jittable.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -170,6 +171,7 @@ class _Pre(NamedTuple):
 
 # ---------------------------------------------------------------- perception / truth
 
+
 def _dyn_boxes(sc: Scenario, cfg: SimConfig, t, dyn_t0):
     """Pedestrian boxes ``(D, 5)``, velocities ``(D, 2)`` and active mask ``(D,)`` at time ``t``."""
     walked = sc.dyn_speed * jnp.maximum(t - dyn_t0, 0.0)
@@ -182,8 +184,11 @@ def _dyn_boxes(sc: Scenario, cfg: SimConfig, t, dyn_t0):
 
 def _true_obstacles(sc: Scenario, cfg: SimConfig, t, dyn_t0):
     db, dv, da = _dyn_boxes(sc, cfg, t, dyn_t0)
-    return (jnp.concatenate([sc.real, db]), jnp.concatenate([jnp.zeros_like(sc.real[:, :2]), dv]),
-            jnp.concatenate([sc.real_valid, da]))
+    return (
+        jnp.concatenate([sc.real, db]),
+        jnp.concatenate([jnp.zeros_like(sc.real[:, :2]), dv]),
+        jnp.concatenate([sc.real_valid, da]),
+    )
 
 
 def _perceive(sc: Scenario, cfg: SimConfig, t, pose, ph_seen, dyn_t0) -> Perception:
@@ -214,9 +219,19 @@ def _trigger(sc: Scenario, pose, t, ph_seen, dyn_t0):
 def _plan_shape(cfg: SimConfig, n_obs: int):
     """Shapes of the planner's plan (``jax.eval_shape``)."""
     z3 = jnp.zeros((3,))
-    req = PlanRequest(z3, jnp.zeros(()), jnp.ones((), jnp.int32), jnp.ones((), jnp.int32), z3,
-                      jnp.zeros((n_obs, 5)), jnp.zeros((n_obs, 2)), jnp.zeros((n_obs,), bool), jnp.zeros((), bool),
-                      z3, z3)
+    req = PlanRequest(
+        z3,
+        jnp.zeros(()),
+        jnp.ones((), jnp.int32),
+        jnp.ones((), jnp.int32),
+        z3,
+        jnp.zeros((n_obs, 5)),
+        jnp.zeros((n_obs, 2)),
+        jnp.zeros((n_obs,), bool),
+        jnp.zeros((), bool),
+        z3,
+        z3,
+    )
     return jax.eval_shape(cfg.planner, req)
 
 
@@ -229,13 +244,27 @@ def init_state(sc: Scenario, cfg: SimConfig) -> WorldState:
     like = jax.tree.map(lambda a: jnp.zeros(a.shape, a.dtype), _plan_shape(cfg, R + P + D))
     sup = init(like, sc.start, goal_est, R + P + D, cfg.supervisor, cfg.vehicle)
     z = jnp.zeros(())
-    return WorldState(t=z, key=key, sup=sup, pose=jnp.asarray(sc.start, jnp.float32), v=z, s=z, lat=z,
-                      goal_est=goal_est, ph_seen=jnp.full((P,), jnp.inf), dyn_t0=jnp.full((D,), jnp.inf),
-                      done=jnp.zeros((), bool), success=jnp.zeros((), bool), collided=jnp.zeros((), bool),
-                      t_done=jnp.full((), jnp.nan), n_unnecessary=jnp.zeros((), jnp.int32))
+    return WorldState(
+        t=z,
+        key=key,
+        sup=sup,
+        pose=jnp.asarray(sc.start, jnp.float32),
+        v=z,
+        s=z,
+        lat=z,
+        goal_est=goal_est,
+        ph_seen=jnp.full((P,), jnp.inf),
+        dyn_t0=jnp.full((D,), jnp.inf),
+        done=jnp.zeros((), bool),
+        success=jnp.zeros((), bool),
+        collided=jnp.zeros((), bool),
+        t_done=jnp.full((), jnp.nan),
+        n_unnecessary=jnp.zeros((), jnp.int32),
+    )
 
 
 # ---------------------------------------------------------------- one step, in two halves
+
 
 def step_pre(w: WorldState, sc: Scenario, strategy, cfg: SimConfig) -> _Pre:
     """Perception and the supervisor's tick."""
@@ -248,8 +277,7 @@ def step_pre(w: WorldState, sc: Scenario, strategy, cfg: SimConfig) -> _Pre:
     goal_est = jnp.concatenate([(1 - a) * w.goal_est[:2] + a * obs[:2], (w.goal_est[2] + a * dyaw)[None]])
     ph_seen, dyn_t0 = _trigger(sc, w.pose, t, w.ph_seen, w.dyn_t0)
     per = _perceive(sc, cfg, t, w.pose, ph_seen, dyn_t0)
-    sup, dec = supervise(w.sup, CarState(w.pose, w.v, w.s), per, goal_est, t, strategy, sc.park, sup_cfg,
-                         cfg.vehicle)
+    sup, dec = supervise(w.sup, CarState(w.pose, w.v, w.s), per, goal_est, t, strategy, sc.park, sup_cfg, cfg.vehicle)
     # Was a re-plan needed? The rest of the current sub-trajectory meets a real obstacle (time-aware,
     # true motion), or the plan's end misses the true goal, or the car is lost.
     plan = sup.plan
@@ -260,8 +288,9 @@ def step_pre(w: WorldState, sc: Scenario, strategy, cfg: SimConfig) -> _Pre:
     blocked = jnp.any(sep < 0)
     last = last_valid_index(plan.valid)
     end_err = jnp.linalg.norm(plan.traj.xy[last] - sc.goal[:2])
-    end_yaw = jnp.abs(jnp.arctan2(jnp.sin(plan.traj.theta[last] - sc.goal[2]),
-                                  jnp.cos(plan.traj.theta[last] - sc.goal[2])))
+    end_yaw = jnp.abs(
+        jnp.arctan2(jnp.sin(plan.traj.theta[last] - sc.goal[2]), jnp.cos(plan.traj.theta[last] - sc.goal[2]))
+    )
     necessary = blocked | (end_err > cfg.success_pos) | (end_yaw > cfg.success_yaw) | dec.lost | ~plan.ok
     world = w._replace(t=t, key=key, sup=sup, s=s, goal_est=goal_est, ph_seen=ph_seen, dyn_t0=dyn_t0)
     return _Pre(world, dec, necessary)
@@ -283,8 +312,9 @@ def step_post(pre: _Pre, new_plan: Plan, sc: Scenario, cfg: SimConfig):
     v = jnp.where(w.done, 0.0, v)
     s, v = move(w.s, v, dec.s_end, dt)
     key, kn = jax.random.split(w.key)
-    lat = jnp.where(v > 0, jnp.clip(0.9 * w.lat + cfg.lat_sigma * jax.random.normal(kn), -cfg.lat_max, cfg.lat_max),
-                    w.lat)
+    lat = jnp.where(
+        v > 0, jnp.clip(0.9 * w.lat + cfg.lat_sigma * jax.random.normal(kn), -cfg.lat_max, cfg.lat_max), w.lat
+    )
     plan = sup.plan
     p, h, _ = interpolate_pose(plan.traj.xy, plan.traj.theta, plan.s_abs, s)
     pose = jnp.concatenate([p + lat * jnp.stack([-jnp.sin(h), jnp.cos(h)]), h[None]])
@@ -298,18 +328,41 @@ def step_post(pre: _Pre, new_plan: Plan, sc: Scenario, cfg: SimConfig):
     pos_err = jnp.linalg.norm(w.pose[:2] - sc.goal[:2])
     yaw_err = jnp.abs(jnp.arctan2(jnp.sin(w.pose[2] - sc.goal[2]), jnp.cos(w.pose[2] - sc.goal[2])))
     good = (pos_err <= cfg.success_pos) & (yaw_err <= cfg.success_yaw) & ~w.collided
-    w = w._replace(key=key, sup=sup, pose=pose, v=v_signed, s=s, lat=lat, collided=collided,
-                   done=w.done | now_done, success=w.success | (now_done & good),
-                   t_done=jnp.where(now_done, w.t, w.t_done),
-                   n_unnecessary=w.n_unnecessary + (dec.reason > 0) * ~pre.necessary)
-    log = StepLog(t=w.t, v=v_signed, gear=dec.direction, queue_size=jnp.sum(sup.queue.valid).astype(jnp.int32),
-                  brake_dist=jnp.where(sup.brake.active, sup.brake.s - s, jnp.nan), replan=dec.reason > 0,
-                  reason=dec.reason, installed=dec.installed, rejected=jnp.any(dec.rejected),
-                  necessary=pre.necessary, x=pose[0], y=pose[1], heading=pose[2], collided=collided, done=w.done)
+    w = w._replace(
+        key=key,
+        sup=sup,
+        pose=pose,
+        v=v_signed,
+        s=s,
+        lat=lat,
+        collided=collided,
+        done=w.done | now_done,
+        success=w.success | (now_done & good),
+        t_done=jnp.where(now_done, w.t, w.t_done),
+        n_unnecessary=w.n_unnecessary + (dec.reason > 0) * ~pre.necessary,
+    )
+    log = StepLog(
+        t=w.t,
+        v=v_signed,
+        gear=dec.direction,
+        queue_size=jnp.sum(sup.queue.valid).astype(jnp.int32),
+        brake_dist=jnp.where(sup.brake.active, sup.brake.s - s, jnp.nan),
+        replan=dec.reason > 0,
+        reason=dec.reason,
+        installed=dec.installed,
+        rejected=jnp.any(dec.rejected),
+        necessary=pre.necessary,
+        x=pose[0],
+        y=pose[1],
+        heading=pose[2],
+        collided=collided,
+        done=w.done,
+    )
     return w, log
 
 
 # ---------------------------------------------------------------- batched loop
+
 
 def _plan_for(planner, requests: PlanRequest, ask, fallback: Plan, chunk: int) -> Plan:
     """Plans ``(B, ...)`` for the runs with ``ask`` (others get ``fallback``): the asking runs
@@ -409,6 +462,15 @@ def run_summary(final: WorldState) -> dict:
     """Per-run figures (numpy arrays over the batch)."""
     f = jax.tree.map(np.asarray, final)
     sup = f.sup
-    return {"replans": sup.n_replan, "unnecessary": f.n_unnecessary, "collided": f.collided, "success": f.success,
-            "time_to_goal": f.t_done, "end_jumps": sup.n_jumps, "replans_moving": sup.n_replan_moving,
-            "done": f.done, "reasons": sup.n_reason, "rejected": sup.n_rejected}
+    return {
+        "replans": sup.n_replan,
+        "unnecessary": f.n_unnecessary,
+        "collided": f.collided,
+        "success": f.success,
+        "time_to_goal": f.t_done,
+        "end_jumps": sup.n_jumps,
+        "replans_moving": sup.n_replan_moving,
+        "done": f.done,
+        "reasons": sup.n_reason,
+        "rejected": sup.n_rejected,
+    }

@@ -43,6 +43,7 @@ Everything else is the same for every strategy (``supervise``, ``submit``):
 ``supervise`` is one jittable function of small pytrees, so any simulator (or a
 real stack) can call it every tick and call its planner when it says so.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -125,8 +126,20 @@ class SupervisorConfig:
         for f in ("dt", "collision_hz", "periodic_hz", "v_stopped", "at_point_tol", "track_max_dist", "stitch_tol"):
             if not float(getattr(self, f)) > 0:
                 raise ValueError(f"SupervisorConfig.{f} must be positive, got {getattr(self, f)}")
-        for f in ("window_s", "brake_safety", "goal_pos_thresh", "goal_yaw_thresh", "lost_time", "retry_s",
-                  "latency_s", "debounce_s", "before", "after", "keep_s", "clearance"):
+        for f in (
+            "window_s",
+            "brake_safety",
+            "goal_pos_thresh",
+            "goal_yaw_thresh",
+            "lost_time",
+            "retry_s",
+            "latency_s",
+            "debounce_s",
+            "before",
+            "after",
+            "keep_s",
+            "clearance",
+        ):
             if not float(getattr(self, f)) >= 0:
                 raise ValueError(f"SupervisorConfig.{f} must be >= 0, got {getattr(self, f)}")
         for f in ("queue_size", "track_window", "max_sub", "prefix_points"):
@@ -152,8 +165,21 @@ def goal_moved(goal_est, plan_goal, cfg: SupervisorConfig):
     return (d > cfg.goal_pos_thresh) | (dy > cfg.goal_yaw_thresh)
 
 
-def replan_decision(strategy, cfg: SupervisorConfig, *, stopped, at_gear_shift, at_brake_stop, goal_moved,
-                    new_collision, lost_stopped, since_replan, done, at_blocked_end=False, busy=False):
+def replan_decision(
+    strategy,
+    cfg: SupervisorConfig,
+    *,
+    stopped,
+    at_gear_shift,
+    at_brake_stop,
+    goal_moved,
+    new_collision,
+    lost_stopped,
+    since_replan,
+    done,
+    at_blocked_end=False,
+    busy=False,
+):
     """Whether to re-plan now and why.
 
     Args (all ``(...)`` arrays): strategy (int code); stopped (speed below
@@ -174,8 +200,9 @@ def replan_decision(strategy, cfg: SupervisorConfig, *, stopped, at_gear_shift, 
     periodic_reason = jnp.where(since_replan >= 1.0 / cfg.periodic_hz - eps, PERIOD, NO_REPLAN)
     settled = since_replan >= cfg.debounce_s - eps
     immediate_reason = jnp.where(new_collision & settled, OBSTACLE, jnp.where(goal_moved & settled, GOAL, NO_REPLAN))
-    reason = jnp.where(strategy == LAZY, lazy_reason, jnp.where(strategy == PERIODIC, periodic_reason,
-                                                                  immediate_reason))
+    reason = jnp.where(
+        strategy == LAZY, lazy_reason, jnp.where(strategy == PERIODIC, periodic_reason, immediate_reason)
+    )
     blocked_end = stopped & at_blocked_end & (since_replan >= cfg.retry_s - eps)
     reason = jnp.where(blocked_end & (reason == NO_REPLAN), OBSTACLE, reason)
     reason = jnp.where(lost_stopped, LOST, reason)
@@ -269,13 +296,15 @@ def placeholder_plan(like: Plan, pose, extra: int = 0) -> Plan:
     (the car holds it until the first plan arrives)."""
     plan = jax.tree.map(lambda a: jnp.zeros(a.shape[:-1] + (a.shape[-1] + extra,) if a.ndim else (), a.dtype), like)
     tr = plan.traj
-    tr = dataclasses.replace(tr, x=tr.x + pose[0], y=tr.y + pose[1], theta=tr.theta + pose[2],
-                             gear=jnp.ones_like(tr.gear))
+    tr = dataclasses.replace(
+        tr, x=tr.x + pose[0], y=tr.y + pose[1], theta=tr.theta + pose[2], gear=jnp.ones_like(tr.gear)
+    )
     return plan._replace(traj=tr, valid=plan.valid.at[0].set(True), ok=jnp.zeros((), bool))
 
 
-def init(plan_like: Plan, pose, goal, n_obstacles: int, cfg: SupervisorConfig, vehicle: VehicleParams
-         ) -> SupervisorState:
+def init(
+    plan_like: Plan, pose, goal, n_obstacles: int, cfg: SupervisorConfig, vehicle: VehicleParams
+) -> SupervisorState:
     """State before the first tick: a placeholder plan at ``pose``; the first tick asks for a plan.
 
     ``plan_like``: a plan of the planner's shape ``(N,)``; the installed plans have
@@ -285,13 +314,36 @@ def init(plan_like: Plan, pose, goal, n_obstacles: int, cfg: SupervisorConfig, v
     lo, hi, dirs, nsub = sub_trajectories(plan.traj.gear, plan.valid, cfg.max_sub)
     z, zi, f = jnp.zeros(()), jnp.zeros((), jnp.int32), jnp.zeros((), bool)
     return SupervisorState(
-        plan=plan, boxes=_car_boxes(plan, vehicle, cfg), lo=lo, hi=hi, dirs=dirs, nsub=nsub,
-        k=zi, track_idx=zi, lost_t=z, queue=queue_init(cfg.queue_size), memory=memory_init(n_obstacles),
-        brake=brake_init(), plan_goal=jnp.asarray(goal, jnp.float32), last_replan_t=z, tick=zi, pending=f,
-        pending_plan=placeholder_plan(plan_like, pose), ready_t=z, req_s=z, req_v=z, stitch_s=z,
+        plan=plan,
+        boxes=_car_boxes(plan, vehicle, cfg),
+        lo=lo,
+        hi=hi,
+        dirs=dirs,
+        nsub=nsub,
+        k=zi,
+        track_idx=zi,
+        lost_t=z,
+        queue=queue_init(cfg.queue_size),
+        memory=memory_init(n_obstacles),
+        brake=brake_init(),
+        plan_goal=jnp.asarray(goal, jnp.float32),
+        last_replan_t=z,
+        tick=zi,
+        pending=f,
+        pending_plan=placeholder_plan(plan_like, pose),
+        ready_t=z,
+        req_s=z,
+        req_v=z,
+        stitch_s=z,
         pending_goal=jnp.asarray(goal, jnp.float32),
-        first=jnp.ones((), bool), done=f, n_replan=zi, n_replan_moving=zi, n_reason=jnp.zeros((5,), jnp.int32),
-        n_rejected=jnp.zeros((3,), jnp.int32), n_jumps=zi)
+        first=jnp.ones((), bool),
+        done=f,
+        n_replan=zi,
+        n_replan_moving=zi,
+        n_reason=jnp.zeros((5,), jnp.int32),
+        n_rejected=jnp.zeros((3,), jnp.int32),
+        n_jumps=zi,
+    )
 
 
 def _car_boxes(plan: Plan, vehicle: VehicleParams, cfg: SupervisorConfig):
@@ -357,8 +409,17 @@ def submit(state: SupervisorState, plan: Plan, decision: Decision) -> Supervisor
     return state._replace(pending_plan=pend)
 
 
-def supervise(state: SupervisorState, car: CarState, per: Perception, goal_est, t, strategy, park,
-              cfg: SupervisorConfig, vehicle: VehicleParams):
+def supervise(
+    state: SupervisorState,
+    car: CarState,
+    per: Perception,
+    goal_est,
+    t,
+    strategy,
+    park,
+    cfg: SupervisorConfig,
+    vehicle: VehicleParams,
+):
     """One tick at time ``t``: install an arrived plan (after checking it), track, find
     collision points, update queue and brake-stop point, decide whether to re-plan.
 
@@ -391,7 +452,7 @@ def supervise(state: SupervisorState, car: CarState, per: Perception, goal_est, 
     # A gear change needs the car stopped: the first sub-trajectory must not end (in a gear shift)
     # nearer than the car's braking distance.
     to_shift = new.s_abs[hi_n[0]] - jnp.maximum(s_rel, 0.0)
-    gear_bad = moving & (nsub_n > 1) & (to_shift < speed ** 2 / (2 * cfg.limits.decel) - 0.05)
+    gear_bad = moving & (nsub_n > 1) & (to_shift < speed**2 / (2 * cfg.limits.decel) - 0.05)
     bad = jnp.stack([collides & ~stale, gear_bad & ~stale & ~collides, stale])
     accept = arrive & ~jnp.any(bad)
     rejected = arrive & bad
@@ -399,16 +460,28 @@ def supervise(state: SupervisorState, car: CarState, per: Perception, goal_est, 
     mem = state.memory
     i = jnp.arange(new.valid.shape[0])
     tau_n = _leg_times(new, lo_n, hi_n, dirs_n, 0, jnp.maximum(s_rel, 0.0), speed, cfg)
-    idx_m, s_m, found_m, _ = _contacts(new, new_boxes, (i <= hi_n[0]) & new.valid, tau_n, mem.box, mem.vel,
-                                       t - mem.t, mem.valid, cfg)
+    idx_m, s_m, found_m, _ = _contacts(
+        new, new_boxes, (i <= hi_n[0]) & new.valid, tau_n, mem.box, mem.vel, t - mem.t, mem.valid, cfg
+    )
     q_new = queue_reanchor(state.queue, jnp.where(found_m, s_m, jnp.inf), new.traj.xy[idx_m])
     brake_new = update_brake_stop(brake_init(), q_new, cfg.brake_safety)
     new_last = last_valid_index(new.valid)
     jump = jnp.linalg.norm(new.traj.xy[new_last] - old.traj.xy[last_valid_index(old.valid)]) > 0.1
-    installed = state._replace(plan=new, boxes=new_boxes, lo=lo_n, hi=hi_n, dirs=dirs_n, nsub=nsub_n,
-                               k=jnp.zeros((), jnp.int32), track_idx=jnp.zeros((), jnp.int32), queue=q_new,
-                               brake=brake_new, plan_goal=state.pending_goal,
-                               n_jumps=state.n_jumps + (jump & ~state.first), first=jnp.zeros((), bool))
+    installed = state._replace(
+        plan=new,
+        boxes=new_boxes,
+        lo=lo_n,
+        hi=hi_n,
+        dirs=dirs_n,
+        nsub=nsub_n,
+        k=jnp.zeros((), jnp.int32),
+        track_idx=jnp.zeros((), jnp.int32),
+        queue=q_new,
+        brake=brake_new,
+        plan_goal=state.pending_goal,
+        n_jumps=state.n_jumps + (jump & ~state.first),
+        first=jnp.zeros((), bool),
+    )
     st = jax.tree.map(lambda a, b: jnp.where(accept, a, b), installed, state)
     st = st._replace(pending=state.pending & ~arrive, n_rejected=state.n_rejected + rejected)
     s = jnp.where(accept, jnp.maximum(s_rel, 0.0), car.s)
@@ -420,8 +493,9 @@ def supervise(state: SupervisorState, car: CarState, per: Perception, goal_est, 
     xy = plan.traj.xy
     lo_k, hi_k, dir_k = st.lo[k], st.hi[k], st.dirs[k]
     start = jnp.maximum(st.track_idx, lo_k)
-    tp = find_tracking_point_directional(xy, plan.traj.gear, car.pose[:2], car.pose[2], dir_k, start, hi_k,
-                                         cfg.track_window, cfg.track_max_dist)
+    tp = find_tracking_point_directional(
+        xy, plan.traj.gear, car.pose[:2], car.pose[2], dir_k, start, hi_k, cfg.track_window, cfg.track_max_dist
+    )
     at_point = jnp.linalg.norm(xy[start] - car.pose[:2]) <= cfg.at_point_tol
     track_idx = jnp.where(tp.found, tp.index, start)
     lost_t = jnp.where(tp.found | at_point | st.first, 0.0, st.lost_t + dt)
@@ -454,10 +528,20 @@ def supervise(state: SupervisorState, car: CarState, per: Perception, goal_est, 
     arrived = ~st.first & at_final & stopped & ~at_brake & plan.ok & ~st.pending
     done = st.done | arrived
     since = t - st.last_replan_t
-    replan, reason = replan_decision(strategy, cfg, stopped=stopped, at_gear_shift=at_gear_shift,
-                                     at_brake_stop=at_brake, goal_moved=moved, new_collision=new_collision,
-                                     lost_stopped=lost & stopped, since_replan=since, done=done,
-                                     at_blocked_end=at_final & ~plan.ok & ~st.first, busy=st.pending)
+    replan, reason = replan_decision(
+        strategy,
+        cfg,
+        stopped=stopped,
+        at_gear_shift=at_gear_shift,
+        at_brake_stop=at_brake,
+        goal_moved=moved,
+        new_collision=new_collision,
+        lost_stopped=lost & stopped,
+        since_replan=since,
+        done=done,
+        at_blocked_end=at_final & ~plan.ok & ~st.first,
+        busy=st.pending,
+    )
     replan = (replan | st.first) & ~st.pending
     counted = replan & ~st.first
 
@@ -477,31 +561,61 @@ def supervise(state: SupervisorState, car: CarState, per: Perception, goal_est, 
     gear_req = jnp.where(st.first, 1, st.dirs[k_req]).astype(jnp.int32)
     final_leg = park & ~st.first & (k_req == st.nsub - 1) & (st.dirs[k_req] < 0)
     lat = cfg.latency_steps * dt
-    request = PlanRequest(start=pose_st, speed=gear_req * v_st, gear=gear_req,
-                          phase=jnp.where(final_leg, -1, 1).astype(jnp.int32), goal=goal_est,
-                          obstacles=per.boxes.at[:, :2].add(per.vel * lat), obstacles_vel=per.vel,
-                          obstacles_valid=per.valid, park=jnp.asarray(park),
-                          prev_end=jnp.stack([plan.traj.x[old_last], plan.traj.y[old_last], plan.traj.theta[old_last]]),
-                          prev_via=jnp.stack([plan.traj.x[hi_k], plan.traj.y[hi_k], plan.traj.theta[hi_k]]))
+    request = PlanRequest(
+        start=pose_st,
+        speed=gear_req * v_st,
+        gear=gear_req,
+        phase=jnp.where(final_leg, -1, 1).astype(jnp.int32),
+        goal=goal_est,
+        obstacles=per.boxes.at[:, :2].add(per.vel * lat),
+        obstacles_vel=per.vel,
+        obstacles_valid=per.valid,
+        park=jnp.asarray(park),
+        prev_end=jnp.stack([plan.traj.x[old_last], plan.traj.y[old_last], plan.traj.theta[old_last]]),
+        prev_via=jnp.stack([plan.traj.x[hi_k], plan.traj.y[hi_k], plan.traj.theta[hi_k]]),
+    )
 
     # 6. Gear shift at the end of a sub-trajectory (stopped, no plan in the making).
     shift = at_gear_shift & stopped & ~replan & ~st.pending
     k_next = jnp.where(shift, k + 1, k)
     track_next = jnp.where(shift, st.lo[jnp.minimum(k_next, st.lo.shape[0] - 1)], track_idx)
 
-    st = st._replace(k=k_next, track_idx=track_next, lost_t=lost_t, queue=q, memory=memory, brake=brake,
-                     tick=st.tick + 1, done=done,
-                     pending=st.pending | replan, ready_t=jnp.where(replan, t + lat, st.ready_t),
-                     stitch_s=jnp.where(replan, s_st, st.stitch_s), req_s=jnp.where(replan, s, st.req_s),
-                     req_v=jnp.where(replan, speed, st.req_v),
-                     pending_goal=jnp.where(replan, goal_est, st.pending_goal),
-                     last_replan_t=jnp.where(replan, t, st.last_replan_t),
-                     n_replan=st.n_replan + counted, n_replan_moving=st.n_replan_moving + (counted & moving),
-                     n_reason=st.n_reason + (counted & (jnp.arange(5) == reason)))
+    st = st._replace(
+        k=k_next,
+        track_idx=track_next,
+        lost_t=lost_t,
+        queue=q,
+        memory=memory,
+        brake=brake,
+        tick=st.tick + 1,
+        done=done,
+        pending=st.pending | replan,
+        ready_t=jnp.where(replan, t + lat, st.ready_t),
+        stitch_s=jnp.where(replan, s_st, st.stitch_s),
+        req_s=jnp.where(replan, s, st.req_s),
+        req_v=jnp.where(replan, speed, st.req_v),
+        pending_goal=jnp.where(replan, goal_est, st.pending_goal),
+        last_replan_t=jnp.where(replan, t, st.last_replan_t),
+        n_replan=st.n_replan + counted,
+        n_replan_moving=st.n_replan_moving + (counted & moving),
+        n_reason=st.n_reason + (counted & (jnp.arange(5) == reason)),
+    )
     hi_now = st.hi[k_next]
     s_end = plan.s_abs[hi_now]
     stop_s = jnp.where(brake.active, jnp.minimum(brake.s, s_end), s_end)
-    dec = Decision(replan=replan, reason=jnp.where(counted, reason, NO_REPLAN), request=request, installed=accept,
-                   s_offset=s_offset, rejected=rejected, stop_s=stop_s, s_end=s_end, direction=st.dirs[k_next],
-                   vmax=cfg.limits.vmax(st.dirs[k_next]), new_collision=new_collision, arrived=arrived, lost=lost)
+    dec = Decision(
+        replan=replan,
+        reason=jnp.where(counted, reason, NO_REPLAN),
+        request=request,
+        installed=accept,
+        s_offset=s_offset,
+        rejected=rejected,
+        stop_s=stop_s,
+        s_end=s_end,
+        direction=st.dirs[k_next],
+        vmax=cfg.limits.vmax(st.dirs[k_next]),
+        new_collision=new_collision,
+        arrived=arrived,
+        lost=lost,
+    )
     return st, dec

@@ -9,6 +9,7 @@ segment. The direction-aware variant keeps only segments driven in the car's
 direction of motion (same gear, direction vector agreeing with the car's
 motion), which picks the right branch where a reverse leg retraces a forward one.
 """
+
 from __future__ import annotations
 
 from typing import NamedTuple
@@ -49,8 +50,12 @@ def _search(path_xy, car_xy, start, end, window, max_dist, extra_ok=None, eps=1e
         ok = ok & extra_ok(jc, d)
     k = jnp.argmin(jnp.where(ok, dist, jnp.inf))
     found = jnp.any(ok)
-    return TrackingPoint(jnp.where(found, j[k], start).astype(jnp.int32), jnp.where(found, proj[k], 0.0),
-                         jnp.where(found, dist[k], jnp.inf), found)
+    return TrackingPoint(
+        jnp.where(found, j[k], start).astype(jnp.int32),
+        jnp.where(found, proj[k], 0.0),
+        jnp.where(found, dist[k], jnp.inf),
+        found,
+    )
 
 
 def find_tracking_point(path_xy, car_xy, start, end, window: int = 32, max_dist=jnp.inf):
@@ -70,8 +75,9 @@ def find_tracking_point(path_xy, car_xy, start, end, window: int = 32, max_dist=
     return _search(path_xy, car_xy, start, end, window, max_dist)
 
 
-def find_tracking_point_directional(path_xy, gear, car_xy, car_heading, motion, start, end,
-                                    window: int = 32, max_dist=jnp.inf):
+def find_tracking_point_directional(
+    path_xy, gear, car_xy, car_heading, motion, start, end, window: int = 32, max_dist=jnp.inf
+):
     """Direction-aware search: as ``find_tracking_point``, keeping only segments
     driven in the car's direction of motion.
 

@@ -8,6 +8,7 @@ gear-shift points gives single-direction *sub-trajectories*; sub-trajectory
 ``k`` runs from index ``lo[k]`` to ``hi[k]`` inclusive, and consecutive ones
 share their gear-shift point (``hi[k] == lo[k + 1]``).
 """
+
 from __future__ import annotations
 
 import jax
@@ -126,7 +127,7 @@ def split_at_gear_shifts(traj: Trajectory, valid=None) -> list[Trajectory]:
     cuts = [i for i in range(k - 1) if gear[i] != gear[i + 1]]
     bounds = list(zip([0] + cuts, cuts + [k - 1]))
     fields = {f: np.asarray(getattr(traj, f)) for f in ("x", "y", "theta", "kappa", "v", "a", "t", "s", "gear")}
-    return [Trajectory(**{f: a[lo:hi + 1] for f, a in fields.items()}) for lo, hi in bounds]
+    return [Trajectory(**{f: a[lo : hi + 1] for f, a in fields.items()}) for lo, hi in bounds]
 
 
 sub_trajectories_jit = jax.jit(sub_trajectories, static_argnames="max_sub")

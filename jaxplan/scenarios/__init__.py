@@ -5,6 +5,7 @@ Files to scenes: ``load_scenes(paths)`` (or ``load_records`` to keep each scene'
 and name); built-in ones: ``builtin_scenes``; a batch: ``stack_scenes``. The modules hold the rest
 (``loader``, ``commonroad``, ``files``, ``route``, ``lights``, ``builtin``, ``cache``, ...).
 """
+
 from jaxplan.scenarios.builtin import builtin_records, builtin_scenes
 from jaxplan.scenarios.loader import Scenario, ScenarioError
 from jaxplan.scenarios.scene import (
@@ -19,5 +20,18 @@ from jaxplan.scenarios.scene import (
     stack_scenes,
 )
 
-__all__ = ["Goal", "Scenario", "ScenarioError", "Scene", "SceneConfig", "SceneRecord", "build_scene",
-           "builtin_records", "builtin_scenes", "index_scene", "load_records", "load_scenes", "stack_scenes"]
+__all__ = [
+    "Goal",
+    "Scenario",
+    "ScenarioError",
+    "Scene",
+    "SceneConfig",
+    "SceneRecord",
+    "build_scene",
+    "builtin_records",
+    "builtin_scenes",
+    "index_scene",
+    "load_records",
+    "load_scenes",
+    "stack_scenes",
+]

@@ -18,6 +18,7 @@ A generated scene is kept only if plain in-lane braking at ``-5 m/s^2`` from ``t
 geometry core's overlap metric; so a collision in a built-in scene is always the
 planner's fault.
 """
+
 from __future__ import annotations
 
 import math
@@ -59,8 +60,14 @@ def _lanelets(road: _Road, n_lanes: int, limit: float) -> list:
     for i in range(n_lanes):
         left, _ = road.pose(s, (i + 0.5) * LANE)
         right, _ = road.pose(s, (i - 0.5) * LANE)
-        d = {"id": 100 + i, "left": left.round(4).tolist(), "right": right.round(4).tolist(), "predecessors": [],
-             "successors": [], "speed_limit": limit}
+        d = {
+            "id": 100 + i,
+            "left": left.round(4).tolist(),
+            "right": right.round(4).tolist(),
+            "predecessors": [],
+            "successors": [],
+            "speed_limit": limit,
+        }
         if i + 1 < n_lanes:
             d["adjacentLeft"] = {"ref": 101 + i, "drivingDir": "same"}
         if i > 0:
@@ -80,8 +87,9 @@ def _car(oid, road, s, l, length=4.6, width=1.8, role="dynamic", kind="car"):
     v = np.concatenate([[0.0], np.linalg.norm(np.diff(xy, axis=0), axis=1) / DT]) if len(s) > 1 else np.zeros(1)
     if len(s) > 1:
         v[0] = v[1]
-    states = [[round(k * DT, 4), float(xy[k, 0]), float(xy[k, 1]), float(th[k]), float(v[k]), 0.0]
-              for k in range(len(s))]
+    states = [
+        [round(k * DT, 4), float(xy[k, 0]), float(xy[k, 1]), float(th[k]), float(v[k]), 0.0] for k in range(len(s))
+    ]
     return {"id": int(oid), "role": role, "type": kind, "length": length, "width": width, "states": states}
 
 
@@ -94,13 +102,18 @@ def scene_dict(kind: str, rng: np.random.Generator, index: int) -> dict:
     kappa = (rng.choice([-1.0, 1.0]) / radius) if curved else 0.0
     road = _Road(kappa, rng.uniform(-math.pi, math.pi))
     n_lanes = 3 if kind in ("dense_next_lane", "cut_in") else int(rng.integers(2, 4))
-    ego_lane = 0 if kind == "parked_cars" else int(rng.integers(0, n_lanes - 1)) if kind == "dense_next_lane" \
+    ego_lane = (
+        0
+        if kind == "parked_cars"
+        else int(rng.integers(0, n_lanes - 1))
+        if kind == "dense_next_lane"
         else int(rng.integers(0, n_lanes))
+    )
     v0 = rng.uniform(8.0, 20.0) if kind != "curve_stop" else rng.uniform(8.0, min(20.0, math.sqrt(3.0 * radius)))
     limit = float(np.ceil(max(v0 + rng.uniform(0.0, 5.0), 13.9)))
     t = np.arange(RECORD_STEPS) * DT
     l_ego = ego_lane * LANE
-    brake_dist = v0 ** 2 / (2 * SURVIVAL_DECEL)
+    brake_dist = v0**2 / (2 * SURVIVAL_DECEL)
     obstacles, oid = [], 1
     if kind in ("stopped_car", "curve_stop", "dense_next_lane"):
         gap = brake_dist + rng.uniform(6.0, 30.0)
@@ -117,7 +130,7 @@ def scene_dict(kind: str, rng: np.random.Generator, index: int) -> dict:
         s0 = START_S + rng.uniform(10.0, 25.0)
         t_in, dur = rng.uniform(0.5, 2.0), rng.uniform(1.5, 3.0)
         u = np.clip((t - t_in) / dur, 0.0, 1.0)
-        l = l_ego + side * LANE * (1.0 - (3 * u ** 2 - 2 * u ** 3))
+        l = l_ego + side * LANE * (1.0 - (3 * u**2 - 2 * u**3))
         obstacles.append(_car(oid, road, s0 + v_c * t, l))
         oid += 1
     if kind == "parked_cars":
@@ -138,22 +151,51 @@ def scene_dict(kind: str, rng: np.random.Generator, index: int) -> dict:
             s += rng.uniform(9.0, 16.0)
     if kind in ("stopped_car", "slow_leader") and n_lanes > 1 and rng.random() < 0.5:
         other = (ego_lane + 1) % n_lanes
-        obstacles.append(_car(oid, road, START_S + rng.uniform(-30.0, 40.0) + (v0 + rng.uniform(-2, 3)) * t,
-                              np.full_like(t, other * LANE)))
+        obstacles.append(
+            _car(
+                oid,
+                road,
+                START_S + rng.uniform(-30.0, 40.0) + (v0 + rng.uniform(-2, 3)) * t,
+                np.full_like(t, other * LANE),
+            )
+        )
     # the ego starts on its lane's centre; coordinates are made relative to it by the loader
     start, th0 = road.pose(START_S, l_ego)
     goal_d = rng.uniform(90.0, 150.0)
     mid = 0.5 * (n_lanes - 1) * LANE
     gc, gth = road.pose(START_S + goal_d + 15.0, mid)
     t_goal = goal_d / (0.5 * v0) + 4.0
-    return {"id": f"JAXPLAN_{kind}-{index}", "source": "jaxplan.scenarios.builtin", "tags": ["synthetic", kind],
-            "dt": DT, "lanelets": _lanelets(road, n_lanes, limit), "obstacles": obstacles,
-            "planning_problems": [{"id": 1, "initial_state": {"t": 0.0, "position": start.tolist(),
-                                                             "orientation": float(th0), "velocity": float(v0),
-                                                             "acceleration": 0.0},
-                                   "goals": [{"rectangle": {"center": gc.tolist(), "length": 30.0,
-                                                            "width": n_lanes * LANE, "orientation": float(gth)},
-                                              "time": [0.0, round(float(t_goal), 1)]}]}]}
+    return {
+        "id": f"JAXPLAN_{kind}-{index}",
+        "source": "jaxplan.scenarios.builtin",
+        "tags": ["synthetic", kind],
+        "dt": DT,
+        "lanelets": _lanelets(road, n_lanes, limit),
+        "obstacles": obstacles,
+        "planning_problems": [
+            {
+                "id": 1,
+                "initial_state": {
+                    "t": 0.0,
+                    "position": start.tolist(),
+                    "orientation": float(th0),
+                    "velocity": float(v0),
+                    "acceleration": 0.0,
+                },
+                "goals": [
+                    {
+                        "rectangle": {
+                            "center": gc.tolist(),
+                            "length": 30.0,
+                            "width": n_lanes * LANE,
+                            "orientation": float(gth),
+                        },
+                        "time": [0.0, round(float(t_goal), 1)],
+                    }
+                ],
+            }
+        ],
+    }
 
 
 def survivable(records) -> np.ndarray:

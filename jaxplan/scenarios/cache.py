@@ -17,6 +17,7 @@ The cache folder (``cache_dir``): ``$JAXPLAN_CACHE_DIR``, else ``$XDG_CACHE_HOME
 else ``~/.cache/jaxplan``; scenes under ``scenes/``, compiled XLA programs under ``xla/``
 (``enable_compilation_cache``). Deleting the folder is always safe.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -138,8 +139,14 @@ class Loaded:
     parse_s: float
 
 
-def load_many(paths: list, config=None, horizon: float | None = None, workers: int | None = None,
-              use_cache: bool = True, progress: bool = True) -> Loaded:
+def load_many(
+    paths: list,
+    config=None,
+    horizon: float | None = None,
+    workers: int | None = None,
+    use_cache: bool = True,
+    progress: bool = True,
+) -> Loaded:
     """Load scenario files into ``SceneRecord``s (``jaxplan.scenarios.scene.load_records``), from
     the cache where possible, parsing the rest in ``workers`` processes.
 
@@ -195,8 +202,7 @@ def load_many(paths: list, config=None, horizon: float | None = None, workers: i
                     errors[p] = value
         else:
             out = folder if use_cache else tempfile.mkdtemp(prefix="jaxplan-scenes-")
-            for p, (status, value) in _parse_in_workers(todo, [keys[p] for p in todo], out, config, horizon, n,
-                                                        bar):
+            for p, (status, value) in _parse_in_workers(todo, [keys[p] for p in todo], out, config, horizon, n, bar):
                 if status == "ok":
                     rec = _fetch(out, keys[p])
                     if rec is None:
@@ -210,8 +216,12 @@ def load_many(paths: list, config=None, horizon: float | None = None, workers: i
 
                 shutil.rmtree(out, ignore_errors=True)
         bar.close()
-    return Loaded([records[p] for p in paths if p in records], [(p, errors[p]) for p in paths if p in errors],
-                  cached, time.perf_counter() - t0)
+    return Loaded(
+        [records[p] for p in paths if p in records],
+        [(p, errors[p]) for p in paths if p in errors],
+        cached,
+        time.perf_counter() - t0,
+    )
 
 
 def _parse_in_workers(paths: list, keys: list, folder: str, config, horizon, n: int, bar):
@@ -238,8 +248,9 @@ def _parse_in_workers(paths: list, keys: list, folder: str, config, horizon, n: 
     readers = []
     for w in range(n):
         part = list(zip(paths[w::n], keys[w::n]))
-        proc = subprocess.Popen([sys.executable, "-m", "jaxplan.scenarios.cache"], stdin=subprocess.PIPE,
-                                stdout=subprocess.PIPE, text=True)
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "jaxplan.scenarios.cache"], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True
+        )
         assert proc.stdin is not None  # stdin=PIPE
         proc.stdin.write(json.dumps(dict(job, files=part)))
         proc.stdin.close()
@@ -274,8 +285,14 @@ def _worker_main() -> None:
 def _bar(total: int, show: bool):
     from tqdm import tqdm
 
-    return tqdm(total=total, desc="parsing scenarios", unit="file", disable=not show or total < 2, file=sys.stderr,
-                dynamic_ncols=True)
+    return tqdm(
+        total=total,
+        desc="parsing scenarios",
+        unit="file",
+        disable=not show or total < 2,
+        file=sys.stderr,
+        dynamic_ncols=True,
+    )
 
 
 if __name__ == "__main__":

@@ -16,6 +16,7 @@ What a file holds is read or refused out loud:
   by one box); a shape that cannot be covered is refused with a line naming the obstacle;
 - environment and phantom obstacles (commonroad-io 2022 and later) are not read: named on stderr.
 """
+
 from __future__ import annotations
 
 import math
@@ -55,12 +56,20 @@ def _shape_fields(shape) -> dict:
         c = getattr(shape, "rect_center", None)
         c = getattr(shape, "center", None) if c is None else c
         c = _point(c)
-        return {"length": float(shape.length), "width": float(shape.width),
-                "center": c.tolist(), "orientation": float(getattr(shape, "orientation", 0.0) or 0.0)}
+        return {
+            "length": float(shape.length),
+            "width": float(shape.width),
+            "center": c.tolist(),
+            "orientation": float(getattr(shape, "orientation", 0.0) or 0.0),
+        }
     if hasattr(shape, "radius"):
         c = _point(getattr(shape, "center", None))
-        return {"length": 2 * float(shape.radius), "width": 2 * float(shape.radius),
-                "center": c.tolist(), "orientation": 0.0}
+        return {
+            "length": 2 * float(shape.radius),
+            "width": 2 * float(shape.radius),
+            "center": c.tolist(),
+            "orientation": 0.0,
+        }
     if hasattr(shape, "vertices"):
         return {"polygon": np.asarray(shape.vertices, float).tolist()}
     raise ScenarioError(f"unsupported CommonRoad shape {type(shape).__name__}")
@@ -146,7 +155,8 @@ def _occupancy_rows(o, dt: float) -> list:
     hint = float(init.orientation)
     by_step: dict = {}
     by_step.setdefault(int(init.time_step), []).append(
-        _placed(cover_box(o.obstacle_shape), float(init.position[0]), float(init.position[1]), hint))
+        _placed(cover_box(o.obstacle_shape), float(init.position[0]), float(init.position[1]), hint)
+    )
     for occ in o.prediction.occupancy_set:
         ts = occ.time_step
         steps = range(int(ts.start), int(ts.end) + 1) if hasattr(ts, "start") else [int(ts)]
@@ -182,9 +192,13 @@ def _traffic_lights(net, dt: float) -> list:
         cyc = getattr(tl, "traffic_light_cycle", None)
         elements = list(getattr(cyc, "cycle_elements", None) or ())
         active = tl.active is not False and getattr(cyc, "active", True) is not False and bool(elements)
-        d = {"id": int(tl.traffic_light_id), "direction": tl.direction.value, "active": active,
-             "time_offset": float(getattr(cyc, "time_offset", 0) or 0) * dt,
-             "cycle": [{"color": e.state.value, "duration": float(e.duration) * dt} for e in elements]}
+        d = {
+            "id": int(tl.traffic_light_id),
+            "direction": tl.direction.value,
+            "active": active,
+            "time_offset": float(getattr(cyc, "time_offset", 0) or 0) * dt,
+            "cycle": [{"color": e.state.value, "duration": float(e.duration) * dt} for e in elements],
+        }
         pos = getattr(tl, "position", None)
         if pos is not None:
             d["position"] = [float(v) for v in np.asarray(pos, float).reshape(-1)[:2]]
@@ -269,11 +283,17 @@ def commonroad_to_dict(scenario, planning_problems, id_map: dict | None = None, 
     limits = _speed_limits(scenario)
     lanelets = []
     for ln in scenario.lanelet_network.lanelets:
-        d = {"id": int(ln.lanelet_id), "left": np.asarray(ln.left_vertices, float).tolist(),
-             "right": np.asarray(ln.right_vertices, float).tolist(),
-             "predecessors": [int(i) for i in ln.predecessor], "successors": [int(i) for i in ln.successor]}
-        for side, ref, same in (("adjacentLeft", ln.adj_left, ln.adj_left_same_direction),
-                                ("adjacentRight", ln.adj_right, ln.adj_right_same_direction)):
+        d = {
+            "id": int(ln.lanelet_id),
+            "left": np.asarray(ln.left_vertices, float).tolist(),
+            "right": np.asarray(ln.right_vertices, float).tolist(),
+            "predecessors": [int(i) for i in ln.predecessor],
+            "successors": [int(i) for i in ln.successor],
+        }
+        for side, ref, same in (
+            ("adjacentLeft", ln.adj_left, ln.adj_left_same_direction),
+            ("adjacentRight", ln.adj_right, ln.adj_right_same_direction),
+        ):
             if ref is not None:
                 d[side] = {"ref": int(ref), "drivingDir": "same" if same else "opposite"}
         if int(ln.lanelet_id) in limits:
@@ -286,8 +306,11 @@ def commonroad_to_dict(scenario, planning_problems, id_map: dict | None = None, 
         pred = o.prediction
         out = {"id": oid, "role": "dynamic", "type": o.obstacle_type.value}
         try:
-            if pred is not None and getattr(pred, "trajectory", None) is None \
-                    and getattr(pred, "occupancy_set", None) is not None:  # a set-based prediction
+            if (
+                pred is not None
+                and getattr(pred, "trajectory", None) is None
+                and getattr(pred, "occupancy_set", None) is not None
+            ):  # a set-based prediction
                 obstacles.append({**out, "occupancies": _occupancy_rows(o, dt)})
                 continue
             box = cover_box(o.obstacle_shape)  # in the obstacle's frame, along its heading
@@ -299,8 +322,16 @@ def commonroad_to_dict(scenario, planning_problems, id_map: dict | None = None, 
             x, y, th = float(s.position[0]), float(s.position[1]), float(s.orientation)
             if np.any(np.abs(box[[0, 1, 4]]) > 1e-12):  # a shape off the state's point or turned: its box's pose
                 x, y, _, _, th = _placed(box, x, y, th)
-            rows.append([float(s.time_step) * dt, float(x), float(y), float(th),
-                         float(getattr(s, "velocity", 0.0) or 0.0), float(getattr(s, "acceleration", 0.0) or 0.0)])
+            rows.append(
+                [
+                    float(s.time_step) * dt,
+                    float(x),
+                    float(y),
+                    float(th),
+                    float(getattr(s, "velocity", 0.0) or 0.0),
+                    float(getattr(s, "acceleration", 0.0) or 0.0),
+                ]
+            )
         obstacles.append({**out, "length": float(box[2]), "width": float(box[3]), "states": rows})
     for o in scenario.static_obstacles:
         st = o.initial_state
@@ -314,10 +345,15 @@ def commonroad_to_dict(scenario, planning_problems, id_map: dict | None = None, 
                 b = _placed(cover_box(shape), float(st.position[0]), float(st.position[1]), float(st.orientation))
             except ScenarioError as e:
                 raise ScenarioError(f"static obstacle {o.obstacle_id}: {e}") from None
-            f = {"length": float(b[2]), "width": float(b[3]), "center": [float(b[0]), float(b[1])],
-                 "orientation": float(b[4])}
-        obstacles.append({"id": int(id_map.get(o.obstacle_id, o.obstacle_id)), "role": "static",
-                          "type": o.obstacle_type.value, **f})
+            f = {
+                "length": float(b[2]),
+                "width": float(b[3]),
+                "center": [float(b[0]), float(b[1])],
+                "orientation": float(b[4]),
+            }
+        obstacles.append(
+            {"id": int(id_map.get(o.obstacle_id, o.obstacle_id)), "role": "static", "type": o.obstacle_type.value, **f}
+        )
     for kind, attr in (("environment", "environment_obstacle"), ("phantom", "phantom_obstacle")):
         left_out = list(getattr(scenario, attr, None) or ())
         if left_out and notes is not None:
@@ -325,14 +361,28 @@ def commonroad_to_dict(scenario, planning_problems, id_map: dict | None = None, 
     problems = []
     for pp in planning_problems.planning_problem_dict.values():
         st = pp.initial_state
-        problems.append({"id": int(pp.planning_problem_id),
-                         "initial_state": {"t": float(st.time_step) * dt,
-                                           "position": [float(v) for v in st.position],
-                                           "orientation": float(st.orientation), "velocity": float(st.velocity),
-                                           "acceleration": float(getattr(st, "acceleration", 0.0) or 0.0)},
-                         "goals": [_goal(pp.goal, dt, i) for i in range(max(1, len(pp.goal.state_list or ())))]})
-    out = {"id": str(scenario.scenario_id), "source": "commonroad-xml", "tags": [t.value for t in (scenario.tags or [])],
-           "dt": dt, "lanelets": lanelets, "obstacles": obstacles, "planning_problems": problems}
+        problems.append(
+            {
+                "id": int(pp.planning_problem_id),
+                "initial_state": {
+                    "t": float(st.time_step) * dt,
+                    "position": [float(v) for v in st.position],
+                    "orientation": float(st.orientation),
+                    "velocity": float(st.velocity),
+                    "acceleration": float(getattr(st, "acceleration", 0.0) or 0.0),
+                },
+                "goals": [_goal(pp.goal, dt, i) for i in range(max(1, len(pp.goal.state_list or ())))],
+            }
+        )
+    out = {
+        "id": str(scenario.scenario_id),
+        "source": "commonroad-xml",
+        "tags": [t.value for t in (scenario.tags or [])],
+        "dt": dt,
+        "lanelets": lanelets,
+        "obstacles": obstacles,
+        "planning_problems": problems,
+    }
     lights = _traffic_lights(scenario.lanelet_network, dt)
     if lights:
         out["traffic_lights"] = lights
@@ -357,12 +407,14 @@ class _Shapes:
         if self.old:
             return self.old.Rectangle(length, width)
         from commonroad.geometry.obstacle_shapes.rect_obstacle_shape import RectObstacleShape
+
         return RectObstacleShape(width=width, length=length)
 
     def obstacle_polygon(self, vertices: np.ndarray):
         if self.old:
             return self.old.Polygon(np.asarray(vertices, float))
         from commonroad.geometry.obstacle_shapes.polygon_obstacle_shape import PolygonObstacleShape
+
         return PolygonObstacleShape(vertices=tuple(map(tuple, np.asarray(vertices, float).tolist())))
 
     def region_rect(self, length: float, width: float, center, orientation: float):
@@ -370,8 +422,13 @@ class _Shapes:
             return self.old.Rectangle(length, width, np.asarray(center, float), orientation)
         import shapely
         from commonroad.geometry.occupancy.rect_occupancy import RectOccupancy
-        return RectOccupancy(rect_center=shapely.Point(float(center[0]), float(center[1])), width=width,
-                             length=length, orientation=orientation)
+
+        return RectOccupancy(
+            rect_center=shapely.Point(float(center[0]), float(center[1])),
+            width=width,
+            length=length,
+            orientation=orientation,
+        )
 
     def group(self, regions: list):
         if len(regions) == 1:
@@ -379,6 +436,7 @@ class _Shapes:
         if self.old:
             return self.old.ShapeGroup(list(regions))
         from commonroad.geometry.occupancy.occupancy_group import OccupancyGroup
+
         return OccupancyGroup(occupancies=tuple(regions))
 
 
@@ -386,9 +444,13 @@ def _country_signs(scenario_id):
     """The traffic sign id enum of the scenario's country (Zamunda and unknown countries: Germany's)."""
     import commonroad.scenario.traffic_sign as ts
 
-    name = {"USA": "TrafficSignIDUsa", "ESP": "TrafficSignIDSpain", "CHN": "TrafficSignIDChina",
-            "RUS": "TrafficSignIDRussia", "AUS": "TrafficSignIDAustralia"}.get(
-        str(getattr(scenario_id, "country_id", "") or ""), "TrafficSignIDGermany")
+    name = {
+        "USA": "TrafficSignIDUsa",
+        "ESP": "TrafficSignIDSpain",
+        "CHN": "TrafficSignIDChina",
+        "RUS": "TrafficSignIDRussia",
+        "AUS": "TrafficSignIDAustralia",
+    }.get(str(getattr(scenario_id, "country_id", "") or ""), "TrafficSignIDGermany")
     return getattr(ts, name, ts.TrafficSignIDGermany)
 
 
@@ -479,33 +541,70 @@ def dict_to_commonroad(d: dict, path: str = "scenario", id_map: dict | None = No
         if ln.get("speed_limit") is not None:
             sign_id = next(fresh)
             used.add(sign_id)
-            limits.append(TrafficSign(sign_id, [TrafficSignElement(signs.MAX_SPEED, [str(float(ln["speed_limit"]))])],
-                                      {lid}, right[0].copy(), virtual=True))
+            limits.append(
+                TrafficSign(
+                    sign_id,
+                    [TrafficSignElement(signs.MAX_SPEED, [str(float(ln["speed_limit"]))])],
+                    {lid},
+                    right[0].copy(),
+                    virtual=True,
+                )
+            )
         sl = ln.get("stop_line")
         if sl is not None:
             ends = [np.asarray(sl[k], float) if sl.get(k) is not None else None for k in ("start", "end")]
-            kw["stop_line"] = StopLine(ends[0], ends[1], LineMarking.SOLID,
-                                       traffic_light_ref=set(int(i) for i in sl.get("traffic_lights") or []) or None)
+            kw["stop_line"] = StopLine(
+                ends[0],
+                ends[1],
+                LineMarking.SOLID,
+                traffic_light_ref=set(int(i) for i in sl.get("traffic_lights") or []) or None,
+            )
         if ln.get("traffic_lights"):
             kw["traffic_lights"] = set(int(i) for i in ln["traffic_lights"])
-        lanelets.append(Lanelet(left, 0.5 * (left + right), right, lid,
-                                predecessor=[int(i) for i in ln.get("predecessors") or []],
-                                successor=[int(i) for i in ln.get("successors") or []], **kw))
+        lanelets.append(
+            Lanelet(
+                left,
+                0.5 * (left + right),
+                right,
+                lid,
+                predecessor=[int(i) for i in ln.get("predecessors") or []],
+                successor=[int(i) for i in ln.get("successors") or []],
+                **kw,
+            )
+        )
     net = LaneletNetwork.create_from_lanelet_list(lanelets, cleanup_ids=False)
     for sign in limits:
         net.add_traffic_sign(sign, set(sign.first_occurrence))
-    where_lit: dict[int, np.ndarray] = {}  # a light without a position stands at the right end of the first lanelet naming it
+    where_lit: dict[
+        int, np.ndarray
+    ] = {}  # a light without a position stands at the right end of the first lanelet naming it
     for ln in d["lanelets"]:
         for i in list(ln.get("traffic_lights") or []) + list((ln.get("stop_line") or {}).get("traffic_lights") or []):
             where_lit.setdefault(int(i), np.asarray(ln["right"][-1], float))
     for tl in d.get("traffic_lights") or []:
-        cycle = TrafficLightCycle([TrafficLightCycleElement(TrafficLightState(ph["color"]), step(ph["duration"]))
-                                   for ph in tl.get("cycle") or []], step(tl.get("time_offset") or 0.0),
-                                  bool(tl.get("active", True)))
-        pos = np.asarray(tl["position"], float) if tl.get("position") is not None \
+        cycle = TrafficLightCycle(
+            [
+                TrafficLightCycleElement(TrafficLightState(ph["color"]), step(ph["duration"]))
+                for ph in tl.get("cycle") or []
+            ],
+            step(tl.get("time_offset") or 0.0),
+            bool(tl.get("active", True)),
+        )
+        pos = (
+            np.asarray(tl["position"], float)
+            if tl.get("position") is not None
             else where_lit.get(int(tl["id"]), np.zeros(2))
-        net.add_traffic_light(TrafficLight(int(tl["id"]), pos, cycle, active=bool(tl.get("active", True)),
-                                           direction=TrafficLightDirection(tl.get("direction", "all"))), set())
+        )
+        net.add_traffic_light(
+            TrafficLight(
+                int(tl["id"]),
+                pos,
+                cycle,
+                active=bool(tl.get("active", True)),
+                direction=TrafficLightDirection(tl.get("direction", "all")),
+            ),
+            set(),
+        )
     sc.add_objects(net)
 
     def unique(i: int) -> int:
@@ -528,18 +627,29 @@ def dict_to_commonroad(d: dict, path: str = "scenario", id_map: dict | None = No
             rows = sorted(o["occupancies"], key=lambda r: r[0])
             k = [step(r[0]) for r in rows]
             x0, y0, len0, wid0, th0 = map(float, rows[0][1:6])
-            init = InitialState(time_step=k[0], position=np.array([x0, y0]), orientation=th0, velocity=0.0,
-                                acceleration=0.0, yaw_rate=0.0, slip_angle=0.0)
-            occ = [Occupancy(k[j], shapes.region_rect(float(r[3]), float(r[4]), r[1:3], float(r[5])))
-                   for j, r in enumerate(rows) if j > 0]
+            init = InitialState(
+                time_step=k[0],
+                position=np.array([x0, y0]),
+                orientation=th0,
+                velocity=0.0,
+                acceleration=0.0,
+                yaw_rate=0.0,
+                slip_angle=0.0,
+            )
+            occ = [
+                Occupancy(k[j], shapes.region_rect(float(r[3]), float(r[4]), r[1:3], float(r[5])))
+                for j, r in enumerate(rows)
+                if j > 0
+            ]
             pred = SetBasedPrediction(k[1], occ) if occ else None
             sc.add_objects(DynamicObstacle(unique(int(o["id"])), otype, shapes.obstacle_rect(len0, wid0), init, pred))
             continue
         st = [r for r in (o.get("states") or [])]
         # parse_scenario has checked that every rectangle has a size (given, or DEFAULT_SIZE by type);
         # NaN only for the shapes that need none (a polygon)
-        length, width = ((float(o["length"]), float(o["width"])) if "length" in o
-                         else DEFAULT_SIZE.get(kind, (math.nan, math.nan)))
+        length, width = (
+            (float(o["length"]), float(o["width"])) if "length" in o else DEFAULT_SIZE.get(kind, (math.nan, math.nan))
+        )
         if o.get("role", "dynamic") == "static" or not st:
             if "polygon" in o:
                 shape = shapes.obstacle_polygon(o["polygon"])
@@ -552,20 +662,40 @@ def dict_to_commonroad(d: dict, path: str = "scenario", id_map: dict | None = No
                 x, y, th = st[0][1], st[0][2], st[0][3]
             else:
                 continue  # no states and no shape: nothing to write (parse_scenario skips it too)
-            init = InitialState(time_step=0, position=np.array([x, y], float), orientation=float(th), velocity=0.0,
-                                acceleration=0.0, yaw_rate=0.0, slip_angle=0.0)
+            init = InitialState(
+                time_step=0,
+                position=np.array([x, y], float),
+                orientation=float(th),
+                velocity=0.0,
+                acceleration=0.0,
+                yaw_rate=0.0,
+                slip_angle=0.0,
+            )
             sc.add_objects(StaticObstacle(unique(int(o["id"])), otype, shape, init))
             continue
         k = [step(r[0]) for r in st]
         if any(b - a != 1 for a, b in zip(k, k[1:])):
             raise ScenarioError(f"{path}: field {where}.states should be one row per dt without gaps")
-        rows = [CustomState(time_step=k[j], position=np.array(r[1:3], float), orientation=float(r[3]),
-                            velocity=float(r[4] if len(r) > 4 and r[4] is not None else 0.0),
-                            acceleration=float(r[5] if len(r) > 5 and r[5] is not None else 0.0))
-                for j, r in enumerate(st)]
+        rows = [
+            CustomState(
+                time_step=k[j],
+                position=np.array(r[1:3], float),
+                orientation=float(r[3]),
+                velocity=float(r[4] if len(r) > 4 and r[4] is not None else 0.0),
+                acceleration=float(r[5] if len(r) > 5 and r[5] is not None else 0.0),
+            )
+            for j, r in enumerate(st)
+        ]
         shape = shapes.obstacle_rect(length, width)
-        init = InitialState(time_step=k[0], position=rows[0].position, orientation=rows[0].orientation,
-                            velocity=rows[0].velocity, acceleration=rows[0].acceleration, yaw_rate=0.0, slip_angle=0.0)
+        init = InitialState(
+            time_step=k[0],
+            position=rows[0].position,
+            orientation=rows[0].orientation,
+            velocity=rows[0].velocity,
+            acceleration=rows[0].acceleration,
+            yaw_rate=0.0,
+            slip_angle=0.0,
+        )
         pred = TrajectoryPrediction(CRTrajectory(k[1], rows[1:]), shape) if len(rows) > 1 else None
         sc.add_objects(DynamicObstacle(unique(int(o["id"])), otype, shape, init, pred))
 
@@ -573,9 +703,15 @@ def dict_to_commonroad(d: dict, path: str = "scenario", id_map: dict | None = No
     for n, p in enumerate(d["planning_problems"]):
         s0 = p["initial_state"]
         opt = lambda key: float(s0.get(key) or 0.0)  # noqa: E731
-        init = InitialState(time_step=step(s0.get("t", 0.0)), position=np.array(s0["position"], float),
-                            orientation=float(s0["orientation"]), velocity=float(s0["velocity"]),
-                            acceleration=opt("acceleration"), yaw_rate=opt("yaw_rate"), slip_angle=opt("slip_angle"))
+        init = InitialState(
+            time_step=step(s0.get("t", 0.0)),
+            position=np.array(s0["position"], float),
+            orientation=float(s0["orientation"]),
+            velocity=float(s0["velocity"]),
+            acceleration=opt("acceleration"),
+            yaw_rate=opt("yaw_rate"),
+            slip_angle=opt("slip_angle"),
+        )
         states, goal_lanelets = [], {}
         for g_i, g in enumerate(p.get("goals") or []):
             where = f"planning_problems[{n}].goals[{g_i}]"
@@ -584,8 +720,9 @@ def dict_to_commonroad(d: dict, path: str = "scenario", id_map: dict | None = No
             gs = {"time_step": Interval(step(g["time"][0]), step(g["time"][1]))}
             if "rectangle" in g:
                 r = g["rectangle"]
-                gs["position"] = shapes.region_rect(float(r["length"]), float(r["width"]), r["center"],
-                                                    float(r.get("orientation", 0.0) or 0.0))
+                gs["position"] = shapes.region_rect(
+                    float(r["length"]), float(r["width"]), r["center"], float(r.get("orientation", 0.0) or 0.0)
+                )
             elif g.get("lanelets"):
                 ids = [int(i) for i in g["lanelets"]]
                 missing = [i for i in ids if net.find_lanelet_by_id(i) is None]
@@ -617,13 +754,15 @@ def write_commonroad(d: dict, path: str, name: str = "scenario", id_map: dict | 
     kw = {}
     try:  # commonroad-io 2026 writes protobuf unless told otherwise
         from commonroad.common.file_writer import FileFormat
+
         kw["file_format"] = FileFormat.XML
     except ImportError:
         pass
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        CommonRoadFileWriter(sc, pps, author="jaxplan", affiliation="", source=str(d.get("source", "")),
-                             tags=set(sc.tags or ()), **kw).write_to_file(path, OverwriteExistingFile.ALWAYS)
+        CommonRoadFileWriter(
+            sc, pps, author="jaxplan", affiliation="", source=str(d.get("source", "")), tags=set(sc.tags or ()), **kw
+        ).write_to_file(path, OverwriteExistingFile.ALWAYS)
     return path
 
 
@@ -661,8 +800,14 @@ def load_commonroad(path: str, horizon: float | None = None) -> Scenario:
     return parse_scenario(d, path, horizon, notes=notes)
 
 
-def write_solution(scenario: Scenario, trajectory, path: str, planning_problem_id: int | None = None,
-                   vehicle_type: str = "BMW_320i", cost_function: str = "SM1") -> str:
+def write_solution(
+    scenario: Scenario,
+    trajectory,
+    path: str,
+    planning_problem_id: int | None = None,
+    vehicle_type: str = "BMW_320i",
+    cost_function: str = "SM1",
+) -> str:
     """Write a planned trajectory as a CommonRoad solution file (kinematic single-track states).
 
     Args:
@@ -695,17 +840,26 @@ def write_solution(scenario: Scenario, trajectory, path: str, planning_problem_i
     steps = np.rint(t / scenario.dt).astype(int)
     wheelbase = 2.578  # BMW 320i, the solution's vehicle type
     steer = np.arctan(wheelbase * np.asarray(trajectory.kappa, float))
-    states = [KSState(time_step=int(k), position=np.array([x[i] + scenario.origin[0], y[i] + scenario.origin[1]]),
-                      steering_angle=float(steer[i]), velocity=float(v[i]), orientation=float(th[i]))
-              for i, k in enumerate(steps)]
+    states = [
+        KSState(
+            time_step=int(k),
+            position=np.array([x[i] + scenario.origin[0], y[i] + scenario.origin[1]]),
+            steering_angle=float(steer[i]),
+            velocity=float(v[i]),
+            orientation=float(th[i]),
+        )
+        for i, k in enumerate(steps)
+    ]
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         sid = ScenarioID.from_benchmark_id(scenario.id, "2020a")
-    pps = PlanningProblemSolution(planning_problem_id=int(planning_problem_id if planning_problem_id is not None
-                                                          else scenario.problem_id),
-                                  vehicle_model=VehicleModel.KS, vehicle_type=VehicleType[vehicle_type],
-                                  cost_function=CostFunction[cost_function],
-                                  trajectory=CRTrajectory(int(steps[0]), states))
+    pps = PlanningProblemSolution(
+        planning_problem_id=int(planning_problem_id if planning_problem_id is not None else scenario.problem_id),
+        vehicle_model=VehicleModel.KS,
+        vehicle_type=VehicleType[vehicle_type],
+        cost_function=CostFunction[cost_function],
+        trajectory=CRTrajectory(int(steps[0]), states),
+    )
     os.makedirs(path, exist_ok=True)
     writer = CommonRoadSolutionWriter(Solution(sid, [pps]))
     fname = f"solution_{scenario.id}.xml"

@@ -10,6 +10,7 @@ may carry the same id (``../shared/data`` has ``DEU_Muc-3_1_T-1`` twice and ``ZA
 as JSON and as XML); the first file (in the order given, folders sorted) keeps the plain id, each
 later one gets ``<id>@<file name>``, so keys stay unique and say where they came from.
 """
+
 from __future__ import annotations
 
 import glob
@@ -61,8 +62,11 @@ def expand_paths(paths) -> list[str]:
     out = []
     for p in paths:
         if os.path.isdir(p):
-            found = sorted(f for f in glob.glob(os.path.join(p, "**", "*"), recursive=True)
-                           if f.lower().endswith(SUFFIXES) and os.path.isfile(f))
+            found = sorted(
+                f
+                for f in glob.glob(os.path.join(p, "**", "*"), recursive=True)
+                if f.lower().endswith(SUFFIXES) and os.path.isfile(f)
+            )
             if not found:
                 raise ValueError(f"{p}: folder holds no scenario files ({', '.join(SUFFIXES)})")
             out += found
@@ -128,7 +132,7 @@ def sample_files(files: list, n: int, seed: int = 0) -> list:
     quota = np.maximum(1, np.floor(n * sizes / sizes.sum())).astype(int)
     rest = n - quota.sum()
     order = np.argsort(-(n * sizes / sizes.sum() - quota))  # largest remainders first
-    for j in order[:max(0, rest)]:
+    for j in order[: max(0, rest)]:
         quota[j] += 1
     rng = np.random.default_rng(seed)
     keep = []

@@ -7,6 +7,7 @@ turns least from the path's last chord), cut at ``LANE_PATH_LENGTH`` metres and 
 ``LANE_PATH_POINTS`` points evenly spaced in arc length. ``Scene.lane_paths`` holds them; the
 simulator's constant-velocity predictions follow them (``jaxplan.sim.prediction``).
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -51,8 +52,9 @@ def _chain(by_id: dict, lane, start: float, length: float) -> np.ndarray:
     return _distinct(np.concatenate(pts))
 
 
-def lane_paths(lanes, n_points: int = LANE_PATH_POINTS, length: float = LANE_PATH_LENGTH,
-               every: float = LANE_PATH_EVERY) -> tuple[np.ndarray, np.ndarray]:
+def lane_paths(
+    lanes, n_points: int = LANE_PATH_POINTS, length: float = LANE_PATH_LENGTH, every: float = LANE_PATH_EVERY
+) -> tuple[np.ndarray, np.ndarray]:
     """The lane paths of a map (see the module docstring).
 
     Args:

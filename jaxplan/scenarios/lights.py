@@ -17,6 +17,7 @@ Storage: a line's colors repeat with the least common multiple of its lights' pe
 period of them is kept from scene step 0 (``color (NL, P)``, ``period (NL,)``): the color at scene
 step ``k`` is ``color[j, k mod period[j]]``, exact at every step of any drive.
 """
+
 from __future__ import annotations
 
 import math
@@ -28,8 +29,9 @@ import numpy as np
 from jaxplan.scenarios.loader import LIGHT_COLORS, LIGHT_DIRECTIONS, ScenarioError
 from jaxplan.types import pytree_dataclass
 
-GREEN, YELLOW, RED, RED_YELLOW, INACTIVE = (LIGHT_COLORS.index(c) for c in
-                                            ("green", "yellow", "red", "redYellow", "inactive"))
+GREEN, YELLOW, RED, RED_YELLOW, INACTIVE = (
+    LIGHT_COLORS.index(c) for c in ("green", "yellow", "red", "redYellow", "inactive")
+)
 STRAIGHT_TURN = math.radians(30.0)  # a heading change within this through a junction is straight on
 MAX_PERIOD = 20000  # steps: a line whose lights repeat less often than this is refused
 LINE_MARGIN = 0.25  # m: the route crosses a stop line within this beyond its ends
@@ -62,11 +64,18 @@ class TrafficLights:
         line, s = np.asarray(self.line), np.asarray(self.s)
         color, period, valid = np.asarray(self.color), np.asarray(self.period), np.asarray(self.valid)
         lead = s.shape
-        if line.shape != lead + (2, 2) or np.asarray(self.lanelet).shape != lead or valid.shape != lead \
-                or period.shape != lead or color.shape[:-1] != lead:
-            raise ValueError(f"Scene.lights: expected line (..., NL, 2, 2), s / period / lanelet / valid (..., NL) "
-                             f"and color (..., NL, P), got {line.shape}, {s.shape}, {period.shape}, "
-                             f"{np.asarray(self.lanelet).shape}, {valid.shape}, {color.shape}")
+        if (
+            line.shape != lead + (2, 2)
+            or np.asarray(self.lanelet).shape != lead
+            or valid.shape != lead
+            or period.shape != lead
+            or color.shape[:-1] != lead
+        ):
+            raise ValueError(
+                f"Scene.lights: expected line (..., NL, 2, 2), s / period / lanelet / valid (..., NL) "
+                f"and color (..., NL, P), got {line.shape}, {s.shape}, {period.shape}, "
+                f"{np.asarray(self.lanelet).shape}, {valid.shape}, {color.shape}"
+            )
         if line.size and not np.all(np.isfinite(line[valid])) or s.size and not np.all(np.isfinite(s[valid])):
             raise ValueError("Scene.lights.line / s: contain NaN or inf")
         if not np.issubdtype(color.dtype, np.integer) or np.any((color < 0) | (color >= len(LIGHT_COLORS))):
@@ -78,8 +87,14 @@ class TrafficLights:
 
 def no_lights() -> TrafficLights:
     """A scene without stop lines (``NL = 0``)."""
-    return TrafficLights(np.zeros((0, 2, 2)), np.zeros(0), np.zeros((0, 1), np.int32), np.ones(0, np.int32),
-                         np.zeros(0, np.int32), np.zeros(0, bool))
+    return TrafficLights(
+        np.zeros((0, 2, 2)),
+        np.zeros(0),
+        np.zeros((0, 1), np.int32),
+        np.ones(0, np.int32),
+        np.zeros(0, np.int32),
+        np.zeros(0, bool),
+    )
 
 
 def pad_lights(lights: TrafficLights, NL: int, P: int) -> TrafficLights:
@@ -90,15 +105,23 @@ def pad_lights(lights: TrafficLights, NL: int, P: int) -> TrafficLights:
     if P > p:
         color = np.concatenate([color, np.repeat(color[:, -1:] if p else np.zeros((n, 1), np.int32), P - p, 1)], 1)
     if NL <= n:
-        return TrafficLights(np.asarray(lights.line), np.asarray(lights.s), color, np.asarray(lights.period),
-                             np.asarray(lights.lanelet), np.asarray(lights.valid))
+        return TrafficLights(
+            np.asarray(lights.line),
+            np.asarray(lights.s),
+            color,
+            np.asarray(lights.period),
+            np.asarray(lights.lanelet),
+            np.asarray(lights.valid),
+        )
     k = NL - n
-    return TrafficLights(np.concatenate([np.asarray(lights.line, float), np.zeros((k, 2, 2))]),
-                         np.concatenate([np.asarray(lights.s, float), np.zeros(k)]),
-                         np.concatenate([color, np.full((k, color.shape[1]), INACTIVE, np.int32)]),
-                         np.concatenate([np.asarray(lights.period, np.int32), np.ones(k, np.int32)]),
-                         np.concatenate([np.asarray(lights.lanelet, np.int32), np.full(k, -1, np.int32)]),
-                         np.concatenate([np.asarray(lights.valid, bool), np.zeros(k, bool)]))
+    return TrafficLights(
+        np.concatenate([np.asarray(lights.line, float), np.zeros((k, 2, 2))]),
+        np.concatenate([np.asarray(lights.s, float), np.zeros(k)]),
+        np.concatenate([color, np.full((k, color.shape[1]), INACTIVE, np.int32)]),
+        np.concatenate([np.asarray(lights.period, np.int32), np.ones(k, np.int32)]),
+        np.concatenate([np.asarray(lights.lanelet, np.int32), np.full(k, -1, np.int32)]),
+        np.concatenate([np.asarray(lights.valid, bool), np.zeros(k, bool)]),
+    )
 
 
 def colors_at(lights: TrafficLights, steps):
@@ -118,6 +141,7 @@ def must_stop(color):
 
 
 # ----------------------------------------------------------------------------- host: building
+
 
 def movement(lane, nxt) -> str | None:
     """``left``, ``straight`` or ``right``: the turn from ``lane``'s end to ``nxt``'s end (None without ``nxt``)."""
@@ -144,8 +168,10 @@ def line_colors(lights: list, move: str | None, where: str = "") -> tuple[np.nda
     for tl in lights:
         period = math.lcm(period, max(1, tl.period) if tl.active and tl.colors else 1)
     if period > MAX_PERIOD:
-        raise ScenarioError(f"{where}: traffic lights {[tl.id for tl in lights]} repeat only every {period} steps "
-                            f"(more than {MAX_PERIOD})")
+        raise ScenarioError(
+            f"{where}: traffic lights {[tl.id for tl in lights]} repeat only every {period} steps "
+            f"(more than {MAX_PERIOD})"
+        )
     steps = np.arange(period)
     match = [tl for tl in lights if move is not None and move in LIGHT_DIRECTIONS[tl.direction]]
     if not match:  # ambiguous: every light, the most restrictive one on
@@ -153,8 +179,9 @@ def line_colors(lights: list, move: str | None, where: str = "") -> tuple[np.nda
     out = np.full(period, INACTIVE, np.int32)
     for width in sorted({len(LIGHT_DIRECTIONS[tl.direction]) for tl in match}, reverse=True):
         # widest first: the narrower (more specific) lights decide where they are on
-        c = _most_restrictive(np.stack([tl.color_codes(steps) for tl in match
-                                        if len(LIGHT_DIRECTIONS[tl.direction]) == width]))
+        c = _most_restrictive(
+            np.stack([tl.color_codes(steps) for tl in match if len(LIGHT_DIRECTIONS[tl.direction]) == width])
+        )
         out = np.where(c != INACTIVE, c, out)
     return out, period
 
@@ -216,6 +243,11 @@ def route_lights(scenario, route, ref_xy: np.ndarray, ref_s: np.ndarray) -> Traf
         return no_lights()
     P = max(r[3] for r in rows)
     color = np.stack([np.concatenate([r[2], np.full(P - r[3], r[2][-1], np.int32)]) for r in rows])
-    return TrafficLights(np.stack([r[0] for r in rows]), np.array([r[1] for r in rows], float), color,
-                         np.array([r[3] for r in rows], np.int32), np.array([r[4] for r in rows], np.int32),
-                         np.ones(len(rows), bool))
+    return TrafficLights(
+        np.stack([r[0] for r in rows]),
+        np.array([r[1] for r in rows], float),
+        color,
+        np.array([r[3] for r in rows], np.int32),
+        np.array([r[4] for r in rows], np.int32),
+        np.ones(len(rows), bool),
+    )

@@ -21,6 +21,7 @@ Obstacle types that ``jaxplan.scenarios.scene.OBSTACLE_TYPES`` does not name are
 ``unknown``; those types, and obstacles left out for want of a shape or a trajectory, are named
 in one line on stderr per file.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -43,9 +44,15 @@ DEFAULT_SIZE = {"pedestrian": (0.6, 0.6), "bicycle": (1.8, 0.6)}
 
 # CommonRoad's traffic light colors and directions (the values its XML and commonroad-io use).
 LIGHT_COLORS = ("green", "yellow", "red", "redYellow", "inactive")
-LIGHT_DIRECTIONS = {"right": ("right",), "straight": ("straight",), "left": ("left",),
-                    "leftStraight": ("left", "straight"), "straightRight": ("straight", "right"),
-                    "leftRight": ("left", "right"), "all": ("left", "straight", "right")}
+LIGHT_DIRECTIONS = {
+    "right": ("right",),
+    "straight": ("straight",),
+    "left": ("left",),
+    "leftStraight": ("left", "straight"),
+    "straightRight": ("straight", "right"),
+    "leftRight": ("left", "right"),
+    "all": ("left", "straight", "right"),
+}
 
 
 class ScenarioError(ValueError):
@@ -171,8 +178,9 @@ def _field(obj: dict, key: str, where: str, path: str, kind=None):
         raise ScenarioError(f"{path}: missing field {where}.{key}")
     val = obj[key]
     if kind is not None and not isinstance(val, kind):
-        raise ScenarioError(f"{path}: field {where}.{key} should be {getattr(kind, '__name__', kind)}, "
-                            f"got {type(val).__name__}")
+        raise ScenarioError(
+            f"{path}: field {where}.{key} should be {getattr(kind, '__name__', kind)}, got {type(val).__name__}"
+        )
     return val
 
 
@@ -306,8 +314,9 @@ def _size(o, where, path) -> tuple[float, float]:
     if length <= 0 or width <= 0:
         raise ScenarioError(f"{path}: field {where}.length/width must be positive")
     if max(length, width) > FLOAT32_MAX_COORD:
-        raise ScenarioError(f"{path}: field {where}.length/width must be at most {FLOAT32_MAX_COORD:g} m, "
-                            f"got {length!r} / {width!r}")
+        raise ScenarioError(
+            f"{path}: field {where}.length/width must be at most {FLOAT32_MAX_COORD:g} m, got {length!r} / {width!r}"
+        )
     return length, width
 
 
@@ -332,11 +341,14 @@ def _occupancies(o, where, path) -> np.ndarray:
     except (TypeError, ValueError):
         a = None
     if a is None or a.ndim != 2 or a.shape[1] != 6 or not len(a) or not np.all(np.isfinite(a)):
-        raise ScenarioError(f"{path}: field {where}.occupancies should be rows of finite "
-                            f"[t, x, y, length, width, heading]")
+        raise ScenarioError(
+            f"{path}: field {where}.occupancies should be rows of finite [t, x, y, length, width, heading]"
+        )
     if np.any(a[:, 3:5] <= 0) or a[:, 3:5].max() > FLOAT32_MAX_COORD:
-        raise ScenarioError(f"{path}: field {where}.occupancies has a length or width that is not positive "
-                            f"or above {FLOAT32_MAX_COORD:g} m")
+        raise ScenarioError(
+            f"{path}: field {where}.occupancies has a length or width that is not positive "
+            f"or above {FLOAT32_MAX_COORD:g} m"
+        )
     if np.abs(a[:, 5]).max() > MAX_ANGLE:
         raise ScenarioError(f"{path}: field {where}.occupancies has a heading (column 5) beyond +-{MAX_ANGLE:g} rad")
     return a
@@ -360,8 +372,9 @@ def _traffic_lights(d: dict, dt: float, t0: float, origin: np.ndarray, path: str
         seen.add(lid)
         direction = tl.get("direction", "all")
         if direction not in LIGHT_DIRECTIONS:
-            raise ScenarioError(f"{path}: field {where}.direction should be one of {', '.join(LIGHT_DIRECTIONS)}, "
-                                f"got {direction!r}")
+            raise ScenarioError(
+                f"{path}: field {where}.direction should be one of {', '.join(LIGHT_DIRECTIONS)}, got {direction!r}"
+            )
         active = tl.get("active", True)
         if not isinstance(active, bool):
             raise ScenarioError(f"{path}: field {where}.active should be true or false, got {active!r}")
@@ -378,25 +391,29 @@ def _traffic_lights(d: dict, dt: float, t0: float, origin: np.ndarray, path: str
                 raise ScenarioError(f"{path}: field {w} should be an object {{color, duration}}")
             color = ph.get("color")
             if color not in LIGHT_COLORS:
-                raise ScenarioError(f"{path}: field {w}.color should be one of {', '.join(LIGHT_COLORS)}, "
-                                    f"got {color!r}")
+                raise ScenarioError(
+                    f"{path}: field {w}.color should be one of {', '.join(LIGHT_COLORS)}, got {color!r}"
+                )
             dur = _number(ph, "duration", w, path)
             steps = int(round(dur / dt))
             if dur <= 0 or steps < 1 or steps > 1e7:
-                raise ScenarioError(f"{path}: field {w}.duration should be at least one time step ({dt:g} s) "
-                                    f"and finite, got {dur!r}")
+                raise ScenarioError(
+                    f"{path}: field {w}.duration should be at least one time step ({dt:g} s) and finite, got {dur!r}"
+                )
             colors.append(color)
             durations.append(steps)
         pos = None
         if tl.get("position") is not None:
             pos = _points([tl["position"]], f"{where}.position", path)[0] - origin
-        out.append(TrafficLight(lid, direction, active, tuple(colors), tuple(durations),
-                                int(round((offset - t0) / dt)), pos))
+        out.append(
+            TrafficLight(lid, direction, active, tuple(colors), tuple(durations), int(round((offset - t0) / dt)), pos)
+        )
     return tuple(out)
 
 
-def _lane_lights(ln: dict, where: str, path: str, left: np.ndarray, right: np.ndarray, origin: np.ndarray,
-                 known: set) -> tuple:
+def _lane_lights(
+    ln: dict, where: str, path: str, left: np.ndarray, right: np.ndarray, origin: np.ndarray, known: set
+) -> tuple:
     """``(light ids, stop line (2, 2) or None)`` of a lanelet (optional ``traffic_lights`` and ``stop_line``)."""
     ids = set(_ids(ln, "traffic_lights", where, path))
     sl = ln.get("stop_line")
@@ -410,8 +427,10 @@ def _lane_lights(ln: dict, where: str, path: str, left: np.ndarray, right: np.nd
         if any(has) and not all(has):
             raise ScenarioError(f"{path}: field {w} gives only one of start and end")
         if all(has):
-            line = np.stack([_points([sl["start"]], f"{w}.start", path)[0],
-                             _points([sl["end"]], f"{w}.end", path)[0]]) - origin
+            line = (
+                np.stack([_points([sl["start"]], f"{w}.start", path)[0], _points([sl["end"]], f"{w}.end", path)[0]])
+                - origin
+            )
     missing = sorted(ids - known)
     if missing:
         raise ScenarioError(f"{path}: field {where}.traffic_lights names traffic lights that do not exist: {missing}")
@@ -426,14 +445,19 @@ GOAL_INTERVALS = ("time", "velocity", "orientation")
 
 def _interval(goal: dict, key: str, where: str, path: str) -> list:
     v = goal[key]
-    ok = isinstance(v, (list, tuple)) and len(v) == 2 and all(
-        isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) for x in v)
+    ok = (
+        isinstance(v, (list, tuple))
+        and len(v) == 2
+        and all(isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) for x in v)
+    )
     if not ok or v[0] > v[1]:
-        raise ScenarioError(f"{path}: field {where}.{key} should be an interval [low, high] of finite numbers, "
-                            f"got {v!r}")
+        raise ScenarioError(
+            f"{path}: field {where}.{key} should be an interval [low, high] of finite numbers, got {v!r}"
+        )
     if key == "orientation" and max(abs(v[0]), abs(v[1])) > MAX_ANGLE:  # like every other angle
-        raise ScenarioError(f"{path}: field {where}.{key} should be an interval of angles within +-{MAX_ANGLE:g} rad, "
-                            f"got {v!r}")
+        raise ScenarioError(
+            f"{path}: field {where}.{key} should be an interval of angles within +-{MAX_ANGLE:g} rad, got {v!r}"
+        )
     return [float(v[0]), float(v[1])]
 
 
@@ -450,8 +474,9 @@ def _goal(problem: dict, origin: np.ndarray, path: str, t0: float = 0.0) -> dict
     goal = dict(goal)
     for key in ("position", "shape", "point"):
         if key in goal:
-            raise ScenarioError(f"{path}: field {where}.{key}: a goal region must be one of "
-                                f"{', '.join(GOAL_POSITIONS)}")
+            raise ScenarioError(
+                f"{path}: field {where}.{key}: a goal region must be one of {', '.join(GOAL_POSITIONS)}"
+            )
     for key in GOAL_INTERVALS:
         if goal.get(key) is not None:
             goal[key] = _interval(goal, key, where, path)
@@ -465,8 +490,12 @@ def _goal(problem: dict, origin: np.ndarray, path: str, t0: float = 0.0) -> dict
         c = _points([_field(r, "center", rw, path)], f"{rw}.center", path)[0]
         length, width = _size(r, rw, path)
         orientation = _angle(r, "orientation", rw, path) if r.get("orientation") is not None else 0.0
-        goal["rectangle"] = {"center": (c - origin).tolist(), "length": length, "width": width,
-                             "orientation": orientation}
+        goal["rectangle"] = {
+            "center": (c - origin).tolist(),
+            "length": length,
+            "width": width,
+            "orientation": orientation,
+        }
     if "polygon" in goal:
         goal["polygon"] = (_points(goal["polygon"], f"{where}.polygon", path, 3) - origin).tolist()
     if "circle" in goal:
@@ -483,8 +512,9 @@ def _goal(problem: dict, origin: np.ndarray, path: str, t0: float = 0.0) -> dict
     return goal
 
 
-def parse_scenario(d: Any, path: str, horizon: float | None = None, notes: list | None = None,
-                   quiet: bool = False) -> Scenario:
+def parse_scenario(
+    d: Any, path: str, horizon: float | None = None, notes: list | None = None, quiet: bool = False
+) -> Scenario:
     """Build a ``Scenario`` from an already parsed scenario object (see ``load_scenario``).
 
     Args:
@@ -527,11 +557,23 @@ def parse_scenario(d: Any, path: str, horizon: float | None = None, notes: list 
         if limit is not None:
             limit = _number(ln, "speed_limit", where, path)
         refs, stop_line = _lane_lights(ln, where, path, left, right, origin, light_ids)
-        lanes.append(Lane(_int(ln, "id", where, path), left, right, 0.5 * (left + right),
-                          _ids(ln, "successors", where, path), _ids(ln, "predecessors", where, path),
-                          _adjacent(ln, "adjacentLeft", where, path), _adjacent(ln, "adjacentRight", where, path),
-                          limit, _adjacent(ln, "adjacentLeft", where, path, same=False),
-                          _adjacent(ln, "adjacentRight", where, path, same=False), refs, stop_line))
+        lanes.append(
+            Lane(
+                _int(ln, "id", where, path),
+                left,
+                right,
+                0.5 * (left + right),
+                _ids(ln, "successors", where, path),
+                _ids(ln, "predecessors", where, path),
+                _adjacent(ln, "adjacentLeft", where, path),
+                _adjacent(ln, "adjacentRight", where, path),
+                limit,
+                _adjacent(ln, "adjacentLeft", where, path, same=False),
+                _adjacent(ln, "adjacentRight", where, path, same=False),
+                refs,
+                stop_line,
+            )
+        )
 
     obstacles = _field(d, "obstacles", "scenario", path, list)
     for i, o in enumerate(obstacles):
@@ -544,8 +586,11 @@ def parse_scenario(d: Any, path: str, horizon: float | None = None, notes: list 
                 raise ScenarioError(f"{path}: field obstacles[{i}] gives both states and occupancies (one of them)")
             occupied[i] = _occupancies(o, f"obstacles[{i}]", path)
     states = {i: _states(o, f"obstacles[{i}]", path) for i, o in enumerate(obstacles) if o.get("states")}
-    n_steps = max([1] + [len(st) for st in states.values()]
-                  + [int(np.rint((oc[:, 0].max() - t0) / dt)) + 1 for oc in occupied.values()])
+    n_steps = max(
+        [1]
+        + [len(st) for st in states.values()]
+        + [int(np.rint((oc[:, 0].max() - t0) / dt)) + 1 for oc in occupied.values()]
+    )
     if horizon is not None:
         n_steps = min(n_steps, int(round(horizon / dt)) + 1)
     t = np.arange(n_steps) * dt
@@ -583,8 +628,15 @@ def parse_scenario(d: Any, path: str, horizon: float | None = None, notes: list 
             k = np.rint((st[:, 0] - t0) / dt)
             keep = (k >= 0) & (k < n_steps)
             k = k[keep].astype(int)
-            b[k] = np.column_stack([st[keep, 1] - origin[0], st[keep, 2] - origin[1],
-                                    np.full(keep.sum(), length), np.full(keep.sum(), width), st[keep, 3]])
+            b[k] = np.column_stack(
+                [
+                    st[keep, 1] - origin[0],
+                    st[keep, 2] - origin[1],
+                    np.full(keep.sum(), length),
+                    np.full(keep.sum(), width),
+                    st[keep, 3],
+                ]
+            )
             ok[k] = True
         elif "polygon" in o:
             poly = _points(o["polygon"], f"{where}.polygon", path, 3) - origin
@@ -622,15 +674,29 @@ def parse_scenario(d: Any, path: str, horizon: float | None = None, notes: list 
 
         print(f"jaxplan: {path}: {'; '.join(notes)}", file=sys.stderr)
     K = len(boxes)
-    obs = Obstacles(jnp.asarray(np.array(boxes).reshape(K, n_steps, 5), jnp.float32),
-                    jnp.asarray(np.array(valids, bool).reshape(K, n_steps)), jnp.asarray(t, jnp.float32),
-                    jnp.asarray(np.array(statics, bool).reshape(K)))
+    obs = Obstacles(
+        jnp.asarray(np.array(boxes).reshape(K, n_steps, 5), jnp.float32),
+        jnp.asarray(np.array(valids, bool).reshape(K, n_steps)),
+        jnp.asarray(t, jnp.float32),
+        jnp.asarray(np.array(statics, bool).reshape(K)),
+    )
     tags = d.get("tags") or []
-    return Scenario(str(d.get("id", os.path.basename(path))), str(d.get("source", "")),
-                    tuple(map(str, tags)) if isinstance(tags, list) else (), dt, tuple(lanes), obs,
-                    np.asarray(ids), tuple(types), ego, _goal(problems[0], origin, path, t0), origin,
-                    tuple(skipped), _int(problems[0], "id", "planning_problems[0]", path)
-                    if "id" in problems[0] else 0, lights)
+    return Scenario(
+        str(d.get("id", os.path.basename(path))),
+        str(d.get("source", "")),
+        tuple(map(str, tags)) if isinstance(tags, list) else (),
+        dt,
+        tuple(lanes),
+        obs,
+        np.asarray(ids),
+        tuple(types),
+        ego,
+        _goal(problems[0], origin, path, t0),
+        origin,
+        tuple(skipped),
+        _int(problems[0], "id", "planning_problems[0]", path) if "id" in problems[0] else 0,
+        lights,
+    )
 
 
 def scenario_files(directory: str, pattern: str = "*.json") -> list[str]:
@@ -673,8 +739,9 @@ class Folder:
         return len(self.scenarios)
 
 
-def load_folder(directory: str, pattern: str = "*.json", horizon: float | None = None,
-                limit: int | None = None, stderr=None) -> Folder:
+def load_folder(
+    directory: str, pattern: str = "*.json", horizon: float | None = None, limit: int | None = None, stderr=None
+) -> Folder:
     """Every loadable scenario of a folder; each file that fails is named on stderr and counted.
 
     The one loading path of every suite that reads ``--scenarios DIR`` (their metrics
@@ -703,8 +770,9 @@ def load_folder(directory: str, pattern: str = "*.json", horizon: float | None =
             skipped.append((f, str(e)))
             print(f"jaxplan: skipping {e}", file=out)
     if not scenarios:
-        raise ScenarioError(f"{directory}: none of its {len(files)} scenario files could be loaded "
-                            f"(first: {skipped[0][1]})")
+        raise ScenarioError(
+            f"{directory}: none of its {len(files)} scenario files could be loaded (first: {skipped[0][1]})"
+        )
     return Folder(directory, tuple(scenarios), tuple(loaded), tuple(skipped))
 
 
@@ -739,8 +807,9 @@ def lane_at(scenario: Scenario, xy, heading: float | None = None) -> Lane:
     return best
 
 
-def lane_polyline(scenario: Scenario, lane: Lane | int | None = None, max_length: float = 500.0,
-                  back: float = 20.0) -> np.ndarray:
+def lane_polyline(
+    scenario: Scenario, lane: Lane | int | None = None, max_length: float = 500.0, back: float = 20.0
+) -> np.ndarray:
     """Centre-line points ``(P, 2)`` along a lane, following one predecessor back (when
     ``back > 0``) and successors forward (first unvisited one each time) up to ``max_length``.
 
@@ -769,7 +838,8 @@ def lane_polyline(scenario: Scenario, lane: Lane | int | None = None, max_length
     return np.concatenate(pts)
 
 
-def lane_reference(scenario: Scenario, lane: Lane | int | None = None, max_length: float = 500.0,
-                   back: float = 20.0) -> ReferenceLine:
+def lane_reference(
+    scenario: Scenario, lane: Lane | int | None = None, max_length: float = 500.0, back: float = 20.0
+) -> ReferenceLine:
     """``ReferenceLine`` along ``lane_polyline(scenario, lane, max_length, back)``."""
     return ReferenceLine.from_polyline(lane_polyline(scenario, lane, max_length, back))

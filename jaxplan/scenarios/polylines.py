@@ -1,4 +1,5 @@
 """Host-side (numpy) polyline tools shared by the loaders, demonstrations and experiments."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -62,8 +63,9 @@ def smooth_polyline(xy: np.ndarray, wavelength: float, max_dev: float, order: in
     xy = np.asarray(xy, float)
     n = len(xy)
     if wavelength > 0 and not max_dev > 0:
-        raise ValueError(f"smooth_polyline: max_dev must be > 0 m when smoothing, got {max_dev!r} "
-                         f"(SceneConfig.route_max_dev)")
+        raise ValueError(
+            f"smooth_polyline: max_dev must be > 0 m when smoothing, got {max_dev!r} (SceneConfig.route_max_dev)"
+        )
     if wavelength <= 0 or n <= order + 1:
         return xy.copy()
     ds = float(np.mean(np.linalg.norm(np.diff(xy, axis=0), axis=1)))

@@ -21,6 +21,7 @@ the goal lanelet along successors, ``SURVIVAL_AHEAD`` from the start lanelet whe
 no position, then ``AHEAD_MIN`` straight), so that a planner's horizon never runs off it;
 ``Route.end_s`` says where the mapped road ends (a dead end), ``inf`` where it goes on.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -147,8 +148,10 @@ def neighbour_map(scenario) -> dict:
     by_id = {ln.id: ln for ln in scenario.lanes}
     out = {}
     for ln in scenario.lanes:
-        for side, same, opp in (("left", ln.adjacent_left, ln.opposite_left),
-                                ("right", ln.adjacent_right, ln.opposite_right)):
+        for side, same, opp in (
+            ("left", ln.adjacent_left, ln.opposite_left),
+            ("right", ln.adjacent_right, ln.opposite_right),
+        ):
             if same is not None and same in by_id:
                 out[(ln.id, side)] = (same, True)
             elif opp is not None and opp in by_id:
@@ -171,8 +174,11 @@ def neighbour_map(scenario) -> dict:
                     continue
                 # same direction: my left bound is its right bound (and my right its left);
                 # opposite direction: my left bound is its left bound reversed (my right, its right)
-                for bound, same in (((other.right, True), (other.left, False)) if side == "left" else
-                                    ((other.left, True), (other.right, False))):
+                for bound, same in (
+                    ((other.right, True), (other.left, False))
+                    if side == "left"
+                    else ((other.left, True), (other.right, False))
+                ):
                     if np.min(np.linalg.norm(bound - m, axis=1)) > reach:  # cheap reject
                         continue
                     if _bounds_shared(mine, bound if same else bound[::-1]):
@@ -283,7 +289,7 @@ def blend_lane_change(before: np.ndarray, after: np.ndarray, length: float) -> t
     tan = np.gradient(pts, axis=0)
     tan /= np.maximum(np.linalg.norm(tan, axis=1, keepdims=True), 1e-9)
     r = u / max(span, 1e-9)
-    w = 3 * r ** 2 - 2 * r ** 3
+    w = 3 * r**2 - 2 * r**3
     pts = pts + np.column_stack([-tan[:, 1], tan[:, 0]]) * (d * (1 - w))[:, None]
     rest = np.nonzero(s > span + 1e-6)[0]
     idx = np.clip(np.searchsorted(s, u, side="right") - 1, 0, len(after) - 1)
@@ -304,8 +310,10 @@ def plan_route(scenario) -> Route:
     if not starts:
         starts = lanelets_at(scenario, start, scenario.ego.heading, tol=3.0)
     if not starts:
-        raise RouteError(f"scenario {scenario.id}: no lanelet under the start {start.round(2).tolist()} "
-                         f"that runs along its heading {scenario.ego.heading:.2f} rad")
+        raise RouteError(
+            f"scenario {scenario.id}: no lanelet under the start {start.round(2).tolist()} "
+            f"that runs along its heading {scenario.ego.heading:.2f} rad"
+        )
     goals = _goal_lanelets(scenario)
     path = _search(scenario, by_id, starts, goals, neighbour_map(scenario)) if goals else None
     reaches = path is not None or not _has_position(scenario.goal)

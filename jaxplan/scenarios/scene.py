@@ -40,6 +40,7 @@ vertices, ``K`` obstacles over ``T`` steps, ``G`` goal polygons of ``W`` vertice
   spaced in arc length (a valid path's points are all valid; padding paths none). The simulator's
   constant-velocity predictions follow them.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -57,8 +58,17 @@ from jaxplan.scenarios.polylines import arc_length, nearest_on_polyline, resampl
 from jaxplan.scenarios.route import Route, RouteError, neighbour_map, plan_route
 from jaxplan.types import Obstacles, check_coordinates, check_finite, pytree_dataclass
 
-OBSTACLE_TYPES = ("car", "truck", "bus", "motorcycle", "bicycle", "pedestrian", "parkedVehicle",
-                  "constructionZone", "unknown")
+OBSTACLE_TYPES = (
+    "car",
+    "truck",
+    "bus",
+    "motorcycle",
+    "bicycle",
+    "pedestrian",
+    "parkedVehicle",
+    "constructionZone",
+    "unknown",
+)
 INF = float("inf")
 
 
@@ -90,8 +100,19 @@ class SceneConfig:
     route_max_dev: float = 0.1
 
 
-@pytree_dataclass(data_fields=("region", "region_valid", "has_region", "time", "speed", "heading", "has_heading",
-                      "s_range", "l_range"))
+@pytree_dataclass(
+    data_fields=(
+        "region",
+        "region_valid",
+        "has_region",
+        "time",
+        "speed",
+        "heading",
+        "has_heading",
+        "s_range",
+        "l_range",
+    )
+)
 class Goal:
     """A planning problem's goal (CommonRoad semantics: reached when, at one step, the
     position is in the region, the time in ``time`` and speed / heading in their ranges).
@@ -118,10 +139,31 @@ class Goal:
     l_range: Any
 
 
-@pytree_dataclass(data_fields=("start", "route", "route_start_s", "route_end_s", "lane_offset", "lane_width", "lane_valid",
-                      "lane_same_dir", "road_left", "road_right", "speed_limit", "drivable", "drivable_valid",
-                      "obstacles", "obstacle_sl", "obstacle_type", "goal", "dt", "lights",
-                      "lane_paths", "lane_path_valid"))
+@pytree_dataclass(
+    data_fields=(
+        "start",
+        "route",
+        "route_start_s",
+        "route_end_s",
+        "lane_offset",
+        "lane_width",
+        "lane_valid",
+        "lane_same_dir",
+        "road_left",
+        "road_right",
+        "speed_limit",
+        "drivable",
+        "drivable_valid",
+        "obstacles",
+        "obstacle_sl",
+        "obstacle_type",
+        "goal",
+        "dt",
+        "lights",
+        "lane_paths",
+        "lane_path_valid",
+    )
+)
 class Scene:
     """One road scene (see the module docstring for every field's shape). Add a leading
     axis to every leaf for a batch (``stack_scenes``)."""
@@ -188,8 +230,10 @@ class Scene:
         self.obstacles.validate()
         ty = np.asarray(self.obstacle_type)
         if ty.shape != np.asarray(self.obstacles.static).shape or np.any((ty < 0) | (ty >= len(OBSTACLE_TYPES))):
-            raise ValueError(f"Scene.obstacle_type: expected ints in [0, {len(OBSTACLE_TYPES)}) of shape "
-                             f"{np.asarray(self.obstacles.static).shape}")
+            raise ValueError(
+                f"Scene.obstacle_type: expected ints in [0, {len(OBSTACLE_TYPES)}) of shape "
+                f"{np.asarray(self.obstacles.static).shape}"
+            )
         g = self.goal
         for name in ("time", "speed", "heading", "s_range", "l_range"):
             a = np.asarray(getattr(g, name), float)
@@ -201,8 +245,10 @@ class Scene:
         if self.lane_paths is not None:
             lp = check_finite("Scene.lane_paths", self.lane_paths)
             if lp.ndim < 3 or lp.shape[-1] != 2 or np.asarray(self.lane_path_valid).shape != lp.shape[:-1]:
-                raise ValueError(f"Scene.lane_paths: expected (..., LP, Q, 2) with a (..., LP, Q) mask, got "
-                                 f"{lp.shape} and {np.asarray(self.lane_path_valid).shape}")
+                raise ValueError(
+                    f"Scene.lane_paths: expected (..., LP, Q, 2) with a (..., LP, Q) mask, got "
+                    f"{lp.shape} and {np.asarray(self.lane_path_valid).shape}"
+                )
         d = check_finite("Scene.dt", self.dt)
         if np.any(d <= 0):
             raise ValueError("Scene.dt must be positive")
@@ -223,6 +269,7 @@ class SceneRecord:
 
 # ----------------------------------------------------------------------------- host helpers
 
+
 def simplify(xy: np.ndarray, tol: float) -> np.ndarray:
     """Douglas-Peucker simplification of a polyline ``(P, 2)`` within ``tol`` metres (keeps ends)."""
     xy = np.asarray(xy, float)
@@ -238,7 +285,7 @@ def simplify(xy: np.ndarray, tol: float) -> np.ndarray:
         a, b = xy[i], xy[j]
         d = b - a
         n = np.linalg.norm(d)
-        p = xy[i + 1:j]
+        p = xy[i + 1 : j]
         if n < 1e-12:
             dist = np.linalg.norm(p - a, axis=1)
         else:
@@ -340,9 +387,9 @@ def _polygon_array(polys: list, pad_vertices: int | None = None) -> tuple[np.nda
     arr = np.zeros((M, V, 2))
     ok = np.zeros((M, V), bool)
     for i, p in enumerate(polys):
-        arr[i, :len(p)] = p
-        arr[i, len(p):] = p[-1]
-        ok[i, :len(p)] = True
+        arr[i, : len(p)] = p
+        arr[i, len(p) :] = p[-1]
+        ok[i, : len(p)] = True
     return arr, ok
 
 
@@ -353,8 +400,14 @@ def _goal_polygons(scenario, by_id, tol):
         r = g["rectangle"]
         c, s = math.cos(r["orientation"]), math.sin(r["orientation"])
         hl, hw = 0.5 * r["length"], 0.5 * r["width"]
-        polys.append(np.array([[r["center"][0] + c * dx - s * dy, r["center"][1] + s * dx + c * dy]
-                               for dx, dy in ((hl, hw), (-hl, hw), (-hl, -hw), (hl, -hw))]))
+        polys.append(
+            np.array(
+                [
+                    [r["center"][0] + c * dx - s * dy, r["center"][1] + s * dx + c * dy]
+                    for dx, dy in ((hl, hw), (-hl, hw), (-hl, -hw), (hl, -hw))
+                ]
+            )
+        )
     if "polygon" in g:
         polys.append(np.asarray(g["polygon"], float))
     if "circle" in g:
@@ -430,22 +483,50 @@ def build_scene(scenario, config: SceneConfig = SceneConfig(), route: Route | No
     else:
         s_rng, l_rng = [route.start_s, INF], [-INF, INF]
     heading = g.get("orientation")
-    goal = Goal(region, region_ok, np.asarray(bool(gpolys)), np.asarray(g.get("time", [0.0, INF]), float),
-                np.asarray(g.get("velocity", [-INF, INF]), float),
-                np.asarray(heading if heading is not None else [-INF, INF], float), np.asarray(heading is not None),
-                np.asarray(s_rng, float), np.asarray(l_rng, float))
+    goal = Goal(
+        region,
+        region_ok,
+        np.asarray(bool(gpolys)),
+        np.asarray(g.get("time", [0.0, INF]), float),
+        np.asarray(g.get("velocity", [-INF, INF]), float),
+        np.asarray(heading if heading is not None else [-INF, INF], float),
+        np.asarray(heading is not None),
+        np.asarray(s_rng, float),
+        np.asarray(l_rng, float),
+    )
 
     obs = scenario.obstacles
-    types = np.array([OBSTACLE_TYPES.index(t) if t in OBSTACLE_TYPES else OBSTACLE_TYPES.index("unknown")
-                      for t in scenario.obstacle_types], np.int32).reshape(-1)
+    types = np.array(
+        [
+            OBSTACLE_TYPES.index(t) if t in OBSTACLE_TYPES else OBSTACLE_TYPES.index("unknown")
+            for t in scenario.obstacle_types
+        ],
+        np.int32,
+    ).reshape(-1)
     e = scenario.ego
     ref = _ref_numpy(xy)
     boxes = np.asarray(obs.boxes, float)
-    scene = Scene(np.array([e.x, e.y, e.heading, e.v, e.a], float), ref, np.asarray(route.start_s),
-                  np.asarray(route.end_s), off, width, valid, same, edge_l, edge_r, limit, drv, drv_ok,
-                  Obstacles(boxes, np.asarray(obs.valid, bool), np.asarray(obs.t, float),
-                            np.asarray(obs.static, bool)), frenet_of(ref, boxes[..., :2]), types, goal,
-                  np.asarray(scenario.dt, float), lights=route_lights(scenario, route, ref.xy, ref.s))
+    scene = Scene(
+        np.array([e.x, e.y, e.heading, e.v, e.a], float),
+        ref,
+        np.asarray(route.start_s),
+        np.asarray(route.end_s),
+        off,
+        width,
+        valid,
+        same,
+        edge_l,
+        edge_r,
+        limit,
+        drv,
+        drv_ok,
+        Obstacles(boxes, np.asarray(obs.valid, bool), np.asarray(obs.t, float), np.asarray(obs.static, bool)),
+        frenet_of(ref, boxes[..., :2]),
+        types,
+        goal,
+        np.asarray(scenario.dt, float),
+        lights=route_lights(scenario, route, ref.xy, ref.s),
+    )
     paths, paths_ok = lane_paths(scenario.lanes)
     scene = dataclasses.replace(scene, lane_paths=paths, lane_path_valid=paths_ok)
     return scene, route
@@ -482,9 +563,14 @@ def trim_route(route: Route, goal_polygons: list, config: SceneConfig) -> Route:
     xy = np.concatenate([resample_polyline(route.xy, s, [lo]), route.xy[keep], resample_polyline(route.xy, s, [hi])])
     i_lo = max(0, int(np.searchsorted(s, lo, side="right")) - 1)
     i_hi = min(len(s) - 1, int(np.searchsorted(s, hi, side="right")) - 1)
-    owner = np.concatenate([route.owner[i_lo:i_lo + 1], route.owner[keep], route.owner[i_hi:i_hi + 1]])
-    return dataclasses.replace(route, xy=xy, owner=owner, start_s=route.start_s - lo,
-                               end_s=route.end_s - lo if route.end_s <= hi else float("inf"))
+    owner = np.concatenate([route.owner[i_lo : i_lo + 1], route.owner[keep], route.owner[i_hi : i_hi + 1]])
+    return dataclasses.replace(
+        route,
+        xy=xy,
+        owner=owner,
+        start_s=route.start_s - lo,
+        end_s=route.end_s - lo if route.end_s <= hi else float("inf"),
+    )
 
 
 def _ref_numpy(xy: np.ndarray) -> ReferenceLine:
@@ -494,6 +580,7 @@ def _ref_numpy(xy: np.ndarray) -> ReferenceLine:
 
 
 # ----------------------------------------------------------------------------- batching
+
 
 def _pad_axis(a: np.ndarray, axis: int, size: int, fill) -> np.ndarray:
     a = np.asarray(a)
@@ -506,19 +593,23 @@ def _pad_axis(a: np.ndarray, axis: int, size: int, fill) -> np.ndarray:
     return np.pad(a, pad, constant_values=fill)
 
 
-def pad_scene(scene: Scene, K: int, T: int, M: int, V: int, G: int, W: int, NL: int = 0, P: int = 1,
-              LP: int | None = None) -> Scene:
+def pad_scene(
+    scene: Scene, K: int, T: int, M: int, V: int, G: int, W: int, NL: int = 0, P: int = 1, LP: int | None = None
+) -> Scene:
     """Pad one (numpy) scene to ``K`` obstacles over ``T`` steps, ``M x V`` drivable and
     ``G x W`` goal polygons, ``NL`` stop lines with ``P`` steps of colors. Padding is invalid
     (obstacles, stop lines) or repeats the last vertex (polygons). ``LP``: pad the lane paths to
     ``LP`` (invalid paths) when given."""
     if LP is not None and scene.lane_paths is not None:
-        scene = dataclasses.replace(scene, lane_paths=_pad_axis(scene.lane_paths, 0, LP, 0.0),
-                                    lane_path_valid=_pad_axis(scene.lane_path_valid, 0, LP, False))
+        scene = dataclasses.replace(
+            scene,
+            lane_paths=_pad_axis(scene.lane_paths, 0, LP, 0.0),
+            lane_path_valid=_pad_axis(scene.lane_path_valid, 0, LP, False),
+        )
     o = scene.obstacles
     b = _pad_axis(_pad_axis(o.boxes, 1, T, "edge"), 0, K, 0.0)
     if K > o.boxes.shape[0]:
-        b[o.boxes.shape[0]:, :, 2:4] = 1.0  # padding: unit boxes, never valid
+        b[o.boxes.shape[0] :, :, 2:4] = 1.0  # padding: unit boxes, never valid
     v = _pad_axis(_pad_axis(o.valid, 1, T, False), 0, K, False)
     t = np.arange(T) * float(scene.dt)
     obs = Obstacles(b, v, t, _pad_axis(o.static, 0, K, False))
@@ -534,8 +625,16 @@ def pad_scene(scene: Scene, K: int, T: int, M: int, V: int, G: int, W: int, NL: 
     reg, reg_ok = polys(scene.goal.region, scene.goal.region_valid, G, W)
     goal = dataclasses.replace(scene.goal, region=reg, region_valid=reg_ok)
     lights = pad_lights(no_lights() if scene.lights is None else scene.lights, NL, P)
-    return dataclasses.replace(scene, drivable=drv, drivable_valid=drv_ok, obstacles=obs, obstacle_sl=sl,
-                               obstacle_type=ty, goal=goal, lights=lights)
+    return dataclasses.replace(
+        scene,
+        drivable=drv,
+        drivable_valid=drv_ok,
+        obstacles=obs,
+        obstacle_sl=sl,
+        obstacle_type=ty,
+        goal=goal,
+        lights=lights,
+    )
 
 
 SIZE_NAMES = ("K", "T", "M", "V", "G", "W", "NL", "P", "LP")
@@ -547,9 +646,17 @@ def scene_sizes(scene: Scene) -> dict:
     vertices, ``NL`` stop lines with ``P`` steps of colours, ``LP`` lane paths."""
     b = np.shape(scene.obstacles.boxes)
     nl, p = np.shape(scene.lights.color) if scene.lights is not None else (0, 1)
-    return {"K": b[0], "T": b[1], "M": np.shape(scene.drivable)[0], "V": np.shape(scene.drivable)[1],
-            "G": np.shape(scene.goal.region)[0], "W": np.shape(scene.goal.region)[1], "NL": nl, "P": p,
-            "LP": np.shape(scene.lane_paths)[0] if scene.lane_paths is not None else 0}
+    return {
+        "K": b[0],
+        "T": b[1],
+        "M": np.shape(scene.drivable)[0],
+        "V": np.shape(scene.drivable)[1],
+        "G": np.shape(scene.goal.region)[0],
+        "W": np.shape(scene.goal.region)[1],
+        "NL": nl,
+        "P": p,
+        "LP": np.shape(scene.lane_paths)[0] if scene.lane_paths is not None else 0,
+    }
 
 
 def stack_scenes(scenes: list, min_steps: int = 1, min_sizes=None) -> Scene:
@@ -575,8 +682,12 @@ def stack_scenes(scenes: list, min_steps: int = 1, min_sizes=None) -> Scene:
     size["T"] = max(size["T"], min_steps)
     size["P"] = max(size["P"], 1)
     size["LP"] = max(size["LP"], 1)
-    padded = [pad_scene(s, size["K"], size["T"], size["M"], size["V"], size["G"], size["W"], size["NL"], size["P"],
-                        LP=size["LP"]) for s in scenes]
+    padded = [
+        pad_scene(
+            s, size["K"], size["T"], size["M"], size["V"], size["G"], size["W"], size["NL"], size["P"], LP=size["LP"]
+        )
+        for s in scenes
+    ]
     f = jnp.result_type(float)
 
     def stack(*xs):
@@ -592,6 +703,7 @@ def index_scene(batch: Scene, i: int) -> Scene:
 
 
 # ----------------------------------------------------------------------------- loading
+
 
 def load_records(paths: list, config: SceneConfig = SceneConfig(), horizon: float | None = None) -> list:
     """``SceneRecord``s from scenario files (``.json`` shared format, ``.xml`` CommonRoad, either

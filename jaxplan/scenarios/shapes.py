@@ -1,4 +1,5 @@
 """Random convex shapes for oracle tests and the geometry suite (numpy, host side)."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -6,9 +7,14 @@ import numpy as np
 from jaxplan.types import check_polygons
 
 
-def random_convex_polygons(rng: np.random.Generator, n: int, max_vertices: int = 8,
-                           min_vertices: int = 3, radius: tuple[float, float] = (0.5, 3.0),
-                           spread: float = 4.0):
+def random_convex_polygons(
+    rng: np.random.Generator,
+    n: int,
+    max_vertices: int = 8,
+    min_vertices: int = 3,
+    radius: tuple[float, float] = (0.5, 3.0),
+    spread: float = 4.0,
+):
     """``n`` random convex polygons, counter-clockwise, padded to ``max_vertices``.
 
     Vertices are sorted random angles on a random ellipse, rotated and placed
@@ -23,8 +29,11 @@ def random_convex_polygons(rng: np.random.Generator, n: int, max_vertices: int =
     valid = slot[None, :] < k[:, None]
     # Keep angular gaps below pi so the centre is inside and the shape is proper.
     ang = np.where(valid, ang, ang[:, :1])
-    base = (2 * np.pi * slot[None, :] / k[:, None] + rng.uniform(0, 2 * np.pi / k)[:, None]
-            + rng.uniform(-0.3, 0.3, size=(n, max_vertices)) * (2 * np.pi / k[:, None]))
+    base = (
+        2 * np.pi * slot[None, :] / k[:, None]
+        + rng.uniform(0, 2 * np.pi / k)[:, None]
+        + rng.uniform(-0.3, 0.3, size=(n, max_vertices)) * (2 * np.pi / k[:, None])
+    )
     ang = np.where(valid, base, 0.0)
     a = rng.uniform(*radius, size=n)
     b = a * rng.uniform(0.3, 1.0, size=n)
@@ -39,13 +48,18 @@ def random_convex_polygons(rng: np.random.Generator, n: int, max_vertices: int =
     return pts, valid
 
 
-def random_boxes(rng: np.random.Generator, n: int, spread: float = 4.0,
-                 size: tuple[float, float] = (0.5, 5.0)):
+def random_boxes(rng: np.random.Generator, n: int, spread: float = 4.0, size: tuple[float, float] = (0.5, 5.0)):
     """``n`` random oriented boxes ``(n, 5)`` = [x, y, length, width, heading]."""
-    return np.stack([
-        rng.uniform(-spread, spread, n), rng.uniform(-spread, spread, n),
-        rng.uniform(*size, n), rng.uniform(*size, n) * 0.6, rng.uniform(-np.pi, np.pi, n),
-    ], axis=-1)
+    return np.stack(
+        [
+            rng.uniform(-spread, spread, n),
+            rng.uniform(-spread, spread, n),
+            rng.uniform(*size, n),
+            rng.uniform(*size, n) * 0.6,
+            rng.uniform(-np.pi, np.pi, n),
+        ],
+        axis=-1,
+    )
 
 
 def edge_case_box_pairs():

@@ -5,6 +5,7 @@ lane's centre line is the reference line; the ego starts on it at the origin at 
 random heading and speed; up to five other cars drive on the three lanes at their
 own constant speeds. Arrays are padded to fixed sizes so scenes stack into batches.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -28,8 +29,17 @@ class RoadScenes:
     static: np.ndarray
 
 
-def road_scenes(n: int, seed: int = 0, n_obstacles: int = 16, horizon: float = 5.0, dt: float = 0.1,
-                points: int = 96, back: float = 10.0, ahead: float = 180.0, lane_width: float = 3.5) -> RoadScenes:
+def road_scenes(
+    n: int,
+    seed: int = 0,
+    n_obstacles: int = 16,
+    horizon: float = 5.0,
+    dt: float = 0.1,
+    points: int = 96,
+    back: float = 10.0,
+    ahead: float = 180.0,
+    lane_width: float = 3.5,
+) -> RoadScenes:
     """Generate ``n`` scenes from ``seed`` (the same seed gives the same scenes)."""
     rng = np.random.default_rng(seed)
     n_t = int(round(horizon / dt)) + 1
@@ -54,18 +64,26 @@ def road_scenes(n: int, seed: int = 0, n_obstacles: int = 16, horizon: float = 5
         def on_road(s, l):
             at = lambda a: np.interp(s, s_ref, a)
             return np.column_stack([at(ref[:, 0]), at(ref[:, 1])]) + l[:, None] * np.column_stack(
-                [at(nrm[:, 0]), at(nrm[:, 1])])
+                [at(nrm[:, 0]), at(nrm[:, 1])]
+            )
 
         v0 = rng.uniform(5.0, 25.0)
         for k in range(rng.integers(0, min(n_obstacles, 5) + 1)):
             lane = rng.integers(-1, 2)
             s0, vk = rng.uniform(8.0, 70.0), max(0.0, v0 + rng.uniform(-8.0, 4.0))
             s = s0 + vk * t
-            boxes[i, k] = np.column_stack([on_road(s, np.full(n_t, lane_width * lane)), np.full(n_t, 4.6),
-                                           np.full(n_t, 1.9), np.interp(s, s_ref, th)])
+            boxes[i, k] = np.column_stack(
+                [
+                    on_road(s, np.full(n_t, lane_width * lane)),
+                    np.full(n_t, 4.6),
+                    np.full(n_t, 1.9),
+                    np.interp(s, s_ref, th),
+                ]
+            )
             valid[i, k] = s < ahead
         ego[i] = [0.0, 0.0, th0, v0, 0.0]
         refs[i] = ref
         cruise[i] = on_road(v0 * t, np.zeros(n_t))
-    return RoadScenes(ego, refs, boxes, valid, np.broadcast_to(t, (n, n_t)).copy(), cruise,
-                      np.zeros((n, n_obstacles), bool))
+    return RoadScenes(
+        ego, refs, boxes, valid, np.broadcast_to(t, (n, n_t)).copy(), cruise, np.zeros((n, n_obstacles), bool)
+    )

@@ -34,6 +34,7 @@ Everything is one scene's kernel (batched by the rollout's ``vmap``); per step t
 ``O(K (K + 1) W)`` for ``K`` obstacles and ``W`` look-ahead points, plus ``O(K W log T)`` path
 look-ups in recordings of ``T`` steps.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -80,8 +81,16 @@ class AgentParams:
     look_ahead_points: int = 12
 
     def validate(self) -> AgentParams:
-        for f in ("time_gap", "min_gap", "delta", "speed_ratio", "speed_margin", "v_floor", "look_ahead_time",
-                  "look_ahead_min"):
+        for f in (
+            "time_gap",
+            "min_gap",
+            "delta",
+            "speed_ratio",
+            "speed_margin",
+            "v_floor",
+            "look_ahead_time",
+            "look_ahead_min",
+        ):
             v = getattr(self, f)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
                 raise ValueError(f"AgentParams.{f} must be a finite number >= 0, got {v!r}")
@@ -189,6 +198,7 @@ def path_frenet(paths: AgentPaths, i, f, past):
     """Frenet ``(s, l)`` ``(K, ..., 2)`` on the route of the path points at segment ``i (K, ...)``,
     fraction ``f`` (as ``path_pose`` gives them), interpolated between the recorded centres'
     (``past`` metres beyond the path's end are added to ``s``)."""
+
     def one(sl, i, f, past):
         i1 = jnp.minimum(i + 1, sl.shape[0] - 1)
         return (sl[i] + f[..., None] * (sl[i1] - sl[i])).at[..., 0].add(past)
@@ -272,11 +282,11 @@ def leaders(paths: AgentPaths, state: AgentState, boxes, present, ego_box, ego_v
     cand_ok = jnp.concatenate([present, jnp.ones((1,), bool)])
     K = boxes.shape[0]
     return jax.vmap(_leader_one, in_axes=(0, 0, 0, 0, None, None, None))(
-        jnp.arange(K), pts, boxes[:, 2], boxes[:, 3], cand, cand_v, cand_ok)
+        jnp.arange(K), pts, boxes[:, 2], boxes[:, 3], cand, cand_v, cand_ok
+    )
 
 
-def agents_step(paths: AgentPaths, state: AgentState, t, ego_box, ego_v, dt: float,
-                params: AgentParams) -> AgentState:
+def agents_step(paths: AgentPaths, state: AgentState, t, ego_box, ego_v, dt: float, params: AgentParams) -> AgentState:
     """The agents from step ``t`` to ``t + 1`` (see the module docstring).
 
     Args:
@@ -293,8 +303,18 @@ def agents_step(paths: AgentPaths, state: AgentState, t, ego_box, ego_v, dt: flo
     gap, v_lead, has = leaders(paths, state, boxes, present, ego_box, ego_v, params)
     v = state.v
     v_des = jnp.maximum(params.speed_ratio * _at(paths.v, t) + params.speed_margin, params.v_floor)
-    a = idm_accel(v, v_des, gap, v - v_lead, a_max=params.a_max, b_comf=params.b_comf, time_gap=params.time_gap,
-                  min_gap=params.min_gap, delta=params.delta, has_leader=has)
+    a = idm_accel(
+        v,
+        v_des,
+        gap,
+        v - v_lead,
+        a_max=params.a_max,
+        b_comf=params.b_comf,
+        time_gap=params.time_gap,
+        min_gap=params.min_gap,
+        delta=params.delta,
+        has_leader=has,
+    )
     a = jnp.maximum(jnp.clip(a, -params.b_max, params.a_max), -v / dt)  # never reverse
     v1 = jnp.maximum(v + a * dt, 0.0)
     s1 = state.s + 0.5 * (v + v1) * dt

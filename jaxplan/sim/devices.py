@@ -1,4 +1,5 @@
 """Scenes split over every local device: a 1-D mesh, placement of a batch along its scene axis."""
+
 from __future__ import annotations
 
 from collections.abc import Callable

@@ -28,6 +28,7 @@ box in the scenario's own (world) coordinates, ``t`` from the scenario start, on
 files of one run as ``jaxplan.scenarios.files.scenario_keys`` does (``<id>@<file name>`` for a
 later file with the same id).
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -205,8 +206,9 @@ def _folder(rec) -> str:
     return os.path.basename(os.path.dirname(os.path.abspath(rec.path))) if rec.path else "builtin"
 
 
-def write_drive(folder: str, rec, planner_name: str, vehicle, log_i: dict, row: dict, animate: bool,
-                plot: bool = True, scene=None) -> None:
+def write_drive(
+    folder: str, rec, planner_name: str, vehicle, log_i: dict, row: dict, animate: bool, plot: bool = True, scene=None
+) -> None:
     """One drive's outputs: ``driven.json``, a PNG (``plot``), a GIF (``animate``), a CommonRoad
     solution (XML input). ``scene``: the scene as driven (default the record's)."""
     from jaxplan.sim.plots import animate_drive, plot_drive
@@ -215,12 +217,28 @@ def write_drive(folder: str, rec, planner_name: str, vehicle, log_i: dict, row: 
     scene = rec.scene if scene is None else scene
     n = int(log_i["end_step"]) + 1
     ox, oy = (float(c) for c in np.asarray(rec.scenario.origin, float))
-    states = [[round(float(log_i["t"][k]), 6), float(log_i["x"][k]) + ox, float(log_i["y"][k]) + oy,
-               float(log_i["heading"][k]), float(log_i["v"][k]), float(log_i["a"][k])] for k in range(n)]
-    write_json(os.path.join(folder, "driven.json"),
-               {"scenario": rec.name, "planner": planner_name, "dt": float(rec.scenario.dt),
-                "vehicle": {"length": float(vehicle.length), "width": float(vehicle.width)}, "states": states},
-               indent=None)
+    states = [
+        [
+            round(float(log_i["t"][k]), 6),
+            float(log_i["x"][k]) + ox,
+            float(log_i["y"][k]) + oy,
+            float(log_i["heading"][k]),
+            float(log_i["v"][k]),
+            float(log_i["a"][k]),
+        ]
+        for k in range(n)
+    ]
+    write_json(
+        os.path.join(folder, "driven.json"),
+        {
+            "scenario": rec.name,
+            "planner": planner_name,
+            "dt": float(rec.scenario.dt),
+            "vehicle": {"length": float(vehicle.length), "width": float(vehicle.width)},
+            "states": states,
+        },
+        indent=None,
+    )
     title = f"{rec.name}: {planner_name}"
     if plot:
         plot_drive(os.path.join(folder, "drive.png"), scene, row, log_i, vehicle, title)
@@ -236,8 +254,9 @@ def write_drive(folder: str, rec, planner_name: str, vehicle, log_i: dict, row: 
         try:
             write_solution(rec.scenario, traj, folder)
         except Exception as e:  # the solution is an extra: say why it is missing, keep the drive
-            print(f"jaxplan drive: {rec.name}: no CommonRoad solution written ({type(e).__name__}: {e})",
-                  file=sys.stderr)
+            print(
+                f"jaxplan drive: {rec.name}: no CommonRoad solution written ({type(e).__name__}: {e})", file=sys.stderr
+            )
 
 
 def record_digest(rec) -> str:
@@ -268,14 +287,23 @@ def _code_fingerprint() -> str:
     return h.hexdigest()[:16]
 
 
-def run_settings(planners: list, config: SimConfig, planner_options: dict | None = None,
-                 run_info: dict | None = None, planner_params: dict | None = None) -> dict:
+def run_settings(
+    planners: list,
+    config: SimConfig,
+    planner_options: dict | None = None,
+    run_info: dict | None = None,
+    planner_params: dict | None = None,
+) -> dict:
     """Everything that decides a run's drives (``jaxplan.sim.store.RunStore`` matches it on resume):
     the planners, their options and params, the simulation settings, the library's code, the
     caller's settings."""
-    out = {"planners": list(planners), "sim": dataclasses.asdict(config),
-           "planner_options": {k: repr(sorted(v.items())) for k, v in (planner_options or {}).items()},
-           "code": _code_fingerprint(), **(run_info or {})}
+    out = {
+        "planners": list(planners),
+        "sim": dataclasses.asdict(config),
+        "planner_options": {k: repr(sorted(v.items())) for k, v in (planner_options or {}).items()},
+        "code": _code_fingerprint(),
+        **(run_info or {}),
+    }
     if planner_params:
         out["planner_params"] = {k: repr(sorted(v.items())) for k, v in planner_params.items()}
     return out
@@ -297,18 +325,27 @@ def _judge(log: DriveLog, records, run: dict, vehicle, batch_size: int):
     n = min(N, sizes.size_class(int(np.max(log.end_step)) + 1, sizes.CLASSES["T"]))
     if n < N:
         cut_n = lambda a: a[:, :n] if np.ndim(a) >= 2 and np.shape(a)[1] == N else a  # noqa: E731
-        log = dataclasses.replace(log, **{f: cut_n(getattr(log, f)) for f in ("t", "x", "y", "heading", "v", "a",
-                                                                              "kappa", "valid")})
-        log = dataclasses.replace(log, traffic=dataclasses.replace(
-            log.traffic, boxes=log.traffic.boxes[:, :, :n], valid=log.traffic.valid[:, :, :n],
-            t=log.traffic.t[:, :n]))
+        log = dataclasses.replace(
+            log, **{f: cut_n(getattr(log, f)) for f in ("t", "x", "y", "heading", "v", "a", "kappa", "valid")}
+        )
+        log = dataclasses.replace(
+            log,
+            traffic=dataclasses.replace(
+                log.traffic,
+                boxes=log.traffic.boxes[:, :, :n],
+                valid=log.traffic.valid[:, :, :n],
+                t=log.traffic.t[:, :n],
+            ),
+        )
     tr = log.traffic
     pad = K - tr.boxes.shape[1]
     if pad > 0:  # the traffic of the drive's obstacle class, padded with absent obstacles
         tr = dataclasses.replace(
-            tr, boxes=np.concatenate([tr.boxes, np.repeat(np.ones_like(tr.boxes[:, :1]), pad, 1)], 1),
+            tr,
+            boxes=np.concatenate([tr.boxes, np.repeat(np.ones_like(tr.boxes[:, :1]), pad, 1)], 1),
             valid=np.concatenate([tr.valid, np.zeros(tr.valid.shape[:1] + (pad,) + tr.valid.shape[2:], bool)], 1),
-            static=np.concatenate([tr.static, np.zeros((tr.static.shape[0], pad), bool)], 1))
+            static=np.concatenate([tr.static, np.zeros((tr.static.shape[0], pad), bool)], 1),
+        )
     full = dataclasses.replace(log, traffic=tr)
     placed, B = place((full, batch), pad_to=batch_size)
     jlog, jbatch = placed
@@ -331,13 +368,25 @@ def _describe(planner, info: dict, end_step: int, every: int) -> str:
         return ""
     c = min(end_step // every, next(iter(info.values())).shape[0] - 1)
     lo = max(0, c - 6)
-    return fn({k: np.asarray(v)[lo:c + 1] for k, v in info.items()})
+    return fn({k: np.asarray(v)[lo : c + 1] for k, v in info.items()})
 
 
-def drive(records, planners: list, out: str, config: SimConfig, animate: bool = False, planner_options=None,
-          progress: bool = True, batch_size: int = DEFAULT_BATCH, plots: str = "auto", fresh: bool = False,
-          skipped: Sequence[str] = (), run_info: dict | None = None, parse_s: float = 0.0,
-          planner_params: dict | None = None) -> DriveResult:
+def drive(
+    records,
+    planners: list,
+    out: str,
+    config: SimConfig,
+    animate: bool = False,
+    planner_options=None,
+    progress: bool = True,
+    batch_size: int = DEFAULT_BATCH,
+    plots: str = "auto",
+    fresh: bool = False,
+    skipped: Sequence[str] = (),
+    run_info: dict | None = None,
+    parse_s: float = 0.0,
+    planner_params: dict | None = None,
+) -> DriveResult:
     """Drive ``records`` (``SceneRecord``s) with each planner name; write the outputs under ``out``.
 
     Args:
@@ -376,13 +425,23 @@ def drive(records, planners: list, out: str, config: SimConfig, animate: bool = 
         config.validate(p)
     settings = run_settings(planners, config, opts, run_info, values)
     store = RunStore(out, settings, {r.name: record_digest(r) for r in records}, fresh=fresh)
-    folder_of = (lambda name, rec: os.path.join(out, rec.name)) if len(planners) == 1 else \
-        (lambda name, rec: os.path.join(out, name, rec.name))
+    folder_of = (
+        (lambda name, rec: os.path.join(out, rec.name))
+        if len(planners) == 1
+        else (lambda name, rec: os.path.join(out, name, rec.name))
+    )
     pending = {name: [r for r in records if not store.done(name, r.name)] for name in planners}
     total = sum(len(v) for v in pending.values())
     n_drives = len(records) * len(planners)
-    timing = {"parse_s": parse_s, "compile_s": 0.0, "drive_s": 0.0, "metrics_s": 0.0, "write_s": 0.0,
-              "drives": total, "resumed_drives": n_drives - total}
+    timing = {
+        "parse_s": parse_s,
+        "compile_s": 0.0,
+        "drive_s": 0.0,
+        "metrics_s": 0.0,
+        "write_s": 0.0,
+        "drives": total,
+        "resumed_drives": n_drives - total,
+    }
     bar = tqdm(total=total, desc="driving", unit="drive", disable=not progress, file=sys.stderr, dynamic_ncols=True)
     dt = config.dt
     run = sizes.run_sizes([r.scene for r in records])
@@ -395,7 +454,7 @@ def drive(records, planners: list, out: str, config: SimConfig, animate: bool = 
             for k_class, recs in sorted(groups.items()):
                 recs = sorted(recs, key=lambda r: scene_steps(r, dt, config.n_steps))  # similar lengths together
                 for lo in range(0, len(recs), batch_size):
-                    part = recs[lo:lo + batch_size]
+                    part = recs[lo : lo + batch_size]
                     batch = stack_scenes([r.scene for r in part], min_sizes=dict(run, K=k_class))
                     placed, B = place(sizes.for_drive(batch), pad_to=batch_size)
                     timing["compile_s"] += driver.compile(placed)
@@ -410,16 +469,31 @@ def drive(records, planners: list, out: str, config: SimConfig, animate: bool = 
                     t0 = time.perf_counter()
                     for i, rec in enumerate(part):
                         row = _row(i, rec, name, metrics, log, config.replan_every)
-                        log_i = {k: np.asarray(getattr(log, k)[i]) for k in ("t", "x", "y", "heading", "v", "a",
-                                                                              "kappa", "valid", "end_step")}
+                        log_i = {
+                            k: np.asarray(getattr(log, k)[i])
+                            for k in ("t", "x", "y", "heading", "v", "a", "kappa", "valid", "end_step")
+                        }
                         scene_i = jax.tree_util.tree_map(lambda a: np.asarray(a)[i], judged)
                         info_i = jax.tree_util.tree_map(lambda a: np.asarray(a)[i], log.info)
-                        row["why"] = verdict.explain(row, log_i, scene_i, rec.scenario.obstacle_types,
-                                                     _describe(planner, info_i, int(log_i["end_step"]),
-                                                               config.replan_every))
+                        row["why"] = verdict.explain(
+                            row,
+                            log_i,
+                            scene_i,
+                            rec.scenario.obstacle_types,
+                            _describe(planner, info_i, int(log_i["end_step"]), config.replan_every),
+                        )
                         row["obstacle_class"] = k_class
-                        write_drive(folder_of(name, rec), rec, name, planner.vehicle, log_i, row, animate,
-                                    plot=_plots_for(plots, n_drives, row), scene=scene_i)
+                        write_drive(
+                            folder_of(name, rec),
+                            rec,
+                            name,
+                            planner.vehicle,
+                            log_i,
+                            row,
+                            animate,
+                            plot=_plots_for(plots, n_drives, row),
+                            scene=scene_i,
+                        )
                         store.add(row)
                         bar.update(1)
                     timing["write_s"] += time.perf_counter() - t0
@@ -437,24 +511,42 @@ def drive(records, planners: list, out: str, config: SimConfig, animate: bool = 
     by_folder = {name: summarize_by(rows, "folder") for name, rows in all_rows.items()}
     by_location = {name: summarize_by(rows, "location") for name, rows in all_rows.items()}
     figures = {f"drive.{p}.{k}": v for p, s in summary.items() for k, v in s.items()}
-    run = {"kind": "jaxplan drive", "planners": list(planners), **{k: v for k, v in settings.items() if k != "sim"},
-           "replan_every": config.replan_every, "replan": config.replan, "tracking": config.tracking,
-           "n_steps": config.n_steps, "dt": config.dt, "batch_size": batch_size,
-           "scenarios": [r.name for r in records], "skipped_files": list(skipped)}
+    run = {
+        "kind": "jaxplan drive",
+        "planners": list(planners),
+        **{k: v for k, v in settings.items() if k != "sim"},
+        "replan_every": config.replan_every,
+        "replan": config.replan,
+        "tracking": config.tracking,
+        "n_steps": config.n_steps,
+        "dt": config.dt,
+        "batch_size": batch_size,
+        "scenarios": [r.name for r in records],
+        "skipped_files": list(skipped),
+    }
     for k in ("agents", "prediction"):
         if hasattr(config, k):
             run[k] = getattr(config, k)
-    write_json(os.path.join(out, "metrics.json"),
-               {**figures, "run": run, "timing": timing, "by_folder": by_folder, "by_location": by_location,
-                "rows": [r for p in planners for r in all_rows[p]]})
+    write_json(
+        os.path.join(out, "metrics.json"),
+        {
+            **figures,
+            "run": run,
+            "timing": timing,
+            "by_folder": by_folder,
+            "by_location": by_location,
+            "rows": [r for p in planners for r in all_rows[p]],
+        },
+    )
     from jaxplan.sim.report import write_drive_report
 
     write_drive_report(out, summary, all_rows, run, timing, by_folder, by_location)
     return DriveResult(all_rows, summary, out, timing)
 
 
-def judge_drives(records, driven: dict, planner_name: str, max_steps: int | None = None,
-                 batch_size: int = DEFAULT_BATCH) -> list:
+def judge_drives(
+    records, driven: dict, planner_name: str, max_steps: int | None = None, batch_size: int = DEFAULT_BATCH
+) -> list:
     """Judge drives made by any planner (``driven.json`` objects, e.g. a peer's) with the same metrics
     and verdict as ``drive``: one row per record that has a drive (in the records' order).
 
@@ -487,7 +579,7 @@ def judge_drives(records, driven: dict, planner_name: str, max_steps: int | None
     dt = float(todo[0].scenario.dt)
     for veh, recs in groups.items():
         for lo in range(0, len(recs), batch_size):
-            part = recs[lo:lo + batch_size]
+            part = recs[lo : lo + batch_size]
             cols = {k: np.zeros((len(part), N)) for k in ("x", "y", "heading", "v", "a", "kappa")}
             valid = np.zeros((len(part), N), bool)
             end = np.zeros(len(part), int)
@@ -509,13 +601,30 @@ def judge_drives(records, driven: dict, planner_name: str, max_steps: int | None
                 static.append(np.asarray(w.static))
             K = max(b.shape[0] for b in boxes)
             pad = lambda a, fill: np.concatenate([a, np.full((K - a.shape[0],) + a.shape[1:], fill, a.dtype)])  # noqa: E731
-            traffic = Obstacles(np.stack([pad(b, 1.0) for b in boxes]), np.stack([pad(v, False) for v in there]),
-                                np.broadcast_to(np.arange(N) * dt, (len(part), N)),
-                                np.stack([pad(s_, False) for s_ in static]))
+            traffic = Obstacles(
+                np.stack([pad(b, 1.0) for b in boxes]),
+                np.stack([pad(v, False) for v in there]),
+                np.broadcast_to(np.arange(N) * dt, (len(part), N)),
+                np.stack([pad(s_, False) for s_ in static]),
+            )
             t = np.broadcast_to(np.arange(N) * dt, (len(part), N))
             one = np.ones((len(part), 1), bool)
-            log = DriveLog(t, cols["x"], cols["y"], cols["heading"], cols["v"], cols["a"], cols["kappa"], valid, end,
-                           one, ~one, one, {}, traffic)
+            log = DriveLog(
+                t,
+                cols["x"],
+                cols["y"],
+                cols["heading"],
+                cols["v"],
+                cols["a"],
+                cols["kappa"],
+                valid,
+                end,
+                one,
+                ~one,
+                one,
+                {},
+                traffic,
+            )
             judged, metrics = _judge(log, part, run, veh, batch_size)
             for i, r in enumerate(part):
                 row = _row(i, r, planner_name, metrics, log)

@@ -1,5 +1,6 @@
 """Bird's-eye pictures of a drive: road, route, goal, obstacles, the driven path (coloured
 by speed), where it collided or left the road; optionally an animation (GIF)."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -22,8 +23,9 @@ def _draw_static(ax, scene, drive_xy):
     g = scene.goal
     for p, m in zip(np.asarray(g.region), np.asarray(g.region_valid)):
         if m.any():
-            ax.add_patch(mpatches.Polygon(p[m], closed=True, fc=(0.2, 0.7, 0.2, 0.25), ec="g", lw=1, zorder=1,
-                                          label="goal"))
+            ax.add_patch(
+                mpatches.Polygon(p[m], closed=True, fc=(0.2, 0.7, 0.2, 0.25), ec="g", lw=1, zorder=1, label="goal")
+            )
     r = np.asarray(scene.route.xy)
     ax.plot(r[:, 0], r[:, 1], "--", color="0.4", lw=0.8, label="route", zorder=2)
 
@@ -33,8 +35,12 @@ def _box(ax, b, **kw):
 
     x, y, L, W, h = b
     c, s = np.cos(h), np.sin(h)
-    corners = np.array([[x + c * dx - s * dy, y + s * dx + c * dy]
-                        for dx, dy in ((L / 2, W / 2), (-L / 2, W / 2), (-L / 2, -W / 2), (L / 2, -W / 2))])
+    corners = np.array(
+        [
+            [x + c * dx - s * dy, y + s * dx + c * dy]
+            for dx, dy in ((L / 2, W / 2), (-L / 2, W / 2), (-L / 2, -W / 2), (L / 2, -W / 2))
+        ]
+    )
     ax.add_patch(mpatches.Polygon(corners, closed=True, **kw))
 
 
@@ -72,12 +78,24 @@ def plot_drive(path: str, scene, row: dict, log: dict, vehicle, title: str) -> s
     marks = []
     k = int(row.get("overlap.first_step", -1))
     if k >= 0:
-        _box(ax, [log["x"][k], log["y"][k], vehicle.length, vehicle.width, log["heading"][k]], fc="red", ec="darkred",
-             alpha=0.8, zorder=7)
+        _box(
+            ax,
+            [log["x"][k], log["y"][k], vehicle.length, vehicle.width, log["heading"][k]],
+            fc="red",
+            ec="darkred",
+            alpha=0.8,
+            zorder=7,
+        )
         o = int(row.get("overlap.obstacle", -1))
         if o >= 0:
-            _box(ax, boxes[o, min(k, T - 1)] if not static[o] else boxes[o, np.argmax(valid[o])], fc="orange",
-                 ec="darkred", alpha=0.8, zorder=7)
+            _box(
+                ax,
+                boxes[o, min(k, T - 1)] if not static[o] else boxes[o, np.argmax(valid[o])],
+                fc="orange",
+                ec="darkred",
+                alpha=0.8,
+                zorder=7,
+            )
         marks.append(f"collision at t = {log['t'][k]:.1f} s" + (" (at fault)" if row.get("overlap.at_fault") else ""))
     k = int(row.get("offroad.first_step", -1))
     if k >= 0:
@@ -117,7 +135,7 @@ def animate_drive(path: str, scene, log: dict, vehicle, title: str, fps: int = 1
             j = np.argmax(valid[k]) if static[k] else min(i, T - 1)
             if (static[k] and valid[k].any()) or (i < T and valid[k, j]):
                 _box(ax, boxes[k, j], fc="0.3" if static[k] else "tab:blue", ec="k", alpha=0.7, zorder=3)
-        ax.plot(xy[:i + 1, 0], xy[:i + 1, 1], "-", color="tab:green", lw=1.5, zorder=4)
+        ax.plot(xy[: i + 1, 0], xy[: i + 1, 1], "-", color="tab:green", lw=1.5, zorder=4)
         _box(ax, [xy[i, 0], xy[i, 1], vehicle.length, vehicle.width, log["heading"][i]], fc="tab:red", ec="k", zorder=5)
         c = xy[i]
         ax.set_xlim(c[0] - 40, c[0] + 40)

@@ -23,6 +23,7 @@ recorded state outside the window).
 Frenet coordinates of predicted centres: interpolated from the recording (re-anchored
 oracle) or refined by Newton steps on the route from an interpolated guess (``frenet_near``).
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -135,12 +136,16 @@ def anchored_predictions(scene, paths: AgentPaths, state: AgentState, step, H: i
     rec = scene.obstacles.window(step, H)
     rec_sl = scene.obstacles.window_of(scene.obstacle_sl, step, H)
     st = paths.static
-    return (jnp.where(st[:, None, None], rec.boxes, dyn), jnp.where(st[:, None], rec.valid, valid),
-            jnp.where(st[:, None, None], rec_sl, sl))
+    return (
+        jnp.where(st[:, None, None], rec.boxes, dyn),
+        jnp.where(st[:, None], rec.valid, valid),
+        jnp.where(st[:, None, None], rec_sl, sl),
+    )
 
 
-def present_state(scene, step, paths: AgentPaths | None = None,
-                  state: AgentState | None = None) -> tuple[Any, Any, Any, Any]:
+def present_state(
+    scene, step, paths: AgentPaths | None = None, state: AgentState | None = None
+) -> tuple[Any, Any, Any, Any]:
     """Each obstacle now: box ``(K, 5)``, speed ``(K,)``, present ``(K,)``, Frenet ``(K, 2)``.
 
     With ``paths`` and ``state`` (IDM agents) the simulated agents, else the recording at
@@ -190,8 +195,13 @@ def _match_one(lanes: LanePaths, cx, cy, h):
     first = r0[0] <= r1[0]
     dist, lat, sig, cos_h = (jnp.where(first, a0, a1) for a0, a1 in zip(r0, r1))
     end = at(lanes.sigma, jnp.maximum(lanes.n - 1, 0))
-    ok = (lanes.n >= 2) & (dist < LANE_MATCH_DIST) & (cos_h > math.cos(LANE_MATCH_ANGLE)) \
-        & (sig > -1.0) & (sig < end + 1.0)
+    ok = (
+        (lanes.n >= 2)
+        & (dist < LANE_MATCH_DIST)
+        & (cos_h > math.cos(LANE_MATCH_ANGLE))
+        & (sig > -1.0)
+        & (sig < end + 1.0)
+    )
     score = jnp.where(ok, dist + LANE_MATCH_TIE * jnp.maximum(sig, 0.0), jnp.inf)
     p = jnp.argmin(score)
     return p, sig[p], lat[p], ok[p]
@@ -260,8 +270,16 @@ def cv_predictions(scene, lanes: LanePaths | None, boxes, v, present, sl, H: int
     return out, jnp.broadcast_to(present[:, None], (K, H)), sl_pred
 
 
-def planner_view(scene, step, H: int, length: int, prediction: str, paths: AgentPaths | None = None,
-                 state: AgentState | None = None, lanes: LanePaths | None = None):
+def planner_view(
+    scene,
+    step,
+    H: int,
+    length: int,
+    prediction: str,
+    paths: AgentPaths | None = None,
+    state: AgentState | None = None,
+    lanes: LanePaths | None = None,
+):
     """The scene the planner sees at ``step`` (see the module docstring): ``scene`` itself for
     ``oracle`` predictions of recorded traffic (``paths`` None), else a view of ``length`` steps.
 

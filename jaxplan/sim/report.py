@@ -1,6 +1,7 @@
 """``report.md`` of a drive run: the headline table (one line per planner, success first), where
 the time went, per-folder and per-location tables, why each failed drive failed, and one
 compact line per scenario."""
+
 from __future__ import annotations
 
 import math
@@ -69,9 +70,11 @@ def timing_lines(timing: dict) -> list:
     if not timing:
         return []
     f = lambda k: timing.get(k) or 0.0  # noqa: E731
-    return [f"Wall time {f('wall_s'):.0f} s: parsing {f('parse_s'):.0f} s, compiling {f('compile_s'):.0f} s, "
-            f"driving {f('drive_s'):.0f} s, metrics {f('metrics_s'):.0f} s, writing outputs {f('write_s'):.0f} s "
-            f"({int(f('drives'))} drives this run, {int(f('resumed_drives'))} from an earlier run in this folder)."]
+    return [
+        f"Wall time {f('wall_s'):.0f} s: parsing {f('parse_s'):.0f} s, compiling {f('compile_s'):.0f} s, "
+        f"driving {f('drive_s'):.0f} s, metrics {f('metrics_s'):.0f} s, writing outputs {f('write_s'):.0f} s "
+        f"({int(f('drives'))} drives this run, {int(f('resumed_drives'))} from an earlier run in this folder)."
+    ]
 
 
 def _cell(r: dict) -> str:
@@ -85,14 +88,23 @@ def _cell(r: dict) -> str:
     return out
 
 
-def write_drive_report(out: str, summary: dict, rows: dict, run: dict, timing: dict | None = None,
-                       by_folder: dict | None = None, by_location: dict | None = None) -> str:
+def write_drive_report(
+    out: str,
+    summary: dict,
+    rows: dict,
+    run: dict,
+    timing: dict | None = None,
+    by_folder: dict | None = None,
+    by_location: dict | None = None,
+) -> str:
     """Write ``out/report.md``; returns its path."""
     planners = list(summary)
     n = len(run["scenarios"])
-    setting = (f"{n} scenarios, {run.get('replan', 'periodic')} re-planning every {run['replan_every']} steps "
-               f"({run['replan_every'] * run['dt']:.1f} s), {run['tracking']} tracking, each scene driven to the end "
-               f"of its goal's time window, at most {run['n_steps']} steps")
+    setting = (
+        f"{n} scenarios, {run.get('replan', 'periodic')} re-planning every {run['replan_every']} steps "
+        f"({run['replan_every'] * run['dt']:.1f} s), {run['tracking']} tracking, each scene driven to the end "
+        f"of its goal's time window, at most {run['n_steps']} steps"
+    )
     if run.get("agents"):
         setting += f"; traffic: {run['agents']}, predictions: {run.get('prediction', 'oracle')}"
     lines = ["# jaxplan drive", "", setting + ".", ""]
@@ -110,12 +122,17 @@ def write_drive_report(out: str, summary: dict, rows: dict, run: dict, timing: d
         lines += ["## Drives that did not succeed", "", "| planner | scenario | why |", "| --- | --- | --- |"]
         lines += [f"| {p} | {r['scenario']} | {r.get('why') or r.get('outcome', '')} |" for p, r in failed]
         lines.append("")
-    lines += ["## Per scenario", "", "| scenario | " + " | ".join(planners) + " |",
-              "|" + " --- |" * (len(planners) + 1)]
+    lines += [
+        "## Per scenario",
+        "",
+        "| scenario | " + " | ".join(planners) + " |",
+        "|" + " --- |" * (len(planners) + 1),
+    ]
     by = {p: {r["scenario"]: r for r in rows[p]} for p in planners}
     for name in run["scenarios"]:
-        lines.append(f"| {name} | " + " | ".join(_cell(by[p][name]) if name in by[p] else "not driven"
-                                                 for p in planners) + " |")
+        lines.append(
+            f"| {name} | " + " | ".join(_cell(by[p][name]) if name in by[p] else "not driven" for p in planners) + " |"
+        )
     if run.get("skipped_files"):
         lines += ["", "Files that could not be loaded: " + ", ".join(run["skipped_files"])]
     path = os.path.join(out, "report.md")

@@ -18,6 +18,7 @@ goal's time interval ends, or at ``n_steps``; its log is valid up to that step. 
 ``lax.scan`` over planning cycles (each plans once and tracks ``replan_every`` steps),
 ``jax.vmap`` over scenes, jitted with the planner as a static argument (and with its XLA options).
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -92,7 +93,9 @@ class SimConfig:
 
     def validate(self, planner: Planner | None = None) -> SimConfig:
         if self.n_steps < 1 or self.replan_every < 1:
-            raise ValueError(f"SimConfig: n_steps and replan_every must be >= 1, got {self.n_steps}, {self.replan_every}")
+            raise ValueError(
+                f"SimConfig: n_steps and replan_every must be >= 1, got {self.n_steps}, {self.replan_every}"
+            )
         if self.replan not in ("periodic", "lazy"):
             raise ValueError(f"SimConfig.replan must be 'periodic' or 'lazy', got {self.replan!r}")
         if self.tracking not in TRACKERS:
@@ -102,8 +105,10 @@ class SimConfig:
             if abs(planner.dt - self.dt) > 1e-9:
                 raise ValueError(f"planner dt {planner.dt} differs from the simulation's dt {self.dt}")
             if planner.horizon_steps < self.replan_every + 1:
-                raise ValueError(f"the planner's horizon ({planner.horizon_steps} steps) is shorter than the "
-                                 f"re-plan period ({self.replan_every} steps)")
+                raise ValueError(
+                    f"the planner's horizon ({planner.horizon_steps} steps) is shorter than the "
+                    f"re-plan period ({self.replan_every} steps)"
+                )
         return self
 
     def check_traffic(self) -> SimConfig:
@@ -123,8 +128,24 @@ class SimConfig:
         return -(-self.n_steps // self.replan_every)
 
 
-@pytree_dataclass(data_fields=("t", "x", "y", "heading", "v", "a", "kappa", "valid", "end_step", "plan_ok", "fallback",
-                      "replanned", "info", "traffic"))
+@pytree_dataclass(
+    data_fields=(
+        "t",
+        "x",
+        "y",
+        "heading",
+        "v",
+        "a",
+        "kappa",
+        "valid",
+        "end_step",
+        "plan_ok",
+        "fallback",
+        "replanned",
+        "info",
+        "traffic",
+    )
+)
 class DriveLog:
     """A drive (add leading batch axes for batches): ``N = n_steps + 1`` states at
     ``t = k dt``, positions of the car's **box centre**.
@@ -186,7 +207,7 @@ def _brake(ego: EgoState, n: int, dt: float, a: float) -> EgoState:
     """States ``(n,)`` braking at ``a`` along the current heading."""
     k = jnp.arange(1, n + 1, dtype=jnp.result_type(ego.x))
     tc = jnp.minimum(k * dt, ego.v / -a)
-    d = ego.v * tc + 0.5 * a * tc ** 2
+    d = ego.v * tc + 0.5 * a * tc**2
     v = jnp.maximum(ego.v + a * k * dt, 0.0)
     c, s = jnp.cos(ego.heading), jnp.sin(ego.heading)
     z = jnp.zeros_like(k)
@@ -280,13 +301,18 @@ class _Drive:
         return jax.tree_util.tree_map(lambda a: jnp.asarray(a, self.f), e)
 
     def view(self, step, agents):  # what the planner sees (the scene itself for oracle predictions of the log)
-        return planner_view(self.scene, step, self.H, self.view_len, self.config.prediction, self.paths, agents,
-                            self.lanes)
+        return planner_view(
+            self.scene, step, self.H, self.view_len, self.config.prediction, self.paths, agents, self.lanes
+        )
 
     def ego_box(self, ego):
         f2 = ego.x.dtype
-        return jnp.concatenate([ego.box_centre(self.veh), jnp.stack([jnp.asarray(self.veh.length, f2),
-                                                                     jnp.asarray(self.veh.width, f2), ego.heading])])
+        return jnp.concatenate(
+            [
+                ego.box_centre(self.veh),
+                jnp.stack([jnp.asarray(self.veh.length, f2), jnp.asarray(self.veh.width, f2), ego.heading]),
+            ]
+        )
 
     def reached(self, ego, t):
         return goal_reached(self.scene.goal, ego.box_centre(self.veh), ego.heading, ego.v, t)
@@ -306,19 +332,24 @@ class _Drive:
         seen = self.view(step, agents)
         out = self.planner.plan(self.params, seen, ego, step)
         if config.replan == "lazy":  # keep the installed plan unless it is short, abnormal or in conflict
-            need = (c == 0) | ~plan_ok | (H - 1 - idx < max(self.min_left, K)) | \
-                plan_conflicts(plan, idx, seen, step, veh, config.lazy_margin)
+            need = (
+                (c == 0)
+                | ~plan_ok
+                | (H - 1 - idx < max(self.min_left, K))
+                | plan_conflicts(plan, idx, seen, step, veh, config.lazy_margin)
+            )
         else:
             need = jnp.asarray(True)
         plan = jax.tree_util.tree_map(lambda a, b: jnp.where(need, a, b), out.trajectory, plan)
         idx = jnp.where(need, 0, idx)
         plan_ok = jnp.where(need, out.ok, plan_ok)
         traj = _shift(plan, idx)
-        head = jax.tree_util.tree_map(lambda a: a[..., :K + 1], traj)
+        head = jax.tree_util.tree_map(lambda a: a[..., : K + 1], traj)
         finite = _finite(head)
         safe = jax.tree_util.tree_map(lambda a: jnp.where(finite, a, 0.0), traj)
-        nxt = jax.lax.cond(finite, lambda: self.track(safe, ego, K, veh, config),
-                           lambda: _brake(ego, K, config.dt, config.a_fallback))
+        nxt = jax.lax.cond(
+            finite, lambda: self.track(safe, ego, K, veh, config), lambda: _brake(ego, K, config.dt, config.a_fallback)
+        )
 
         # freeze once the drive has ended; the end is checked at every tracked step
         def step_fn(c2, j):
@@ -342,8 +373,8 @@ class _Drive:
         """The ``DriveLog`` of a whole drive from its cycles (``C`` of them)."""
         config, K, C = self.config, self.K, self.C
         ego0 = self.ego0()
-        flat = jax.tree_util.tree_map(lambda a: a.reshape((C * K,) + a.shape[2:])[:config.n_steps], chunk.states)
-        was_done = chunk.was_done.reshape(C * K)[:config.n_steps]
+        flat = jax.tree_util.tree_map(lambda a: a.reshape((C * K,) + a.shape[2:])[: config.n_steps], chunk.states)
+        was_done = chunk.was_done.reshape(C * K)[: config.n_steps]
         seq = jax.tree_util.tree_map(lambda a0, a: jnp.concatenate([jnp.reshape(a0, (1,)), a]), ego0, flat)
         valid = jnp.concatenate([jnp.ones((1,), bool), ~was_done])  # the step that ends the drive is part of it
         centre = seq.box_centre(self.veh)
@@ -352,13 +383,31 @@ class _Drive:
         end_step = jnp.max(jnp.where(valid, jnp.arange(n), 0))
         if self.paths is not None:  # idm; the agents at every step: (C, K, K_obstacles, ...) -> (K_obstacles, N, ...)
             b0, v0 = agent_boxes(self.paths, init_agents(self.paths), 0)
-            mb, mv = (a.reshape((C * K,) + a.shape[2:])[:config.n_steps] for a in chunk.moved)
-            traffic = Obstacles(jnp.swapaxes(jnp.concatenate([b0[None], mb]), 0, 1),
-                                jnp.swapaxes(jnp.concatenate([v0[None], mv]), 0, 1), t, self.paths.static)
+            mb, mv = (a.reshape((C * K,) + a.shape[2:])[: config.n_steps] for a in chunk.moved)
+            traffic = Obstacles(
+                jnp.swapaxes(jnp.concatenate([b0[None], mb]), 0, 1),
+                jnp.swapaxes(jnp.concatenate([v0[None], mv]), 0, 1),
+                t,
+                self.paths.static,
+            )
         else:
             traffic = self.scene.obstacles.window(0, n)
-        return DriveLog(t, centre[:, 0], centre[:, 1], seq.heading, seq.v, seq.a, seq.kappa, valid, end_step,
-                        chunk.ok, chunk.fallback, chunk.replanned, chunk.info, traffic)
+        return DriveLog(
+            t,
+            centre[:, 0],
+            centre[:, 1],
+            seq.heading,
+            seq.v,
+            seq.a,
+            seq.kappa,
+            valid,
+            end_step,
+            chunk.ok,
+            chunk.fallback,
+            chunk.replanned,
+            chunk.info,
+            traffic,
+        )
 
 
 def drive_start(planner: Planner, params, scene, config: SimConfig) -> DriveState:
@@ -384,8 +433,9 @@ def drive_log(planner: Planner, params, scene, chunk: DriveChunk, config: SimCon
 
 def drive_one(planner: Planner, params, scene, config: SimConfig) -> DriveLog:
     """One scene's drive (unbatched; ``rollout`` batches it): every cycle in one ``lax.scan``."""
-    _, chunk = drive_cycles(planner, params, scene, drive_start(planner, params, scene, config), 0,
-                            config.n_cycles, config)
+    _, chunk = drive_cycles(
+        planner, params, scene, drive_start(planner, params, scene, config), 0, config.n_cycles, config
+    )
     return drive_log(planner, params, scene, chunk, config)
 
 
@@ -488,12 +538,17 @@ class ChunkedRollout:
         p, w, cfg = self.planner, self.params, self.config
         start = planner_program(p, _starts, ("planner", "config")).lower(p, w, scenes, config=cfg).compile()
         state = jax.eval_shape(functools.partial(_starts, p, config=cfg), w, scenes)
-        adv = planner_program(p, _advance, ("planner", "config", "n")).lower(
-            p, w, scenes, state, jnp.asarray(0), config=cfg, n=self.n).compile()
-        _, chunk = jax.eval_shape(functools.partial(_advance, p, config=cfg, n=self.n), w, scenes, state,
-                                  jnp.asarray(0))
+        adv = (
+            planner_program(p, _advance, ("planner", "config", "n"))
+            .lower(p, w, scenes, state, jnp.asarray(0), config=cfg, n=self.n)
+            .compile()
+        )
+        _, chunk = jax.eval_shape(
+            functools.partial(_advance, p, config=cfg, n=self.n), w, scenes, state, jnp.asarray(0)
+        )
         full = jax.tree_util.tree_map(
-            lambda a: jax.ShapeDtypeStruct((a.shape[0], cfg.n_cycles) + a.shape[2:], a.dtype), chunk)
+            lambda a: jax.ShapeDtypeStruct((a.shape[0], cfg.n_cycles) + a.shape[2:], a.dtype), chunk
+        )
         logs = planner_program(p, _logs, ("planner", "config")).lower(p, w, scenes, full, config=cfg).compile()
         self._programs[key] = (start, adv, logs)
         return time.perf_counter() - t
@@ -524,15 +579,24 @@ class ChunkedRollout:
         got = jax.tree_util.tree_map(lambda *a: np.concatenate(a, axis=1), *parts)
         ran = got.ok.shape[1]
         if ran < C:  # the cycles not run: the last state, ended
+
             def fill(a, value=None):
-                rest = np.repeat(a[:, -1:], C - ran, axis=1) if value is None else \
-                    np.full((a.shape[0], C - ran) + a.shape[2:], value, a.dtype)
+                rest = (
+                    np.repeat(a[:, -1:], C - ran, axis=1)
+                    if value is None
+                    else np.full((a.shape[0], C - ran) + a.shape[2:], value, a.dtype)
+                )
                 return np.concatenate([a, rest], axis=1)
 
-            got = DriveChunk(jax.tree_util.tree_map(fill, got.states), fill(got.was_done, True), fill(got.ok, True),
-                             fill(got.fallback, False), fill(got.replanned, False),
-                             jax.tree_util.tree_map(fill, got.info),
-                             None if got.moved is None else jax.tree_util.tree_map(fill, got.moved))
+            got = DriveChunk(
+                jax.tree_util.tree_map(fill, got.states),
+                fill(got.was_done, True),
+                fill(got.ok, True),
+                fill(got.fallback, False),
+                fill(got.replanned, False),
+                jax.tree_util.tree_map(fill, got.info),
+                None if got.moved is None else jax.tree_util.tree_map(fill, got.moved),
+            )
         elif ran > C:
             got = jax.tree_util.tree_map(lambda a: a[:, :C], got)
         return jax.tree_util.tree_map(np.asarray, logs(w, scenes, got))

@@ -16,6 +16,7 @@ pays for one large one, and every new file with a new count compiles again. So:
 A new file almost always falls into compiled classes, whose programs, with the persistent
 compilation cache, are kept on disk from earlier runs.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -65,4 +66,6 @@ def for_drive(batch):
     """A batched scene without its lanelet outlines (one degenerate outline each): what the drive
     program needs (planners and the simulator never read them), so that its compiled shape does
     not depend on the map's size."""
-    return dataclasses.replace(batch, drivable=batch.drivable[:, :1, :3], drivable_valid=batch.drivable_valid[:, :1, :3])
+    return dataclasses.replace(
+        batch, drivable=batch.drivable[:, :1, :3], drivable_valid=batch.drivable_valid[:, :1, :3]
+    )

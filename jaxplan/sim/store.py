@@ -10,6 +10,7 @@ drives the rest. Other settings, other scenes or another version of the library 
 folder are refused with one line (``RunMismatch``) before any work: results of two runs are
 never mixed. ``fresh=True`` starts over (the old rows are removed).
 """
+
 from __future__ import annotations
 
 import json
@@ -46,8 +47,10 @@ def _settings_mismatch(out: str, old: dict, settings: dict) -> str | None:
         return None
     k = diff[0]
     more = f", and {len(diff) - 1} more" if len(diff) > 1 else ""
-    return (f"{out}: holds a run with other settings ({k}: {old.get(k)!r} there, {settings.get(k)!r} now{more}); "
-            f"give another --out, or --fresh to start over")
+    return (
+        f"{out}: holds a run with other settings ({k}: {old.get(k)!r} there, {settings.get(k)!r} now{more}); "
+        f"give another --out, or --fresh to start over"
+    )
 
 
 def _read_run(out: str):
@@ -102,8 +105,10 @@ class RunStore:
                 raise RunMismatch(msg)
             if old.get("scenes") != scenes:
                 a, b = set(old.get("scenes", {}).items()), set(scenes.items())
-                raise RunMismatch(f"{out}: holds a run of other scenes ({len(a - b)} there not here, {len(b - a)} here "
-                                  f"not there); give another --out, or --fresh to start over")
+                raise RunMismatch(
+                    f"{out}: holds a run of other scenes ({len(a - b)} there not here, {len(b - a)} here "
+                    f"not there); give another --out, or --fresh to start over"
+                )
             self.resumed = True
         elif fresh and os.path.exists(rows_path):
             os.remove(rows_path)

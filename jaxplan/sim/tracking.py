@@ -9,6 +9,7 @@
 
 Both take the state at the plan's start and return the states at the next ``K`` steps.
 """
+
 from __future__ import annotations
 
 import jax.numpy as jnp
@@ -74,8 +75,9 @@ def track_bicycle(plan: Trajectory, ego: EgoState, n: int, vehicle: VehicleParam
 
     x0 = ego.x + ro * jnp.cos(ego.heading)
     y0 = ego.y + ro * jnp.sin(ego.heading)
-    _, (x, y, th, v, a, kap) = lax.scan(step, (x0, y0, jnp.asarray(ego.heading, f), jnp.asarray(ego.v, f)),
-                                        jnp.arange(n))
+    _, (x, y, th, v, a, kap) = lax.scan(
+        step, (x0, y0, jnp.asarray(ego.heading, f), jnp.asarray(ego.v, f)), jnp.arange(n)
+    )
     return EgoState(x - ro * jnp.cos(th), y - ro * jnp.sin(th), th, v, a, kap)
 
 

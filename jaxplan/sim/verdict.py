@@ -15,6 +15,7 @@ at fault or hit from behind, at what speed), leaving the road, or why the goal w
 (standing before it and what stood ahead, out of time, through the region before its time
 window, in it at the wrong speed or heading, goal region off the map, ...).
 """
+
 from __future__ import annotations
 
 import math
@@ -112,8 +113,7 @@ def explain(row: dict, log: dict, scene, types=None, describe: str = "") -> str:
             kf = int(row["overlap.fault_step"])
             wf = int(row["overlap.fault_obstacle"])
             kindf = f"{types[wf]} " if types is not None and 0 <= wf < len(types) else ""
-            parts.append(f"collision, at fault: drove into {kindf}obstacle {wf} at t = {t[kf]:.1f} s "
-                         f"({v[kf]:.1f} m/s)")
+            parts.append(f"collision, at fault: drove into {kindf}obstacle {wf} at t = {t[kf]:.1f} s ({v[kf]:.1f} m/s)")
         else:
             how = "standing" if v[k] < STAND else ("crawling" if v[k] < CRAWL else f"at {v[k]:.1f} m/s")
             parts.append(f"collision, hit from behind by {kind}obstacle {who} at t = {t[k]:.1f} s while {how}")
@@ -146,14 +146,18 @@ def _why_missed(row, t, x, y, hd, v, scene, types) -> str:
         if inside.any():
             k = int(np.argmax(inside))
             if t[k] < g_t[0]:
-                return (f"goal missed: in the goal region at t = {t[k]:.1f} s, before its time window "
-                        f"[{g_t[0]:.1f}, {g_t[1]:.1f}] s")
+                return (
+                    f"goal missed: in the goal region at t = {t[k]:.1f} s, before its time window "
+                    f"[{g_t[0]:.1f}, {g_t[1]:.1f}] s"
+                )
             in_window = inside & (t >= g_t[0] - 1e-3) & (t <= g_t[1] + 1e-3)
             if in_window.any():
                 k = int(np.argmax(in_window))
                 if not (g_v[0] - 1e-6 <= v[k] <= g_v[1] + 1e-6):
-                    return (f"goal missed: in the goal region in its time window at {v[k]:.1f} m/s, outside its "
-                            f"speed range [{g_v[0]:.1f}, {g_v[1]:.1f}]")
+                    return (
+                        f"goal missed: in the goal region in its time window at {v[k]:.1f} m/s, outside its "
+                        f"speed range [{g_v[0]:.1f}, {g_v[1]:.1f}]"
+                    )
                 return "goal missed: in the goal region in its time window with a heading outside its range"
             return f"goal missed: in the goal region only after its time window closed at {g_t[1]:.1f} s"
         short = s_rng[0] - s_end
@@ -162,17 +166,21 @@ def _why_missed(row, t, x, y, hd, v, scene, types) -> str:
             return f"goal missed: passed the goal region {lateral:.1f} m to the side of it (another lane)"
         if stood_for >= 2.0 and short > 0:
             what = _ahead(scene, len(t) - 1, (x[-1], y[-1]), hd[-1], types)
-            return (f"goal missed: stood for the last {stood_for:.1f} s, {short:.0f} m before the goal region"
-                    + (f", behind {what}" if what else ", nothing ahead in its lane"))
+            return f"goal missed: stood for the last {stood_for:.1f} s, {short:.0f} m before the goal region" + (
+                f", behind {what}" if what else ", nothing ahead in its lane"
+            )
         if short > 0:
             mean_v = (s_end - sl[0, 0]) / max(t[-1] - t[0], 1e-9)
-            return (f"goal missed: {short:.0f} m short of the goal region when the drive ended at t = {t[-1]:.1f} s "
-                    f"(mean speed {mean_v:.1f} m/s" + (", ended before the goal's time window" if ended_early else "")
-                    + ")")
+            return (
+                f"goal missed: {short:.0f} m short of the goal region when the drive ended at t = {t[-1]:.1f} s "
+                f"(mean speed {mean_v:.1f} m/s" + (", ended before the goal's time window" if ended_early else "") + ")"
+            )
         return f"goal missed: past the goal region's start without entering it ({sl[-1, 1]:+.1f} m off the route)"
     # time-only goals (and their speed / heading ranges)
     if t[-1] < g_t[0] - 1e-6:
-        return f"goal missed: the drive ended at t = {t[-1]:.1f} s, before the goal's time window opened at {g_t[0]:.1f} s"
+        return (
+            f"goal missed: the drive ended at t = {t[-1]:.1f} s, before the goal's time window opened at {g_t[0]:.1f} s"
+        )
     k = int(np.argmin(np.abs(t - g_t[0])))
     if not (g_v[0] - 1e-6 <= v[k] <= g_v[1] + 1e-6):
         return f"goal missed: {v[k]:.1f} m/s in the goal's time window, outside its speed range [{g_v[0]:.1f}, {g_v[1]:.1f}]"

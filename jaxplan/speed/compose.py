@@ -1,4 +1,5 @@
 """Second trajectory: the path and a speed profile composed into a Trajectory."""
+
 from __future__ import annotations
 
 import jax.numpy as jnp

@@ -29,6 +29,7 @@ vehicle closing in from behind that will not brake is not waited for).
 Keep-clear regions (a junction box, a crosswalk: convex polygons) project onto the path
 as a station range where the car must not stop.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -109,8 +110,20 @@ def braking_station(v0, a_min, t):
     return v0 * tc + 0.5 * a_min * tc * tc
 
 
-def classify(osl: ObstaclesSL, obstacles: Obstacles, vehicle: VehicleParams, t, v0=0.0, a_min=-5.0,
-             lane_s=jnp.inf, *, side_width=3.5, buffer=0.0, no_overtake_side: int = LEFT, v_moving=1.0) -> Classified:
+def classify(
+    osl: ObstaclesSL,
+    obstacles: Obstacles,
+    vehicle: VehicleParams,
+    t,
+    v0=0.0,
+    a_min=-5.0,
+    lane_s=jnp.inf,
+    *,
+    side_width=3.5,
+    buffer=0.0,
+    no_overtake_side: int = LEFT,
+    v_moving=1.0,
+) -> Classified:
     """Blocking / non-blocking classification with decisions.
 
     Args:

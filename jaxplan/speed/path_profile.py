@@ -4,6 +4,7 @@ The path is a ``ReferenceLine`` (geometry core); the car's reference point
 moves along it. Station ``s`` is measured along the line; the plan starts at
 station ``s0``.
 """
+
 from __future__ import annotations
 
 import dataclasses

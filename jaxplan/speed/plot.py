@@ -1,5 +1,6 @@
 """Pictures of one ``pathspeed`` cycle: the path in its bounds (map and SL views) and the ST
 graph with the boundaries, the DP's knots and the executed profile."""
+
 from __future__ import annotations
 
 import functools
@@ -40,18 +41,35 @@ def draw_st(ax, planner, plan, prof) -> None:
     for k in range(lo.shape[0]):
         if hit[k].any():
             is_wall = k == lo.shape[0] - 1
-            ax.fill_between(tf, np.where(hit[k], lo[k], np.nan), np.where(hit[k], np.minimum(hi[k], 400), np.nan),
-                            color="0.4" if is_wall else "tab:red", alpha=0.5,
-                            label=lab("stop before (blockage / map end)" if is_wall else "blocking"))
+            ax.fill_between(
+                tf,
+                np.where(hit[k], lo[k], np.nan),
+                np.where(hit[k], np.minimum(hi[k], 400), np.nan),
+                color="0.4" if is_wall else "tab:red",
+                alpha=0.5,
+                label=lab("stop before (blockage / map end)" if is_wall else "blocking"),
+            )
     sl, sh, su = np.asarray(cl.side.lower), np.asarray(cl.side.hit), np.asarray(cl.side.upper)
     for k in range(sl.shape[0]):
         if sh[k].any():
-            ax.fill_between(tf, np.where(sh[k], sl[k] - front, np.nan), np.where(sh[k], su[k] - rear, np.nan),
-                            color="tab:blue", alpha=0.25, label=lab("non-blocking (alongside)"))
+            ax.fill_between(
+                tf,
+                np.where(sh[k], sl[k] - front, np.nan),
+                np.where(sh[k], su[k] - rear, np.nan),
+                color="tab:blue",
+                alpha=0.25,
+                label=lab("non-blocking (alongside)"),
+            )
             if bool(cl.blind_zone[k]):
-                ax.fill_between(tf, np.where(sh[k], sl[k] - planner.speed.blind_back - front, np.nan),
-                                np.where(sh[k], sl[k] + planner.speed.blind_front - rear, np.nan), color="tab:cyan",
-                                alpha=0.25, hatch="//", label=lab("blind zone"))
+                ax.fill_between(
+                    tf,
+                    np.where(sh[k], sl[k] - planner.speed.blind_back - front, np.nan),
+                    np.where(sh[k], sl[k] + planner.speed.blind_front - rear, np.nan),
+                    color="tab:cyan",
+                    alpha=0.25,
+                    hatch="//",
+                    label=lab("blind zone"),
+                )
     ax.plot(np.asarray(plan.t), np.asarray(plan.s), "ko", ms=4, label="DP knots")
     ax.plot(np.asarray(prof.t), np.asarray(prof.s), "k-", lw=1.5, label="executed (QP)")
     ax.set_xlabel("t (s)")
@@ -90,19 +108,38 @@ def plot_cycle(out: str, planner, scene, ego, step: int = 0, title: str = "") ->
     for k in range(boxes.shape[0]):
         if valid[k, 0]:
             red = bool(blk[k])
-            _box(ax, boxes[k, 0], fc=(0.8, 0.1, 0.1, 0.5) if red else (0.12, 0.47, 0.71, 0.3),
-                 ec="darkred" if red else "tab:blue", lw=0.8, zorder=3)
+            _box(
+                ax,
+                boxes[k, 0],
+                fc=(0.8, 0.1, 0.1, 0.5) if red else (0.12, 0.47, 0.71, 0.3),
+                ec="darkred" if red else "tab:blue",
+                lw=0.8,
+                zorder=3,
+            )
     if pp is not None:
         for side, name in ((pp.lower, "lower bound"), (pp.upper, "upper bound")):
             m = np.isfinite(side) & pp.valid & (np.abs(side) < 50)
             xy = np.asarray(to_cartesian(scene.route, pp.route_s[m], side[m]))
             ax.plot(xy[:, 0], xy[:, 1], "-", color="tab:orange", lw=1.0, label=f"path {name}", zorder=4)
-    ax.plot(path.xy[:, 0], path.xy[:, 1], "-", color="k", lw=1.0,
-            label="bounds path" if use else "route path (fallback)", zorder=4)
+    ax.plot(
+        path.xy[:, 0],
+        path.xy[:, 1],
+        "-",
+        color="k",
+        lw=1.0,
+        label="bounds path" if use else "route path (fallback)",
+        zorder=4,
+    )
     sc = ax.scatter(traj.x, traj.y, c=traj.v, cmap="viridis", s=8, zorder=5)
     fig.colorbar(sc, ax=ax, label="planned speed (m/s)")
-    _box(ax, [float(ego.x), float(ego.y), planner.vehicle.length, planner.vehicle.width, float(ego.heading)], fc="none",
-         ec="k", lw=1.2, zorder=6)
+    _box(
+        ax,
+        [float(ego.x), float(ego.y), planner.vehicle.length, planner.vehicle.width, float(ego.heading)],
+        fc="none",
+        ec="k",
+        lw=1.2,
+        zorder=6,
+    )
     pts = np.concatenate([np.stack([traj.x, traj.y], -1), [[float(ego.x), float(ego.y)]]])
     lo, hi = pts.min(0) - 15.0, pts.max(0) + 15.0
     half = 0.5 * max(hi - lo)
@@ -113,20 +150,34 @@ def plot_cycle(out: str, planner, scene, ego, step: int = 0, title: str = "") ->
     ax.set_xlabel("x (m)")
     ax.set_ylabel("y (m)")
     ax.legend(fontsize=7, loc="upper left")
-    ax.set_title(f"{title} t = {step * float(scene.dt):.1f} s: "
-                 + ("bounds path" if use else "route path (bounds path failed or blocked)"), fontsize=9)
+    ax.set_title(
+        f"{title} t = {step * float(scene.dt):.1f} s: "
+        + ("bounds path" if use else "route path (bounds path failed or blocked)"),
+        fontsize=9,
+    )
     ax = axes[1]
     ds = path.route_s - float(ctx.s)
     if pp is not None:
         rs = pp.route_s - float(ctx.s)
-        ax.fill_between(rs, np.where(pp.valid, np.clip(pp.lower, -20, 20), np.nan),
-                        np.where(pp.valid, np.clip(pp.upper, -20, 20), np.nan), color="tab:orange", alpha=0.2,
-                        label="path bounds (car reference point)")
+        ax.fill_between(
+            rs,
+            np.where(pp.valid, np.clip(pp.lower, -20, 20), np.nan),
+            np.where(pp.valid, np.clip(pp.upper, -20, 20), np.nan),
+            color="tab:orange",
+            alpha=0.2,
+            label="path bounds (car reference point)",
+        )
         if np.isfinite(pp.blocked_s):
             ax.axvline(float(np.interp(pp.blocked_s, pp.s, rs)), color="0.3", ls="--", label="blockage")
     ax.plot(ds, path.l, "k-", lw=1.2, label="path")
-    ax.plot(np.interp(traj.s + float(c["s0"]), np.asarray(c["ref"].s), ds), np.interp(
-        traj.s + float(c["s0"]), np.asarray(c["ref"].s), path.l), "o", ms=2, color="tab:green", label="trajectory points")
+    ax.plot(
+        np.interp(traj.s + float(c["s0"]), np.asarray(c["ref"].s), ds),
+        np.interp(traj.s + float(c["s0"]), np.asarray(c["ref"].s), path.l),
+        "o",
+        ms=2,
+        color="tab:green",
+        label="trajectory points",
+    )
     ax.set_xlim(-5.0, max(40.0, float(traj.s[-1]) + 10.0))
     ax.set_xlabel("s along the route from the car (m)")
     ax.set_ylabel("l, offset left of the route (m)")

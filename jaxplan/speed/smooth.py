@@ -29,6 +29,7 @@ each iteration is a few dense matrix-vector products, and ``rho`` adapts (OSQP's
 snapped to the ladder) between phases of iterations, until the primal and dual residuals
 are small (``ok``) or a phase budget is spent.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -102,6 +103,7 @@ class SpeedProfile:
 def _maps(n: int, h: float):
     """Linear maps of the QP (float64): ``(v, s) = M_x x + M_y [a0, v0]`` for accelerations
     ``x (n,)``: returns Va, Vy, Sa, Sy ``(n, n) / (n, 2)``."""
+
     def simulate(a_full, v0):
         v = np.zeros(n + 1)
         s = np.zeros(n + 1)
@@ -258,7 +260,9 @@ def admm(q, l, u, n: int, h: float, w: SmoothWeights, x0=None, solver: SolverCon
         rp = jnp.max(jnp.abs(ax - z))
         rd = jnp.max(jnp.abs(px + qs + aty))
         np_ = rp / jnp.maximum(jnp.maximum(jnp.max(jnp.abs(ax)), jnp.max(jnp.abs(z))), 1e-8)
-        nd = rd / jnp.maximum(jnp.maximum(jnp.max(jnp.abs(px)), jnp.maximum(jnp.max(jnp.abs(aty)), jnp.max(jnp.abs(qs)))), 1e-8)
+        nd = rd / jnp.maximum(
+            jnp.maximum(jnp.max(jnp.abs(px)), jnp.maximum(jnp.max(jnp.abs(aty)), jnp.max(jnp.abs(qs)))), 1e-8
+        )
         want = rho * jnp.sqrt(np_ / jnp.maximum(nd, 1e-12))
         k_new = jnp.argmin(jnp.abs(jnp.log(ladder) - jnp.log(jnp.maximum(want, 1e-12)))).astype(jnp.int32)
         return x, z, y, k_new
@@ -304,8 +308,14 @@ def corridor(plan: SpeedPlan, config: SpeedConfig, t):
     return lower, upper
 
 
-def smooth_plan(plan: SpeedPlan, v0, a0, config: SpeedConfig, w: SmoothWeights = SmoothWeights(),
-                solver: SolverConfig = SolverConfig()) -> SpeedProfile:
+def smooth_plan(
+    plan: SpeedPlan,
+    v0,
+    a0,
+    config: SpeedConfig,
+    w: SmoothWeights = SmoothWeights(),
+    solver: SolverConfig = SolverConfig(),
+) -> SpeedProfile:
     """The executed profile of one scene's DP plan (``SpeedProfile`` at ``k qp_dt``)."""
     h = config.qp_dt
     n = int(round(config.horizon / h))
@@ -332,8 +342,11 @@ def smooth_plan(plan: SpeedPlan, v0, a0, config: SpeedConfig, w: SmoothWeights =
     # profile even where the solver stopped early (held at a stop, never backwards)
     acc = jnp.where(v <= 0.0, jnp.maximum(acc, 0.0), acc)
     z = jnp.zeros((1,), f)
-    qp = (jax.lax.cummax(jnp.concatenate([z, s])), jnp.concatenate([v0[None], jnp.maximum(v, 0.0)]),
-          jnp.concatenate([a0[None], acc]))
+    qp = (
+        jax.lax.cummax(jnp.concatenate([z, s])),
+        jnp.concatenate([v0[None], jnp.maximum(v, 0.0)]),
+        jnp.concatenate([a0[None], acc]),
+    )
     s_d, v_d, a_d = profile_at(plan, t)
     s, v, a = (jnp.where(finite, p, d) for p, d in zip(qp, (s_d, v_d, a_d)))
     return SpeedProfile(t, s, v, a, jnp.diff(a) / h, ok, slack, rp, rd)

@@ -15,6 +15,7 @@ Conventions: a *blocking* boundary ``[lower, upper]`` is in the station of the c
 reference point (the car at station x overlaps the obstacle iff ``lower <= x <= upper``);
 a *side* boundary is in road stations (the neighbour's rear and front inside the strip).
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -170,8 +171,11 @@ def strip_boundaries(osl: ObstaclesSL, vehicle: VehicleParams, side_width, buffe
     strips = tuple(jnp.stack(b) for b in zip(*bands))  # (l_lo, l_hi), each (3, T): blocking, left, right
     comps = jnp.stack([osl.corners[..., c, i] for i in range(2) for c in range(4)])  # (8, K, T) contiguous
     _, (lo, hi, hit) = jax.lax.scan(lambda _, b: (None, _strip_extent(comps[:4], comps[4:], b[0], b[1])), None, strips)
-    return (_blocking(osl, vehicle, buffer, lo[0], hi[0], hit[0]), STBoundary(lo[1], hi[1], hit[1] & osl.valid),
-            STBoundary(lo[2], hi[2], hit[2] & osl.valid))
+    return (
+        _blocking(osl, vehicle, buffer, lo[0], hi[0], hit[0]),
+        STBoundary(lo[1], hi[1], hit[1] & osl.valid),
+        STBoundary(lo[2], hi[2], hit[2] & osl.valid),
+    )
 
 
 def blocking_boundaries(osl: ObstaclesSL, vehicle: VehicleParams, buffer=0.0) -> STBoundary:
@@ -192,6 +196,7 @@ def side_boundaries(osl: ObstaclesSL, vehicle: VehicleParams, width, side: int, 
 
 
 # ---------------------------------------------------------------- brute-force reference
+
 
 def station_intervals(probes, stations, obstacles: Obstacles, buffer=0.0) -> STBoundary:
     """Station range of the probes each obstacle overlaps, per time (one box test per

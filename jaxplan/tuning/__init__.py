@@ -4,8 +4,21 @@ closed-loop drives (``closed_loop``: ``jaxplan tune --closed-loop``).
 Its modules load on first use (they import optax and the planners): ``jaxplan.tuning.closed_loop``,
 ``from jaxplan.tuning import lattice_tuning``.
 """
-__all__ = ["baselines", "closed_loop", "demos", "features", "imitation", "lattice_tuning", "metrics", "run",
-           "speed_tuning", "traffic", "train", "vehicles"]
+
+__all__ = [
+    "baselines",
+    "closed_loop",
+    "demos",
+    "features",
+    "imitation",
+    "lattice_tuning",
+    "metrics",
+    "run",
+    "speed_tuning",
+    "traffic",
+    "train",
+    "vehicles",
+]
 
 
 def __getattr__(name):

@@ -6,6 +6,7 @@ Every baseline sees what the lattice sees: the start state fitted on the past
 (``demos.fit_start_state``), the reference line and the other vehicles' recorded
 futures. Batched over demonstrations (leading axis ``B``), jitted.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -54,6 +55,7 @@ def constant_acceleration(demos: Demo):
 def demo_traffic(demos: Demo, dt: float = 0.1):
     """The other vehicles of each demonstration in its reference line's Frenet frame
     (``FrenetTraffic`` ``(B, K, T)``) and the start's ``(s0, l0)`` ``(B,)`` each."""
+
     def one(d):
         ref = reference_line(d.ref_xy)
         obs = Obstacles(d.obstacles, d.obstacle_valid, d.t, d.obstacle_static)
@@ -77,7 +79,9 @@ def idm_stations(traffic: FrenetTraffic, s0, l0, v0, params: IDMParams, dt: floa
 
 @jax.jit
 def _stations_to_xy(ref_xy, s, l0):
-    return jax.vmap(lambda r, si, li: to_cartesian(reference_line(r), si, jnp.broadcast_to(li, si.shape)))(ref_xy, s, l0)
+    return jax.vmap(lambda r, si, li: to_cartesian(reference_line(r), si, jnp.broadcast_to(li, si.shape)))(
+        ref_xy, s, l0
+    )
 
 
 GRID_BATCH = 16  # IDM parameter sets per compiled call (a single set is padded to it: one compile for all uses)
@@ -87,7 +91,7 @@ GRID_BATCH = 16  # IDM parameter sets per compiled call (a single set is padded 
 def _idm_grid_xy(demos: Demo, params: IDMParams, dt: float):
     """``(P, B, T, 2)`` IDM positions for ``GRID_BATCH`` parameter sets (fields ``(P,)``)."""
     traffic, s0, l0 = demo_traffic(demos, dt)
-    st = idm_stations(traffic, s0, l0, demos.ego[:, 3], params, dt)                      # (P, B, T)
+    st = idm_stations(traffic, s0, l0, demos.ego[:, 3], params, dt)  # (P, B, T)
     return jax.vmap(lambda si: _stations_to_xy(demos.ref_xy, si, l0))(st)
 
 
@@ -97,8 +101,10 @@ def _param_batch(params: IDMParams) -> IDMParams:
     n = max(x.shape[0] for x in leaves)
     if n > GRID_BATCH:
         raise ValueError(f"at most {GRID_BATCH} IDM parameter sets per call, got {n}")
-    full = [jnp.concatenate([jnp.broadcast_to(x, (n,)), jnp.repeat(jnp.broadcast_to(x, (n,))[-1:], GRID_BATCH - n)])
-            for x in leaves]
+    full = [
+        jnp.concatenate([jnp.broadcast_to(x, (n,)), jnp.repeat(jnp.broadcast_to(x, (n,))[-1:], GRID_BATCH - n)])
+        for x in leaves
+    ]
     return IDMParams(*full)
 
 
@@ -108,15 +114,20 @@ def idm(demos: Demo, params: IDMParams = IDMParams(), dt: float = 0.1):
     return _idm_grid_xy(demos, _param_batch(params), dt)[0]
 
 
-IDM_GRID = {"v_ratio": (1.0, 1.1, 1.2), "v_extra": (0.0, 2.0, 4.0), "headway": (0.3, 0.6, 1.0, 1.5),
-            "a_max": (0.3, 0.6, 1.2), "b_comf": (0.5, 1.0, 2.0)}
+IDM_GRID = {
+    "v_ratio": (1.0, 1.1, 1.2),
+    "v_extra": (0.0, 2.0, 4.0),
+    "headway": (0.3, 0.6, 1.0, 1.5),
+    "a_max": (0.3, 0.6, 1.2),
+    "b_comf": (0.5, 1.0, 2.0),
+}
 
 
 def chunks(demos: Demo, chunk: int):
     """``(part, n)`` pieces of ``chunk`` demonstrations, the last one padded (one compiled shape)."""
     B = demos.ego.shape[0]
     for i in range(0, B, chunk):
-        d = jax.tree_util.tree_map(lambda x: x[i:i + chunk], demos)
+        d = jax.tree_util.tree_map(lambda x: x[i : i + chunk], demos)
         n = d.ego.shape[0]
         if n < chunk:
             d = jax.tree_util.tree_map(lambda x: jnp.concatenate([x, jnp.repeat(x[-1:], chunk - n, 0)]), d)
@@ -134,16 +145,20 @@ def calibrate_idm(demos: Demo, grid: dict = IDM_GRID, dt: float = 0.1, chunk: in
         (params, mean ADE3).
     """
     names = list(grid)
-    combos = np.array(list(itertools.product(*(grid[n] for n in names))), np.float32)   # (P, n)
+    combos = np.array(list(itertools.product(*(grid[n] for n in names))), np.float32)  # (P, n)
     fixed = {k: v for k, v in (("s_jam", 2.0), ("delta", 4.0)) if k not in grid}
     total = np.zeros(len(combos))
     for c0 in range(0, len(combos), GRID_BATCH):
-        c = combos[c0:c0 + GRID_BATCH]
-        p = _param_batch(IDMParams(**{n: jnp.asarray(c[:, j]) for j, n in enumerate(names)},
-                                   **{k: jnp.full(len(c), v, jnp.float32) for k, v in fixed.items()}))
+        c = combos[c0 : c0 + GRID_BATCH]
+        p = _param_batch(
+            IDMParams(
+                **{n: jnp.asarray(c[:, j]) for j, n in enumerate(names)},
+                **{k: jnp.full(len(c), v, jnp.float32) for k, v in fixed.items()},
+            )
+        )
         for d, n in chunks(demos, chunk):
-            e = displacement(_idm_grid_xy(d, p, dt), d.human_xy, d.human_valid)["ade3"]     # (P, B)
-            total[c0:c0 + len(c)] += np.asarray(e)[:len(c), :n].sum(1)
+            e = displacement(_idm_grid_xy(d, p, dt), d.human_xy, d.human_valid)["ade3"]  # (P, B)
+            total[c0 : c0 + len(c)] += np.asarray(e)[: len(c), :n].sum(1)
     ade = total / demos.ego.shape[0]
     best = int(np.argmin(ade))
     return IDMParams(**{n: float(combos[best, j]) for j, n in enumerate(names)}, **fixed), float(ade[best])

@@ -22,6 +22,7 @@ selection (``LatticeConfig.select_temperature > 0``) a drive is smooth in the co
 ``jax.grad(lambda p: objective(rollout(planner, scenes, config, p)))`` is the gradient that
 ``tune_closed_loop`` follows (optax).
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -87,14 +88,15 @@ def drive_objective(log, scene, vehicle, weights: ObjectiveWeights = ObjectiveWe
     short = _soft_pos(target - s[end])
     # comfort over the driven steps
     jerk = jnp.diff(log.a) / dt
-    jerk2 = jnp.sum(jnp.where(valid[1:], jerk ** 2, 0.0)) / n
-    lat2 = jnp.sum(jnp.where(valid, (log.v ** 2 * log.kappa) ** 2, 0.0)) / n
+    jerk2 = jnp.sum(jnp.where(valid[1:], jerk**2, 0.0)) / n
+    lat2 = jnp.sum(jnp.where(valid, (log.v**2 * log.kappa) ** 2, 0.0)) / n
     # clearance to every obstacle at every step (the traffic as driven)
     obs = log.traffic
-    car = jnp.concatenate([xy, jnp.broadcast_to(jnp.asarray([vehicle.length, vehicle.width], f), xy.shape),
-                           log.heading[:, None]], -1)  # (N, 5)
-    sep = box_separation(car[None], obs.boxes[:, :car.shape[0]])  # (K, N)
-    ok = obs.valid[:, :car.shape[0]] & valid[None]
+    car = jnp.concatenate(
+        [xy, jnp.broadcast_to(jnp.asarray([vehicle.length, vehicle.width], f), xy.shape), log.heading[:, None]], -1
+    )  # (N, 5)
+    sep = box_separation(car[None], obs.boxes[:, : car.shape[0]])  # (K, N)
+    ok = obs.valid[:, : car.shape[0]] & valid[None]
     clear = jnp.sum(jnp.where(ok, _soft_pos(weights.margin - sep), 0.0)) / n
     # the road's edges about the route at the car's station
     half = 0.5 * jnp.asarray(vehicle.width, f)
@@ -152,14 +154,27 @@ def _objective_fn(planner, config, weights: ObjectiveWeights):
 
 
 def _with(params, names, log_w):
-    return dataclasses.replace(params, **{k: jnp.exp(log_w[i]).astype(jnp.result_type(getattr(params, k)))
-                                          for i, k in enumerate(names)})
+    return dataclasses.replace(
+        params, **{k: jnp.exp(log_w[i]).astype(jnp.result_type(getattr(params, k))) for i, k in enumerate(names)}
+    )
 
 
-def tune_closed_loop(planner, train, val, config, steps: int = 20, lr: float = 0.1, batch: int = 8,
-                     names: tuple = TUNED, objective: ObjectiveWeights = ObjectiveWeights(), seed: int = 0,
-                     patience: int = 5, baselines: bool = True, progress: bool = True,
-                     checkpoint: str | None = None) -> TuneResult:
+def tune_closed_loop(
+    planner,
+    train,
+    val,
+    config,
+    steps: int = 20,
+    lr: float = 0.1,
+    batch: int = 8,
+    names: tuple = TUNED,
+    objective: ObjectiveWeights = ObjectiveWeights(),
+    seed: int = 0,
+    patience: int = 5,
+    baselines: bool = True,
+    progress: bool = True,
+    checkpoint: str | None = None,
+) -> TuneResult:
     """Tune a planner's cost weights by gradient through closed-loop drives (optax Adam on their
     logarithms), with early stopping on the validation scenes, and the baselines given the same
     number of closed-loop drives.
@@ -262,7 +277,7 @@ def _cma_es(val_fn, names, p0, budget: int, seed: int) -> dict:
     used = 0
     while not es.stop() and used < budget:
         xs = es.ask()
-        xs = xs[:max(1, budget - used)]
+        xs = xs[: max(1, budget - used)]
         vals = [val_fn(jnp.asarray(xi)) for xi in xs]
         used += len(xs)
         if len(xs) == es.popsize:
@@ -276,9 +291,19 @@ def _cma_es(val_fn, names, p0, budget: int, seed: int) -> dict:
 CLOSED_LOOP_PLANNERS = ("lattice", "idm")  # the planners whose drives are smooth in their params
 
 
-def tune_files(paths, planner_name: str, out: str, scenes: int = 24, drive_steps: int = 80, steps: int = 20,
-               batch: int = 8, lr: float = 0.1, temperature: float = 1.0, seed: int = 0,
-               progress: bool = True) -> dict:
+def tune_files(
+    paths,
+    planner_name: str,
+    out: str,
+    scenes: int = 24,
+    drive_steps: int = 80,
+    steps: int = 20,
+    batch: int = 8,
+    lr: float = 0.1,
+    temperature: float = 1.0,
+    seed: int = 0,
+    progress: bool = True,
+) -> dict:
     """``jaxplan tune PLANNER --closed-loop``: tune on scenario files, split by location.
 
     The files (``expand_paths``) are split by location (``jaxplan.scenarios.files.split_of``, a
@@ -306,15 +331,21 @@ def tune_files(paths, planner_name: str, out: str, scenes: int = 24, drive_steps
     from jaxplan.tuning.train import save_weights
 
     if planner_name not in CLOSED_LOOP_PLANNERS:
-        raise ValueError(f"closed-loop tuning takes a planner whose drives are smooth in its params "
-                         f"({', '.join(CLOSED_LOOP_PLANNERS)}), got {planner_name!r}")
+        raise ValueError(
+            f"closed-loop tuning takes a planner whose drives are smooth in its params "
+            f"({', '.join(CLOSED_LOOP_PLANNERS)}), got {planner_name!r}"
+        )
     files = expand_paths(list(paths))
-    split = {"train": [f for f in files if split_of(os.path.basename(f)) == "train"],
-             "validation": [f for f in files if split_of(os.path.basename(f)) == "validation"]}
+    split = {
+        "train": [f for f in files if split_of(os.path.basename(f)) == "train"],
+        "validation": [f for f in files if split_of(os.path.basename(f)) == "validation"],
+    }
     for k, v in split.items():
         if not v:
-            raise ValueError(f"--scenarios: no {k} scenes among the {len(files)} files (the split is by location: "
-                             f"give files of more locations)")
+            raise ValueError(
+                f"--scenarios: no {k} scenes among the {len(files)} files (the split is by location: "
+                f"give files of more locations)"
+            )
     # three quarters of the sample for training, a quarter (at least 2) for validation, each stratified by folder
     n_val = min(len(split["validation"]), max(2, scenes // 4))
     for k, n in (("train", max(1, scenes - n_val)), ("validation", n_val)):
@@ -338,17 +369,38 @@ def tune_files(paths, planner_name: str, out: str, scenes: int = 24, drive_steps
         names = tuple(f.name for f in dataclasses.fields(planner.init_params()))
     config = SimConfig(n_steps=drive_steps, remat=True)
     stem = os.path.splitext(out)[0]
-    res = tune_closed_loop(planner, train, val, config, steps=steps, lr=lr, batch=batch, names=names, seed=seed,
-                           progress=progress, checkpoint=stem + ".ckpt.json")
-    figures = {"planner": planner_name, "train_scenes": len(recs["train"]), "validation_scenes": len(recs["validation"]),
-               "drive_steps": drive_steps, "temperature": temperature, "steps_run": len(res.history) - 1,
-               "drives": res.history[-1]["drives"], "validation.default": res.baselines["default"]["val"],
-               "validation.tuned": res.best_val}
+    res = tune_closed_loop(
+        planner,
+        train,
+        val,
+        config,
+        steps=steps,
+        lr=lr,
+        batch=batch,
+        names=names,
+        seed=seed,
+        progress=progress,
+        checkpoint=stem + ".ckpt.json",
+    )
+    figures = {
+        "planner": planner_name,
+        "train_scenes": len(recs["train"]),
+        "validation_scenes": len(recs["validation"]),
+        "drive_steps": drive_steps,
+        "temperature": temperature,
+        "steps_run": len(res.history) - 1,
+        "drives": res.history[-1]["drives"],
+        "validation.default": res.baselines["default"]["val"],
+        "validation.tuned": res.best_val,
+    }
     for b in ("random_search", "cma_es"):
         figures[f"validation.{b}"] = res.baselines[b]["val"]
         figures[f"{b}.evaluations"] = res.baselines[b]["evaluations"]
-    save_weights(out, res.weights, meta={**figures, "kind": "closed-loop", "baselines": {
-        k: v["weights"] for k, v in res.baselines.items()}})
+    save_weights(
+        out,
+        res.weights,
+        meta={**figures, "kind": "closed-loop", "baselines": {k: v["weights"] for k, v in res.baselines.items()}},
+    )
     plot_history(res, stem + ".png")
     return figures
 
@@ -364,8 +416,12 @@ def plot_history(res: TuneResult, path: str) -> None:
     ax.plot([r["drives"] for r in h], [r["val"] for r in h], "s-", label="validation (exact choice)")
     for name, style in (("default", "k--"), ("random_search", "g:"), ("cma_es", "m-.")):
         if name in res.baselines:
-            ax.axhline(res.baselines[name]["val"], color=style[0], linestyle=style[1:],
-                       label=f"{name.replace('_', ' ')} (validation, same drives)")
+            ax.axhline(
+                res.baselines[name]["val"],
+                color=style[0],
+                linestyle=style[1:],
+                label=f"{name.replace('_', ' ')} (validation, same drives)",
+            )
     ax.set_xlabel("closed-loop drives")
     ax.set_ylabel("objective (lower is better)")
     ax.set_title("closed-loop tuning")

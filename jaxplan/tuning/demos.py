@@ -23,6 +23,7 @@ location (``location_of``), the recorded vehicle and that vehicle's identity acr
 files (``jaxplan.tuning.vehicles``), used for splits disjoint by vehicle and
 confidence intervals over scenarios.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -206,9 +207,9 @@ def fit_start_state(xy_past: np.ndarray, dt: float, heading_fallback: float, min
 def scenario_demos(sc: Scenario, cfg: DemoConfig = DemoConfig()) -> tuple[list[Demo], DemoIndex]:
     """Every demonstration of one scenario, as unbatched numpy-backed ``Demo``s, and their index."""
     cfg.validate()
-    boxes = np.asarray(sc.obstacles.boxes, np.float64)   # (K, S, 5)
-    valid = np.asarray(sc.obstacles.valid)               # (K, S)
-    static = np.asarray(sc.obstacles.static, bool)       # (K,)
+    boxes = np.asarray(sc.obstacles.boxes, np.float64)  # (K, S, 5)
+    valid = np.asarray(sc.obstacles.valid)  # (K, S)
+    static = np.asarray(sc.obstacles.static, bool)  # (K,)
     n_t = int(round(cfg.horizon / sc.dt)) + 1
     n_min = int(round(cfg.min_future / sc.dt)) + 1
     H = int(round(cfg.history / sc.dt))
@@ -221,11 +222,11 @@ def scenario_demos(sc: Scenario, cfg: DemoConfig = DemoConfig()) -> tuple[list[D
             continue
         for k0 in range(H, S - n_min + 1, stride):
             n_rec = min(n_t, S - k0)
-            if not valid[i, k0 - H:k0 + n_rec].all():
+            if not valid[i, k0 - H : k0 + n_rec].all():
                 continue
             x0, y0, _, _, th_box = boxes[i, k0]
             origin = np.array([x0, y0])
-            v0, th0, a0 = fit_start_state(boxes[i, k0 - H:k0 + 1, :2], sc.dt, th_box)
+            v0, th0, a0 = fit_start_state(boxes[i, k0 - H : k0 + 1, :2], sc.dt, th_box)
             if v0 < cfg.min_speed:
                 continue
             try:
@@ -242,11 +243,11 @@ def scenario_demos(sc: Scenario, cfg: DemoConfig = DemoConfig()) -> tuple[list[D
             s0 = rs[j] + along
             ref_xy = resample_polyline(rxy, rs, np.linspace(s0 - cfg.ref_back, s0 + cfg.ref_ahead, cfg.ref_points))
             traj = np.empty((n_t, 2))
-            traj[:n_rec] = boxes[i, k0:k0 + n_rec, :2]
+            traj[:n_rec] = boxes[i, k0 : k0 + n_rec, :2]
             traj[n_rec:] = traj[n_rec - 1]
             v = np.zeros(n_t)
-            v[:n_rec - 1] = np.linalg.norm(np.diff(traj[:n_rec], axis=0), axis=1) / sc.dt
-            v[n_rec - 1:] = v[n_rec - 2]
+            v[: n_rec - 1] = np.linalg.norm(np.diff(traj[:n_rec], axis=0), axis=1) / sc.dt
+            v[n_rec - 1 :] = v[n_rec - 2]
             hv = np.arange(n_t) < n_rec
             # the K others nearest the start (present at the start); their recorded futures
             others = np.array([j for j in range(boxes.shape[0]) if j != i and valid[j, k0]], int)
@@ -258,20 +259,36 @@ def scenario_demos(sc: Scenario, cfg: DemoConfig = DemoConfig()) -> tuple[list[D
                 dist = np.linalg.norm(boxes[others, k0, :2] - origin, axis=1)
                 near = others[np.argsort(dist)[:K]]
                 m = min(n_t, S - k0)
-                obs[:len(near), :m] = boxes[near, k0:k0 + m]
-                ok[:len(near), :m] = valid[near, k0:k0 + m]
-                st[:len(near)] = static[near]
-                ok[:len(near)] |= st[:len(near), None]  # static boxes are held past the recording
-                obs[:len(near), m:] = np.where(st[:len(near), None, None], boxes[near, k0:k0 + 1], obs[:len(near), m:])
+                obs[: len(near), :m] = boxes[near, k0 : k0 + m]
+                ok[: len(near), :m] = valid[near, k0 : k0 + m]
+                st[: len(near)] = static[near]
+                ok[: len(near)] |= st[: len(near), None]  # static boxes are held past the recording
+                obs[: len(near), m:] = np.where(
+                    st[: len(near), None, None], boxes[near, k0 : k0 + 1], obs[: len(near), m:]
+                )
                 obs[..., :2] -= origin
                 obs[~ok] = [0.0, 0.0, 1.0, 1.0, 0.0]
-            demos.append(Demo(np.array([0.0, 0.0, th0, v0, a0]), ref_xy - origin, obs, ok, st,
-                              traj - origin, v, hv, np.arange(n_t) * sc.dt))
+            demos.append(
+                Demo(
+                    np.array([0.0, 0.0, th0, v0, a0]),
+                    ref_xy - origin,
+                    obs,
+                    ok,
+                    st,
+                    traj - origin,
+                    v,
+                    hv,
+                    np.arange(n_t) * sc.dt,
+                )
+            )
             rows.append((sc.id, int(sc.obstacle_ids[i]), k0 * sc.dt))
-    index = DemoIndex(np.array([r[0] for r in rows], dtype=object), np.array([location_of(r[0]) for r in rows],
-                                                                             dtype=object),
-                      np.array([r[1] for r in rows], int), np.full(len(rows), "", dtype=object),
-                      np.array([r[2] for r in rows], float))
+    index = DemoIndex(
+        np.array([r[0] for r in rows], dtype=object),
+        np.array([location_of(r[0]) for r in rows], dtype=object),
+        np.array([r[1] for r in rows], int),
+        np.full(len(rows), "", dtype=object),
+        np.array([r[2] for r in rows], float),
+    )
     return demos, index
 
 
@@ -279,8 +296,9 @@ def stack(demos: list[Demo]) -> Demo:
     """Stack demonstrations into one batched ``Demo`` of float32 arrays."""
     if not demos:
         raise ValueError("no demonstrations to stack")
-    return jax.tree.map(lambda *xs: jnp.asarray(np.stack(xs), jnp.float32 if np.asarray(xs[0]).dtype.kind == "f"
-                                                else None), *demos)
+    return jax.tree.map(
+        lambda *xs: jnp.asarray(np.stack(xs), jnp.float32 if np.asarray(xs[0]).dtype.kind == "f" else None), *demos
+    )
 
 
 def demo_set(scenarios, cfg: DemoConfig = DemoConfig(), identities: dict | None = None) -> DemoSet | None:
@@ -307,8 +325,9 @@ def demo_set(scenarios, cfg: DemoConfig = DemoConfig(), identities: dict | None 
     if not demos:
         return None
     index = DemoIndex.concat(parts)
-    vehicle = np.array([identities.get((s, int(o)), "") for s, o in zip(index.scenario, index.obstacle_id)],
-                       dtype=object)
+    vehicle = np.array(
+        [identities.get((s, int(o)), "") for s, o in zip(index.scenario, index.obstacle_id)], dtype=object
+    )
     return DemoSet(stack(demos), dataclasses.replace(index, vehicle=vehicle))
 
 
@@ -342,8 +361,17 @@ def synthetic_demos(n: int, seed: int = 0, cfg: DemoConfig = DemoConfig()) -> De
     sc = road_scenes(n, seed, cfg.n_obstacles, cfg.horizon, 0.1, cfg.ref_points, cfg.ref_back, cfg.ref_ahead)
     v = np.repeat(sc.ego[:, 3:4], sc.t.shape[1], axis=1)
     f32 = lambda x: jnp.asarray(x, jnp.float32)
-    return Demo(f32(sc.ego), f32(sc.ref_xy), f32(sc.boxes), jnp.asarray(sc.valid),
-                jnp.asarray(sc.static, bool), f32(sc.cruise), f32(v), jnp.ones(v.shape, bool), f32(sc.t))
+    return Demo(
+        f32(sc.ego),
+        f32(sc.ref_xy),
+        f32(sc.boxes),
+        jnp.asarray(sc.valid),
+        jnp.asarray(sc.static, bool),
+        f32(sc.cruise),
+        f32(v),
+        jnp.ones(v.shape, bool),
+        f32(sc.t),
+    )
 
 
 def synthetic_set(n: int, seed: int = 0, cfg: DemoConfig = DemoConfig(), per_scenario: int = 4) -> DemoSet:
@@ -351,5 +379,13 @@ def synthetic_set(n: int, seed: int = 0, cfg: DemoConfig = DemoConfig(), per_sce
     ``syn-<k>``, one vehicle each, location ``other``."""
     d = synthetic_demos(n, seed, cfg)
     sid = np.array([f"syn-{seed}-{i // per_scenario}" for i in range(n)], dtype=object)
-    return DemoSet(d, DemoIndex(sid, np.full(n, "other", dtype=object), np.arange(n),
-                                np.array([f"{s}:{i}" for i, s in enumerate(sid)], dtype=object), np.zeros(n)))
+    return DemoSet(
+        d,
+        DemoIndex(
+            sid,
+            np.full(n, "other", dtype=object),
+            np.arange(n),
+            np.array([f"{s}:{i}" for i, s in enumerate(sid)], dtype=object),
+            np.zeros(n),
+        ),
+    )

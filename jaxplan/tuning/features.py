@@ -39,6 +39,7 @@ weighted mean of them, so the learned weights also learn how far to trust the
 car-following model and how far to keep the speed, and the signed terms shift the
 target ahead or behind.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -50,15 +51,49 @@ import numpy as np
 from jaxplan.lattice.candidates import Candidates, LatticeConfig
 from jaxplan.tuning.traffic import FrenetTraffic, IDMParams, idm_rollout, leader
 
-FEATURES = ("d_lrp", "lane_change", "lane_side", "lane_offset", "curvature", "lat_accel", "accel", "jerk",
-            "speed_change", "speed_change_abs", "headway", "closing", "progress_dev", "progress_dev_late",
-            "progress_ahead", "cv_dev", "cv_ahead", "free_cv_dev", "risk")
+FEATURES = (
+    "d_lrp",
+    "lane_change",
+    "lane_side",
+    "lane_offset",
+    "curvature",
+    "lat_accel",
+    "accel",
+    "jerk",
+    "speed_change",
+    "speed_change_abs",
+    "headway",
+    "closing",
+    "progress_dev",
+    "progress_dev_late",
+    "progress_ahead",
+    "cv_dev",
+    "cv_ahead",
+    "free_cv_dev",
+    "risk",
+)
 SIGNED = frozenset({"lane_side", "speed_change", "progress_ahead", "cv_ahead"})
-UNITS = {"d_lrp": "m", "lane_change": "-", "lane_side": "-", "lane_offset": "m", "curvature": "1/m",
-         "lat_accel": "m^2/s^4", "accel": "m^2/s^4", "jerk": "m^2/s^6", "speed_change": "m/s",
-         "speed_change_abs": "m/s", "headway": "1/s", "closing": "m/s^2", "progress_dev": "m^2",
-         "progress_dev_late": "m^2", "progress_ahead": "m", "cv_dev": "m^2", "cv_ahead": "m", "free_cv_dev": "m^2",
-         "risk": "1/s"}
+UNITS = {
+    "d_lrp": "m",
+    "lane_change": "-",
+    "lane_side": "-",
+    "lane_offset": "m",
+    "curvature": "1/m",
+    "lat_accel": "m^2/s^4",
+    "accel": "m^2/s^4",
+    "jerk": "m^2/s^6",
+    "speed_change": "m/s",
+    "speed_change_abs": "m/s",
+    "headway": "1/s",
+    "closing": "m/s^2",
+    "progress_dev": "m^2",
+    "progress_dev_late": "m^2",
+    "progress_ahead": "m",
+    "cv_dev": "m^2",
+    "cv_ahead": "m",
+    "free_cv_dev": "m^2",
+    "risk": "1/s",
+}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -82,8 +117,15 @@ class FeatureConfig:
     ttc_min: float = 0.1
 
 
-def candidate_features(cand: Candidates, ttc, traffic: FrenetTraffic, v0, config: LatticeConfig,
-                       idm: IDMParams = IDMParams(), fcfg: FeatureConfig = FeatureConfig()):
+def candidate_features(
+    cand: Candidates,
+    ttc,
+    traffic: FrenetTraffic,
+    v0,
+    config: LatticeConfig,
+    idm: IDMParams = IDMParams(),
+    fcfg: FeatureConfig = FeatureConfig(),
+):
     """Features ``(N, F)`` of one scene's candidates (``jax.vmap`` for batches).
 
     Args:
@@ -97,11 +139,12 @@ def candidate_features(cand: Candidates, ttc, traffic: FrenetTraffic, v0, config
     """
     e = fcfg.every
     dt = config.dt * e
-    s_all = cand.s - cand.s[:, :1]                                   # (N, T) progress along the line
+    s_all = cand.s - cand.s[:, :1]  # (N, T) progress along the line
     s, l = s_all[:, ::e], cand.l[:, ::e]
     v, a, kappa = cand.traj.v[:, ::e], cand.traj.a[:, ::e], cand.traj.kappa[:, ::e]
-    tr = FrenetTraffic(*(f[:, ::e] for f in (traffic.s, traffic.l, traffic.v, traffic.length, traffic.width,
-                                             traffic.valid)))
+    tr = FrenetTraffic(
+        *(f[:, ::e] for f in (traffic.s, traffic.l, traffic.v, traffic.length, traffic.width, traffic.valid))
+    )
     s_start = cand.s[0, 0]
     t = jnp.arange(s.shape[-1], dtype=s.dtype) * dt
     early = (t > 0) & (t <= fcfg.window + 1e-6)
@@ -121,8 +164,12 @@ def candidate_features(cand: Candidates, ttc, traffic: FrenetTraffic, v0, config
     closing = mean(jnp.where(has, jnp.maximum(v - v_lead, 0.0) ** 2 / (2.0 * jnp.maximum(gap, 1.0)), 0.0))
     # desired progress in each lane of the lattice: the IDM car behind that lane's leader
     lanes = jnp.asarray(config.lanes, s.dtype)
-    s_des = jax.vmap(lambda ln: idm_rollout(tr, s_start, ln * config.lane_width, v0, fcfg.car_length, idm, dt,
-                                            fcfg.band)[0])(lanes) - s_start   # (Ln, T')
+    s_des = (
+        jax.vmap(
+            lambda ln: idm_rollout(tr, s_start, ln * config.lane_width, v0, fcfg.car_length, idm, dt, fcfg.band)[0]
+        )(lanes)
+        - s_start
+    )  # (Ln, T')
     which = jnp.argmax(cand.lane[:, None] == jnp.asarray(config.lanes)[None], axis=-1)
     dev = s - s_des[which]
     cv = s - v0 * t
@@ -130,11 +177,27 @@ def candidate_features(cand: Candidates, ttc, traffic: FrenetTraffic, v0, config
     _, _, led = leader(tr, jnp.full((1, 1), s_start), jnp.zeros((1, 1), s.dtype), fcfg.car_length, fcfg.band)
     cv_dev = mean(cv * cv)
     risk = jnp.where(jnp.isfinite(ttc), 1.0 / jnp.maximum(ttc, fcfg.ttc_min), 0.0)
-    cols = dict(d_lrp=d_lrp, lane_change=jnp.abs(lane), lane_side=lane, lane_offset=lane_off, curvature=rho,
-                lat_accel=lat, accel=acc, jerk=jerk, speed_change=dv, speed_change_abs=jnp.abs(dv), headway=headway,
-                closing=closing, progress_dev=mean(dev * dev), progress_dev_late=mean(dev * dev, late),
-                progress_ahead=mean(dev), cv_dev=cv_dev, cv_ahead=mean(cv),
-                free_cv_dev=jnp.where(led[0, 0], 0.0, cv_dev), risk=risk)
+    cols = dict(
+        d_lrp=d_lrp,
+        lane_change=jnp.abs(lane),
+        lane_side=lane,
+        lane_offset=lane_off,
+        curvature=rho,
+        lat_accel=lat,
+        accel=acc,
+        jerk=jerk,
+        speed_change=dv,
+        speed_change_abs=jnp.abs(dv),
+        headway=headway,
+        closing=closing,
+        progress_dev=mean(dev * dev),
+        progress_dev_late=mean(dev * dev, late),
+        progress_ahead=mean(dev),
+        cv_dev=cv_dev,
+        cv_ahead=mean(cv),
+        free_cv_dev=jnp.where(led[0, 0], 0.0, cv_dev),
+        risk=risk,
+    )
     return jnp.stack([cols[k] for k in FEATURES], axis=-1)
 
 

@@ -18,6 +18,7 @@ The planner's choice is the exact ``argmin`` of ``c`` over the same candidates
 - ``cross_entropy``: to ``softmax(-ADE / sigma)`` over the eligible candidates (the
   maximum-entropy inverse-RL form); ``loss`` mixes both.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -122,8 +123,10 @@ class ImitationModel:
         return np.array([n in SIGNED for n in self.names])
 
     def params(self) -> dict:
-        return {"theta": jnp.asarray(self.theta, jnp.float32),
-                "log_tau": jnp.asarray(np.log(self.temperature), jnp.float32)}
+        return {
+            "theta": jnp.asarray(self.theta, jnp.float32),
+            "log_tau": jnp.asarray(np.log(self.temperature), jnp.float32),
+        }
 
     def weights(self) -> dict:
         """``{feature: weight}`` per unit of the normalised feature (unit-length vector)."""
@@ -139,15 +142,29 @@ class ImitationModel:
         """``(B,)`` the planner's choice: the least cost among the eligible candidates."""
         if data.features.shape[-1] != len(self.names):
             raise ValueError(f"model has {len(self.names)} features, data {data.features.shape[-1]}")
-        return np.asarray(_choose(jnp.asarray(self.theta, jnp.float32), data.features, jnp.asarray(self.scale),
-                                  jnp.asarray(self.signed), eligible(data)))
+        return np.asarray(
+            _choose(
+                jnp.asarray(self.theta, jnp.float32),
+                data.features,
+                jnp.asarray(self.scale),
+                jnp.asarray(self.signed),
+                eligible(data),
+            )
+        )
 
     def save(self, path: str) -> None:
         """Write the model as JSON (atomically)."""
-        d = {"kind": MODEL_KIND, "features": list(self.names), "theta": [float(x) for x in self.theta],
-             "scale": [float(x) for x in self.scale], "temperature": float(self.temperature),
-             "weights": self.weights(), "physical_weights": self.physical_weights(),
-             "units": {k: UNITS.get(k, "") for k in self.names}, "meta": self.meta}
+        d = {
+            "kind": MODEL_KIND,
+            "features": list(self.names),
+            "theta": [float(x) for x in self.theta],
+            "scale": [float(x) for x in self.scale],
+            "temperature": float(self.temperature),
+            "weights": self.weights(),
+            "physical_weights": self.physical_weights(),
+            "units": {k: UNITS.get(k, "") for k in self.names},
+            "meta": self.meta,
+        }
         os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
         with open(path + ".tmp", "w") as f:
             json.dump(d, f, indent=1, sort_keys=True)
@@ -175,8 +192,13 @@ class ImitationModel:
             raise ValueError(f"{path}: unknown features {unknown}; known: {', '.join(FEATURES)}")
         if theta.shape != (len(names),) or scale.shape != (len(names),):
             raise ValueError(f"{path}: 'theta' and 'scale' need one value per feature ({len(names)})")
-        if not (np.all(np.isfinite(theta)) and np.all(scale > 0) and np.all(np.isfinite(scale))
-                and np.isfinite(tau) and tau > 0):
+        if not (
+            np.all(np.isfinite(theta))
+            and np.all(scale > 0)
+            and np.all(np.isfinite(scale))
+            and np.isfinite(tau)
+            and tau > 0
+        ):
             raise ValueError(f"{path}: 'theta' must be finite, 'scale' and 'temperature' positive and finite")
         return ImitationModel(names, theta, scale, tau, d.get("meta") or {})
 
@@ -203,9 +225,18 @@ def _chosen_ade3(theta, data: LatticeData, scale, signed):
     return jnp.mean(jnp.take_along_axis(data.ade3, i[:, None], 1))
 
 
-def fit_model(train: LatticeData, steps: int = 400, lr: float = 0.05, ce_weight: float = 0.0, sigma: float = 0.5,
-              l2: float = 0.0, log_every: int = 10, val: LatticeData | None = None, names=FEATURES,
-              init: dict | None = None) -> tuple[ImitationModel, dict]:
+def fit_model(
+    train: LatticeData,
+    steps: int = 400,
+    lr: float = 0.05,
+    ce_weight: float = 0.0,
+    sigma: float = 0.5,
+    l2: float = 0.0,
+    log_every: int = 10,
+    val: LatticeData | None = None,
+    names=FEATURES,
+    init: dict | None = None,
+) -> tuple[ImitationModel, dict]:
     """Fit the model on ``train`` with Adam (warm-up + cosine schedule), full batch.
 
     Args:
@@ -228,10 +259,18 @@ def fit_model(train: LatticeData, steps: int = 400, lr: float = 0.05, ce_weight:
     params = init_params(names) if init is None else init
     opt = _adam(float(lr), int(steps))
     state = opt.init(params)
-    hist: dict[str, list[Any]] = {"step": [], "loss": [], "train_ade3": [], "val_ade3": [], "temperature": [], "weights": []}
+    hist: dict[str, list[Any]] = {
+        "step": [],
+        "loss": [],
+        "train_ade3": [],
+        "val_ade3": [],
+        "temperature": [],
+        "weights": [],
+    }
     for i in range(steps):
-        params, state, lv = _train_step(params, state, train, scale, signed, opt, float(ce_weight), float(sigma),
-                                        float(l2))
+        params, state, lv = _train_step(
+            params, state, train, scale, signed, opt, float(ce_weight), float(sigma), float(l2)
+        )
         if i % log_every == 0 or i == steps - 1:
             hist["step"].append(i)
             hist["loss"].append(float(lv))
@@ -240,13 +279,15 @@ def fit_model(train: LatticeData, steps: int = 400, lr: float = 0.05, ce_weight:
                 hist["val_ade3"].append(float(_chosen_ade3(params["theta"], val, scale, signed)))
             hist["temperature"].append(float(jnp.exp(params["log_tau"])))
             hist["weights"].append(dict(zip(names, np.asarray(direction(params["theta"], signed)).tolist())))
-    model = ImitationModel(tuple(names), np.asarray(params["theta"]), np.asarray(scale),
-                           float(jnp.exp(params["log_tau"])))
+    model = ImitationModel(
+        tuple(names), np.asarray(params["theta"]), np.asarray(scale), float(jnp.exp(params["log_tau"]))
+    )
     return model, hist
 
 
-def random_search_model(train: LatticeData, evals: int, seed: int = 0, names=FEATURES,
-                        spread: float = 2.0) -> tuple[ImitationModel, float]:
+def random_search_model(
+    train: LatticeData, evals: int, seed: int = 0, names=FEATURES, spread: float = 2.0
+) -> tuple[ImitationModel, float]:
     """The best of ``evals`` random ``theta`` (normal, sd ``spread``; the first is all zeros) by
     the exact choice's training ADE3 (the metric itself, no gradient): the gradient-free
     baseline with the same features and budget.

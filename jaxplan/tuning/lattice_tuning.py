@@ -18,6 +18,7 @@ planner uses and a constant-acceleration one, offsets reached at the horizon or
 after 3 s, three lanes). When the lattice offers end times and lateral times
 itself, one config does it.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -45,11 +46,16 @@ from jaxplan.types import Obstacles, VehicleParams
 # 17 end speeds (km/h from the start speed), finer near zero where most humans end.
 SPEEDS_17 = (-40.0, -30.0, -22.0, -16.0, -12.0, -9.0, -6.0, -3.0, 0.0, 3.0, 6.0, 9.0, 12.0, 16.0, 22.0, 30.0, 40.0)
 # The lattice of the planner as it is (five end speeds), positions at the car's centre as the recordings give them.
-TUNING_CONFIG = LatticeConfig(lanes=(-1, 0, 1), target_lane=0, escalation=(1.0,),
-                              vehicle=VehicleParams(reference="center"))
+TUNING_CONFIG = LatticeConfig(
+    lanes=(-1, 0, 1), target_lane=0, escalation=(1.0,), vehicle=VehicleParams(reference="center")
+)
 RICH = dataclasses.replace(TUNING_CONFIG, speed_deltas_kmh=SPEEDS_17)
-TUNING_CONFIGS = (RICH, dataclasses.replace(RICH, lateral_time=3.0), dataclasses.replace(RICH, profile="accel"),
-                  dataclasses.replace(RICH, profile="accel", lateral_time=3.0))
+TUNING_CONFIGS = (
+    RICH,
+    dataclasses.replace(RICH, lateral_time=3.0),
+    dataclasses.replace(RICH, profile="accel"),
+    dataclasses.replace(RICH, profile="accel", lateral_time=3.0),
+)
 WEIGHT_NAMES = ("alpha", "beta", "gamma", "delta", "collision", "level")
 # The weights the exact selection rule uses (the others only shape the smooth cost).
 LEARNED = ("alpha", "beta", "gamma", "delta")
@@ -131,12 +137,22 @@ def _chunk_data(demos: Demo, idm: IDMParams, configs: tuple, fcfg: FeatureConfig
     for cfg in configs:
         res = plan_batch(state, refs, obs, cfg, CostWeights())
         feats = jax.vmap(candidate_features, in_axes=(0, 0, 0, 0, None, None, None))(
-            res.candidates, res.ttc, traffic, state.v, cfg, idm, fcfg)
-        xy = jnp.stack([res.candidates.traj.x, res.candidates.traj.y], -1)     # (B, N, T, 2)
+            res.candidates, res.ttc, traffic, state.v, cfg, idm, fcfg
+        )
+        xy = jnp.stack([res.candidates.traj.x, res.candidates.traj.y], -1)  # (B, N, T, 2)
         e = displacement(xy, demos.human_xy[:, None], demos.human_valid[:, None])
         c = res.candidates
-        raw = {"x": c.traj.x, "y": c.traj.y, "s": c.s, "l": c.l, "v": c.traj.v, "a": c.traj.a, "lane": c.lane,
-               "offset": c.offset, "v_end": c.v_end}
+        raw = {
+            "x": c.traj.x,
+            "y": c.traj.y,
+            "s": c.s,
+            "l": c.l,
+            "v": c.traj.v,
+            "a": c.traj.a,
+            "lane": c.lane,
+            "offset": c.offset,
+            "v_end": c.v_end,
+        }
         parts.append((feats, res.features, res.collided, c.level, e["ade3"], e["fde3"], e["ade5"], e["fde5"], raw))
     cat = [jnp.concatenate([p[i] for p in parts], axis=1) for i in range(8)]
     raw = {k: jnp.concatenate([p[8][k] for p in parts], axis=1) for k in parts[0][8]}
@@ -144,9 +160,15 @@ def _chunk_data(demos: Demo, idm: IDMParams, configs: tuple, fcfg: FeatureConfig
     return LatticeData(*(cat + [valid5])), raw
 
 
-def lattice_data(demos: Demo, configs: tuple = TUNING_CONFIGS, idm: IDMParams = IDMParams(),
-                 fcfg: FeatureConfig = FeatureConfig(), chunk: int = CHUNK, start_accel: str = "zero",
-                 keep: tuple = ()):
+def lattice_data(
+    demos: Demo,
+    configs: tuple = TUNING_CONFIGS,
+    idm: IDMParams = IDMParams(),
+    fcfg: FeatureConfig = FeatureConfig(),
+    chunk: int = CHUNK,
+    start_accel: str = "zero",
+    keep: tuple = (),
+):
     """Plan every config of the candidate set for every demonstration (in chunks, to bound memory).
 
     Args:
@@ -233,8 +255,12 @@ def choice_errors(idx, data: LatticeData) -> dict:
     idx = np.asarray(idx)
     take = lambda a: np.take_along_axis(np.asarray(a), idx[:, None], axis=1)[:, 0]
     out = {k: take(getattr(data, k)) for k in ("ade3", "fde3", "ade5", "fde5")}
-    out.update(valid3=np.ones(len(idx), bool), valid5=np.asarray(data.valid5), collided=take(data.collided),
-               top1=(idx == nearest_eligible(data)))
+    out.update(
+        valid3=np.ones(len(idx), bool),
+        valid5=np.asarray(data.valid5),
+        collided=take(data.collided),
+        top1=(idx == nearest_eligible(data)),
+    )
     return out
 
 
@@ -242,10 +268,15 @@ def imitation_metrics(weights: dict, data: LatticeData) -> dict:
     """Top-1 agreement, ADE/FDE at 3 s and 5 s of the candidate the exact rule chooses with
     ``weights``, collision share, and the best eligible candidate's ADE3 (``oracle_ade3``)."""
     e = choice_errors(rule_choice(weights, data), data)
-    return {"top1": float(e["top1"].mean()), "ade3": float(e["ade3"].mean()), "fde3": float(e["fde3"].mean()),
-            "ade5": float(e["ade5"][e["valid5"]].mean()) if e["valid5"].any() else float("nan"),
-            "fde5": float(e["fde5"][e["valid5"]].mean()) if e["valid5"].any() else float("nan"),
-            "collision_share": float(e["collided"].mean()), "oracle_ade3": oracle_ade3(data)}
+    return {
+        "top1": float(e["top1"].mean()),
+        "ade3": float(e["ade3"].mean()),
+        "fde3": float(e["fde3"].mean()),
+        "ade5": float(e["ade5"][e["valid5"]].mean()) if e["valid5"].any() else float("nan"),
+        "fde5": float(e["fde5"][e["valid5"]].mean()) if e["valid5"].any() else float("nan"),
+        "collision_share": float(e["collided"].mean()),
+        "oracle_ade3": oracle_ade3(data),
+    }
 
 
 def oracle_ade3(data: LatticeData) -> float:
@@ -266,7 +297,26 @@ def synthetic_choices(data: LatticeData, weights: dict, temperature: float, seed
     return dataclasses.replace(data, ade3=d, ade5=d, fde3=d, fde5=d)
 
 
-__all__ = ["TUNING_CONFIG", "TUNING_CONFIGS", "SPEEDS_17", "WEIGHT_NAMES", "RULE_FEATURES", "LatticeData",
-           "default_weights", "weights_pytree", "lattice_data", "candidate_xy", "eligible", "selection_cost",
-           "lattice_loss", "LEARNED", "rule_choice", "choice_errors", "imitation_metrics", "oracle_ade3",
-           "nearest_eligible", "synthetic_choices", "start_states"]
+__all__ = [
+    "TUNING_CONFIG",
+    "TUNING_CONFIGS",
+    "SPEEDS_17",
+    "WEIGHT_NAMES",
+    "RULE_FEATURES",
+    "LatticeData",
+    "default_weights",
+    "weights_pytree",
+    "lattice_data",
+    "candidate_xy",
+    "eligible",
+    "selection_cost",
+    "lattice_loss",
+    "LEARNED",
+    "rule_choice",
+    "choice_errors",
+    "imitation_metrics",
+    "oracle_ade3",
+    "nearest_eligible",
+    "synthetic_choices",
+    "start_states",
+]

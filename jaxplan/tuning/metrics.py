@@ -6,6 +6,7 @@ the distance at ``h``. A demonstration whose recording ends before ``h`` has no
 ADE_h / FDE_h (``valid`` False); every demonstration has at least ``min_future``
 seconds (``DemoConfig``), so ADE3 is defined for all of them by default.
 """
+
 from __future__ import annotations
 
 import jax.numpy as jnp
@@ -29,7 +30,7 @@ def displacement(pred_xy, human_xy, human_valid, dt: float = 0.1, horizons=HORIZ
     for h in horizons:
         k = int(round(h / dt))
         n = min(k, pred_xy.shape[-2] - 1, human_xy.shape[-2] - 1)
-        err = jnp.linalg.norm(pred_xy[..., 1:n + 1, :] - human_xy[..., 1:n + 1, :], axis=-1)
+        err = jnp.linalg.norm(pred_xy[..., 1 : n + 1, :] - human_xy[..., 1 : n + 1, :], axis=-1)
         ok = human_valid[..., n] & (n == k)
         tag = f"{h:g}"
         out[f"ade{tag}"] = err.mean(-1)
@@ -43,8 +44,9 @@ def masked_mean(x, valid) -> float:
     return float(x[valid].mean()) if valid.any() else float("nan")
 
 
-def bootstrap_ci(values, clusters, valid=None, n_boot: int = 1000, level: float = 0.95, seed: int = 0,
-                 ratio_to=None) -> tuple[float, float, float]:
+def bootstrap_ci(
+    values, clusters, valid=None, n_boot: int = 1000, level: float = 0.95, seed: int = 0, ratio_to=None
+) -> tuple[float, float, float]:
     """Mean of ``values`` and its bootstrap confidence interval, resampling whole clusters
     (scenarios) with replacement: demonstrations of one scenario are not independent.
 

@@ -10,6 +10,7 @@ the imitation cost's weights with the gradient's budget, and the best candidate 
 the lattice (oracle). ``held_out_locations``: the same, trained on every other
 location. ``tune_speed``: the speed planner's weights through the soft DP.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -51,14 +52,18 @@ if TYPE_CHECKING:
 
 # Candidate sets by name (stored in a model's metadata, so evaluation plans the same set).
 CANDIDATE_SETS = {"rich": TUNING_CONFIGS, "small": (TUNING_CONFIG,)}
-METHODS = ("constant_velocity", "constant_acceleration", "idm", "default", "grid", "random_search", "weights",
-           "oracle")
+METHODS = ("constant_velocity", "constant_acceleration", "idm", "default", "grid", "random_search", "weights", "oracle")
 # Optimiser settings of recorded demonstrations: on the 896 training demonstrations of
 # commonroad2018a the expected-ADE3 loss reaches 0.928 m with 800 steps at lr 0.2 against
 # 0.965 m with 400 at 0.05 (the learned temperature keeps falling: the fit is still moving).
 RECORDED_STEPS, RECORDED_LR = 800, 0.2
-SMALL_IDM_GRID = {"v_ratio": (1.0, 1.1), "v_extra": (0.0, 3.0), "headway": (0.5, 1.2), "a_max": (0.6,),
-                  "b_comf": (1.0, 2.0)}
+SMALL_IDM_GRID = {
+    "v_ratio": (1.0, 1.1),
+    "v_extra": (0.0, 3.0),
+    "headway": (0.5, 1.2),
+    "a_max": (0.6,),
+    "b_comf": (1.0, 2.0),
+}
 # Hidden "driver" of synthetic demonstrations: follows the desired progress, dislikes lane changes and jerk.
 SYNTHETIC_DRIVER = {"progress_dev": 1.0, "lane_change": 0.6, "jerk": 0.3, "d_lrp": 0.3}
 
@@ -68,8 +73,9 @@ def slug(location: str) -> str:
     return location.lower().replace(" ", "_").replace("-", "")
 
 
-def recorded_set(scenarios, cfg: DemoConfig = DemoConfig(), max_files: int | None = None,
-                 pattern: str | None = None) -> DemoSet:
+def recorded_set(
+    scenarios, cfg: DemoConfig = DemoConfig(), max_files: int | None = None, pattern: str | None = None
+) -> DemoSet:
     """Every demonstration of a scenario folder, with vehicle identities across its files.
 
     Args:
@@ -79,10 +85,16 @@ def recorded_set(scenarios, cfg: DemoConfig = DemoConfig(), max_files: int | Non
     """
     from jaxplan.scenarios import loader
 
-    folder = scenarios if isinstance(scenarios, loader.Folder) else \
-        loader.load_folder(scenarios, pattern=(pattern or "*") + ".json", limit=max_files)
-    scs = [s for s, f in zip(folder.scenarios, folder.files)
-           if pattern is None or fnmatch.fnmatch(os.path.basename(f), pattern + ".json")][:max_files]
+    folder = (
+        scenarios
+        if isinstance(scenarios, loader.Folder)
+        else loader.load_folder(scenarios, pattern=(pattern or "*") + ".json", limit=max_files)
+    )
+    scs = [
+        s
+        for s, f in zip(folder.scenarios, folder.files)
+        if pattern is None or fnmatch.fnmatch(os.path.basename(f), pattern + ".json")
+    ][:max_files]
     ds = demo_set(scs, cfg)
     if ds is None or len(ds) < 2:
         raise ValueError(f"--scenarios {folder.directory}: too few demonstrations ({0 if ds is None else len(ds)})")
@@ -109,8 +121,9 @@ def split(ds: DemoSet, share: int = 4) -> tuple[DemoSet, DemoSet]:
     """Train / validation, disjoint by vehicle (``vehicles.split_by_vehicle``)."""
     val = split_by_vehicle(ds.index, share)
     if val.all() or not val.any():
-        raise ValueError(f"split by vehicle: {int((~val).sum())} train and {int(val.sum())} validation "
-                         "demonstrations; need both")
+        raise ValueError(
+            f"split by vehicle: {int((~val).sum())} train and {int(val.sum())} validation demonstrations; need both"
+        )
     return ds.take(~val), ds.take(val)
 
 
@@ -141,9 +154,11 @@ class ImitationRun:
 
 def baseline_errors(demos, idm_params: IDMParams) -> dict:
     """Per-demonstration errors of the prediction baselines."""
-    return {"constant_velocity": predict_errors(constant_velocity, demos),
-            "constant_acceleration": predict_errors(constant_acceleration, demos),
-            "idm": predict_errors(lambda d: idm(d, idm_params), demos)}
+    return {
+        "constant_velocity": predict_errors(constant_velocity, demos),
+        "constant_acceleration": predict_errors(constant_acceleration, demos),
+        "idm": predict_errors(lambda d: idm(d, idm_params), demos),
+    }
 
 
 def grid_rule(data: LatticeData, n: int = 7) -> tuple[dict, float]:
@@ -160,8 +175,9 @@ def grid_rule(data: LatticeData, n: int = 7) -> tuple[dict, float]:
     return best, best_ade
 
 
-def method_errors(model: ImitationModel, rule: dict, rand: ImitationModel, data: LatticeData, demos,
-                  idm_params: IDMParams) -> dict:
+def method_errors(
+    model: ImitationModel, rule: dict, rand: ImitationModel, data: LatticeData, demos, idm_params: IDMParams
+) -> dict:
     """Per-demonstration errors of every method on one set of demonstrations."""
     out = baseline_errors(demos, idm_params)
     out["default"] = choice_errors(rule_choice(default_weights(), data), data)
@@ -183,22 +199,49 @@ def figures(errors: dict, ds: DemoSet, n_boot: int = 1000, seed: int = 0, by_loc
             m[f"{prefix}demos"] = int(mask.sum())
         for name, e in errors.items():
             sub = {k: np.asarray(v)[mask] for k, v in e.items()}
-            m.update(summary(sub, ds.index.scenario[mask], f"{prefix}{name}.",
-                             collided=sub.get("collided"), n_boot=n_boot, seed=seed))
+            m.update(
+                summary(
+                    sub,
+                    ds.index.scenario[mask],
+                    f"{prefix}{name}.",
+                    collided=sub.get("collided"),
+                    n_boot=n_boot,
+                    seed=seed,
+                )
+            )
             if "top1" in sub:
                 m[f"{prefix}{name}.top1"] = float(np.mean(sub["top1"]))
         if "weights" in errors and "default" in errors:
-            est, lo, hi = bootstrap_ci(errors["weights"]["ade3"][mask], ds.index.scenario[mask], n_boot=n_boot,
-                                       seed=seed, ratio_to=errors["default"]["ade3"][mask])
-            m[f"{prefix}weights_vs_default"], m[f"{prefix}weights_vs_default_ci_lo"], \
-                m[f"{prefix}weights_vs_default_ci_hi"] = est, lo, hi
+            est, lo, hi = bootstrap_ci(
+                errors["weights"]["ade3"][mask],
+                ds.index.scenario[mask],
+                n_boot=n_boot,
+                seed=seed,
+                ratio_to=errors["default"]["ade3"][mask],
+            )
+            (
+                m[f"{prefix}weights_vs_default"],
+                m[f"{prefix}weights_vs_default_ci_lo"],
+                m[f"{prefix}weights_vs_default_ci_hi"],
+            ) = est, lo, hi
     return m
 
 
-def compare_lattice(train: DemoSet, val: DemoSet, steps: int = 400, lr: float = 0.05, seed: int = 0,
-                    candidate_set: str = "rich", ce_weight: float = 0.0, idm_grid: dict = IDM_GRID,
-                    n_boot: int = 1000, log_every: int = 10, chunk: int = CHUNK, by_location: bool = True,
-                    random_evals: int | None = None) -> ImitationRun:
+def compare_lattice(
+    train: DemoSet,
+    val: DemoSet,
+    steps: int = 400,
+    lr: float = 0.05,
+    seed: int = 0,
+    candidate_set: str = "rich",
+    ce_weight: float = 0.0,
+    idm_grid: dict = IDM_GRID,
+    n_boot: int = 1000,
+    log_every: int = 10,
+    chunk: int = CHUNK,
+    by_location: bool = True,
+    random_evals: int | None = None,
+) -> ImitationRun:
     """Fit the imitation cost on ``train`` and compare every method on ``val`` (see the module docstring).
 
     ``ce_weight``: the cross-entropy beside the expected ADE3. Recorded humans: 0 (the
@@ -213,8 +256,14 @@ def compare_lattice(train: DemoSet, val: DemoSet, steps: int = 400, lr: float = 
     model, hist = fit_model(dtr, steps=steps, lr=lr, ce_weight=ce_weight, val=dva, log_every=log_every)
     rule, _ = grid_rule(dtr)
     rand, _ = random_search_model(dtr, evals=steps if random_evals is None else random_evals, seed=seed)
-    meta = {"candidate_set": candidate_set, "idm": {k: float(v) for k, v in dataclasses.asdict(idm_params).items()},
-            "train_demos": len(train), "steps": steps, "lr": lr, "ce_weight": ce_weight}
+    meta = {
+        "candidate_set": candidate_set,
+        "idm": {k: float(v) for k, v in dataclasses.asdict(idm_params).items()},
+        "train_demos": len(train),
+        "steps": steps,
+        "lr": lr,
+        "ce_weight": ce_weight,
+    }
     model = dataclasses.replace(model, meta=meta)
     errors = method_errors(model, rule, rand, dva, val.demos, idm_params)
     m = figures(errors, val, n_boot, seed, by_location)
@@ -227,9 +276,16 @@ def compare_lattice(train: DemoSet, val: DemoSet, steps: int = 400, lr: float = 
     return ImitationRun(model, hist, m, errors, val, dva, idm_params, rule, rand)
 
 
-def held_out_locations(ds: DemoSet, steps: int = RECORDED_STEPS, seed: int = 0, candidate_set: str = "rich",
-                       idm_grid: dict = IDM_GRID, n_boot: int = 1000, min_demos: int = 10,
-                       lr: float = RECORDED_LR) -> dict:
+def held_out_locations(
+    ds: DemoSet,
+    steps: int = RECORDED_STEPS,
+    seed: int = 0,
+    candidate_set: str = "rich",
+    idm_grid: dict = IDM_GRID,
+    n_boot: int = 1000,
+    min_demos: int = 10,
+    lr: float = RECORDED_LR,
+) -> dict:
     """``compare_lattice`` trained on every other location, figures on each held-out location:
     ``{location}.{method}.{metric}``."""
     out = {}
@@ -237,21 +293,39 @@ def held_out_locations(ds: DemoSet, steps: int = RECORDED_STEPS, seed: int = 0, 
         test = ds.index.location == loc
         if test.sum() < min_demos or (~test).sum() < min_demos:
             continue
-        run = compare_lattice(ds.take(~test), ds.take(test), steps, lr=lr, seed=seed, candidate_set=candidate_set,
-                              idm_grid=idm_grid, n_boot=n_boot, log_every=max(1, steps), by_location=False)
-        out.update({f"{slug(loc)}.{k}": v for k, v in run.metrics.items()
-                    if not k.startswith(("train.", "weight."))})
+        run = compare_lattice(
+            ds.take(~test),
+            ds.take(test),
+            steps,
+            lr=lr,
+            seed=seed,
+            candidate_set=candidate_set,
+            idm_grid=idm_grid,
+            n_boot=n_boot,
+            log_every=max(1, steps),
+            by_location=False,
+        )
+        out.update({f"{slug(loc)}.{k}": v for k, v in run.metrics.items() if not k.startswith(("train.", "weight."))})
     return out
 
 
-def tune_speed(train: DemoSet, val: DemoSet, steps: int = 40, lr: float = 0.1, seed: int = 0, batch_size: int = 32,
-               idm_params: IDMParams | None = None, n_boot: int = 1000):
+def tune_speed(
+    train: DemoSet,
+    val: DemoSet,
+    steps: int = 40,
+    lr: float = 0.1,
+    seed: int = 0,
+    batch_size: int = 32,
+    idm_params: IDMParams | None = None,
+    n_boot: int = 1000,
+):
     """Learn the speed planner's weights through the soft DP (``speed_tuning``) and compare on
     ``val`` with the same baselines on the same metric (station errors along the human path)."""
     from jaxplan.tuning.speed_tuning import compare_speed
 
-    return compare_speed(train, val, steps=steps, lr=lr, seed=seed, batch_size=batch_size, idm_params=idm_params,
-                         n_boot=n_boot)
+    return compare_speed(
+        train, val, steps=steps, lr=lr, seed=seed, batch_size=batch_size, idm_params=idm_params, n_boot=n_boot
+    )
 
 
 def load_cost(path: str):
@@ -272,8 +346,13 @@ def load_cost(path: str):
     return load_weights(path, allowed=WEIGHT_NAMES, planner="lattice")
 
 
-def demonstrations(scenarios: str | Folder | None, n_synthetic: int = CHUNK, seed: int = 0, max_files: int | None = None,
-                   pattern: str | None = None) -> tuple[DemoSet, DemoSet, str]:
+def demonstrations(
+    scenarios: str | Folder | None,
+    n_synthetic: int = CHUNK,
+    seed: int = 0,
+    max_files: int | None = None,
+    pattern: str | None = None,
+) -> tuple[DemoSet, DemoSet, str]:
     """Train / validation demonstrations (disjoint by vehicle) from a scenario folder (its path,
     or the ``Folder`` that ``load_folder`` returned), or synthetic ones whose human is the hidden ``SYNTHETIC_DRIVER``."""
     if scenarios:

@@ -13,6 +13,7 @@ velocity, constant acceleration, and the IDM following the recorded leader along
 the same path. (The DP grid's own limit, an ``oracle`` tracking the human's stations, was
 built on the station-grid DP; it is gone with the knot-speed DP and not yet rebuilt.)
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -70,8 +71,9 @@ class SpeedData:
     valid: jax.Array
 
 
-def speed_data(demos: Demo, config: SpeedConfig = SPEED_TUNING_CONFIG, points: int = 64,
-               extend: float = 200.0) -> tuple[SpeedData, np.ndarray]:
+def speed_data(
+    demos: Demo, config: SpeedConfig = SPEED_TUNING_CONFIG, points: int = 64, extend: float = 200.0
+) -> tuple[SpeedData, np.ndarray]:
     """Examples from demonstrations whose human moved at least 2 m along a path that does not
     turn back on itself (recorded positions of a nearly stopped car jitter back and forth;
     the speed planner refuses such a path, ``ReferenceLine.validate``).
@@ -83,8 +85,8 @@ def speed_data(demos: Demo, config: SpeedConfig = SPEED_TUNING_CONFIG, points: i
 
     hxy = np.asarray(demos.human_xy, np.float64)
     hv = np.asarray(demos.human_valid, bool)
-    seg = np.linalg.norm(np.diff(hxy, axis=1), axis=-1) * hv[:, 1:]       # (B, T-1), 0 past the recording
-    s = np.concatenate([np.zeros((len(hxy), 1)), np.cumsum(seg, 1)], 1)   # (B, T)
+    seg = np.linalg.norm(np.diff(hxy, axis=1), axis=-1) * hv[:, 1:]  # (B, T-1), 0 past the recording
+    s = np.concatenate([np.zeros((len(hxy), 1)), np.cumsum(seg, 1)], 1)  # (B, T)
     steps = int(round(config.dt / 0.1))
     idx = np.arange(config.n_t + 1) * steps
     if idx[-1] >= s.shape[1]:
@@ -103,9 +105,14 @@ def speed_data(demos: Demo, config: SpeedConfig = SPEED_TUNING_CONFIG, points: i
     kept = np.asarray(kept_b, int)
     pick = lambda x: jnp.asarray(np.asarray(x)[kept])
     obs = Obstacles(pick(demos.obstacles), pick(demos.obstacle_valid), pick(demos.t), pick(demos.obstacle_static))
-    data = SpeedData(jnp.asarray(np.array(paths).reshape(len(kept), points, 2), jnp.float32), obs,
-                     pick(demos.ego[:, 3]), jnp.clip(pick(demos.ego[:, 4]), config.a_min, config.a_max),
-                     jnp.asarray(s[kept][:, idx], jnp.float32), jnp.asarray(hv[kept][:, idx]))
+    data = SpeedData(
+        jnp.asarray(np.array(paths).reshape(len(kept), points, 2), jnp.float32),
+        obs,
+        pick(demos.ego[:, 3]),
+        jnp.clip(pick(demos.ego[:, 4]), config.a_min, config.a_max),
+        jnp.asarray(s[kept][:, idx], jnp.float32),
+        jnp.asarray(hv[kept][:, idx]),
+    )
     return data, kept
 
 
@@ -117,21 +124,26 @@ def _weights(w: dict, v0) -> CostWeights:
     return CostWeights(v_cruise=ratio * v0, **{k: jnp.asarray(v, jnp.float32) * ones for k, v in w.items()})
 
 
-def speed_loss(params: dict, data: SpeedData, config: SpeedConfig = SPEED_TUNING_CONFIG,
-               temperature: float = 1.0):
+def speed_loss(params: dict, data: SpeedData, config: SpeedConfig = SPEED_TUNING_CONFIG, temperature: float = 1.0):
     """Mean Huber loss (1 m) of the soft DP's expected stations against the human's (recorded times)."""
     w = _weights({**default_speed_weights(), **from_log(params)}, data.v0)
     refs = jax.vmap(reference_line)(data.path_xy)
-    plan = expected_speed_profile(refs, data.obstacles, config, w, temperature, v0=data.v0, a0=data.a0,
-                                  vehicle=VEHICLE)
+    plan = expected_speed_profile(refs, data.obstacles, config, w, temperature, v0=data.v0, a0=data.a0, vehicle=VEHICLE)
     err = optax.huber_loss(plan.s, data.s_human, delta=1.0)
     return jnp.sum(jnp.where(data.valid, err, 0.0)) / jnp.maximum(jnp.sum(data.valid), 1)
 
 
 def _exact(weights: dict, data: SpeedData, config: SpeedConfig):
     refs = jax.vmap(reference_line)(data.path_xy)
-    return plan_speed(refs, data.obstacles, config, _weights({**default_speed_weights(), **weights}, data.v0),
-                      v0=data.v0, a0=data.a0, vehicle=VEHICLE)
+    return plan_speed(
+        refs,
+        data.obstacles,
+        config,
+        _weights({**default_speed_weights(), **weights}, data.v0),
+        v0=data.v0,
+        a0=data.a0,
+        vehicle=VEHICLE,
+    )
 
 
 def station_profiles(weights: dict, data: SpeedData, config: SpeedConfig = SPEED_TUNING_CONFIG) -> np.ndarray:
@@ -158,11 +170,17 @@ def _baseline_stations(data: SpeedData, idm: IDMParams, steps: int):
 
 def station_errors(stations, data: SpeedData, config: SpeedConfig = SPEED_TUNING_CONFIG) -> dict:
     """Per-example station errors ``(B,)`` (m) at 3 s and 5 s, in the form of ``metrics.displacement``."""
-    err = np.abs(np.asarray(stations)[:, :data.s_human.shape[1]] - np.asarray(data.s_human))
+    err = np.abs(np.asarray(stations)[:, : data.s_human.shape[1]] - np.asarray(data.s_human))
     ok = np.asarray(data.valid)
     k3, k5 = int(round(3.0 / config.dt)), int(round(5.0 / config.dt))
-    return {"ade3": err[:, 1:k3 + 1].mean(1), "fde3": err[:, k3], "valid3": ok[:, k3],
-            "ade5": err[:, 1:k5 + 1].mean(1), "fde5": err[:, k5], "valid5": ok[:, k5]}
+    return {
+        "ade3": err[:, 1 : k3 + 1].mean(1),
+        "fde3": err[:, k3],
+        "valid3": ok[:, k3],
+        "ade5": err[:, 1 : k5 + 1].mean(1),
+        "fde5": err[:, k5],
+        "valid5": ok[:, k5],
+    }
 
 
 def speed_metrics(weights: dict, data: SpeedData, config: SpeedConfig = SPEED_TUNING_CONFIG) -> dict:
@@ -170,15 +188,21 @@ def speed_metrics(weights: dict, data: SpeedData, config: SpeedConfig = SPEED_TU
     plan = _exact(weights, data, config)
     e = station_errors(plan.s, data, config)
     mean = lambda k, v: float(e[k][e[v]].mean()) if e[v].any() else float("nan")
-    return {"station_ade3": mean("ade3", "valid3"), "station_fde3": mean("fde3", "valid3"),
-            "station_ade5": mean("ade5", "valid5"), "station_fde5": mean("fde5", "valid5"),
-            "feasible_share": float(np.asarray(plan.feasible).mean())}
+    return {
+        "station_ade3": mean("ade3", "valid3"),
+        "station_fde3": mean("fde3", "valid3"),
+        "station_ade5": mean("ade5", "valid5"),
+        "station_fde5": mean("fde5", "valid5"),
+        "feasible_share": float(np.asarray(plan.feasible).mean()),
+    }
 
 
 SPEED_GRID = {"cruise_ratio": (0.95, 1.0, 1.05, 1.1), "w_accel": (0.1, 1.0, 10.0)}
 
 
-def grid_speed(data: SpeedData, grid: dict = SPEED_GRID, config: SpeedConfig = SPEED_TUNING_CONFIG) -> tuple[dict, float]:
+def grid_speed(
+    data: SpeedData, grid: dict = SPEED_GRID, config: SpeedConfig = SPEED_TUNING_CONFIG
+) -> tuple[dict, float]:
     """The combination of ``grid`` (others default) with the least station ADE3 of the exact DP on ``data``."""
     best, best_ade = default_speed_weights(), np.inf
     for combo in itertools.product(*grid.values()):
@@ -190,8 +214,9 @@ def grid_speed(data: SpeedData, grid: dict = SPEED_GRID, config: SpeedConfig = S
     return best, best_ade
 
 
-def random_search_speed(data: SpeedData, evals: int, scale: float = 1.0, seed: int = 0,
-                        config: SpeedConfig = SPEED_TUNING_CONFIG) -> tuple[dict, float]:
+def random_search_speed(
+    data: SpeedData, evals: int, scale: float = 1.0, seed: int = 0, config: SpeedConfig = SPEED_TUNING_CONFIG
+) -> tuple[dict, float]:
     """The best of ``evals`` random weights (``SPEED_LEARNED`` times ``exp(uniform(+-scale))``
     around the defaults, the first the defaults themselves) by the exact DP's station ADE3
     on ``data``: the gradient-free baseline, judged on the metric itself."""
@@ -221,9 +246,19 @@ class SpeedRun:
     grid: dict
 
 
-def compare_speed(train, val, steps: int = 40, lr: float = 0.1, seed: int = 0, batch_size: int = 32,
-                  idm_params: IDMParams | None = None, n_boot: int = 1000, grid: dict = SPEED_GRID,
-                  config: SpeedConfig = SPEED_TUNING_CONFIG, grid_examples: int = 128) -> SpeedRun:
+def compare_speed(
+    train,
+    val,
+    steps: int = 40,
+    lr: float = 0.1,
+    seed: int = 0,
+    batch_size: int = 32,
+    idm_params: IDMParams | None = None,
+    n_boot: int = 1000,
+    grid: dict = SPEED_GRID,
+    config: SpeedConfig = SPEED_TUNING_CONFIG,
+    grid_examples: int = 128,
+) -> SpeedRun:
     """Fit ``SPEED_LEARNED`` through the soft DP on ``train`` (``DemoSet``) and compare every
     method of ``SPEED_METHODS`` on ``val`` (station errors, bootstrap intervals over scenarios)."""
     from jaxplan.tuning.metrics import summary
@@ -235,8 +270,9 @@ def compare_speed(train, val, steps: int = 40, lr: float = 0.1, seed: int = 0, b
     idm_params = IDMParams() if idm_params is None else idm_params
     start = {k: v for k, v in to_log(default_speed_weights()).items() if k in SPEED_LEARNED}
     loss = lambda p, d: speed_loss(p, d, config)
-    params, hist = fit(loss, start, dtr, steps=steps, lr=lr, batch_size=batch_size, seed=seed,
-                       log_every=max(1, steps // 20))
+    params, hist = fit(
+        loss, start, dtr, steps=steps, lr=lr, batch_size=batch_size, seed=seed, log_every=max(1, steps // 20)
+    )
     sub = jax.tree_util.tree_map(lambda x: x[:grid_examples], dtr)
     evals = max(2, steps * batch_size // max(1, sub.v0.shape[0]))  # the gradient's number of example evaluations
     rand, _ = random_search_speed(sub, evals, seed=seed, config=config)
@@ -244,15 +280,25 @@ def compare_speed(train, val, steps: int = 40, lr: float = 0.1, seed: int = 0, b
     tuned = {**default_speed_weights(), **{k: float(v) for k, v in from_log(params).items()}}
     steps_per = int(round(config.dt / 0.1))
     cv, ca, im = _baseline_stations(dva, idm_params, steps_per)
-    stations = {"constant_velocity": cv, "constant_acceleration": ca, "idm": im,
-                "default": station_profiles(default_speed_weights(), dva, config),
-                "grid": station_profiles(rule, dva, config), "random_search": station_profiles(rand, dva, config),
-                "weights": station_profiles(tuned, dva, config)}
+    stations = {
+        "constant_velocity": cv,
+        "constant_acceleration": ca,
+        "idm": im,
+        "default": station_profiles(default_speed_weights(), dva, config),
+        "grid": station_profiles(rule, dva, config),
+        "random_search": station_profiles(rand, dva, config),
+        "weights": station_profiles(tuned, dva, config),
+    }
     errors = {k: station_errors(v, dva, config) for k, v in stations.items()}
     scen = val.index.scenario[kept]
-    m = {"train_examples": int(dtr.v0.shape[0]), "val_examples": int(dva.v0.shape[0]), "steps": steps,
-         "loss_start": hist["loss"][0], "loss_end": hist["loss"][-1],
-         "feasible_share": float(np.asarray(_exact(tuned, dva, config).feasible).mean())}
+    m = {
+        "train_examples": int(dtr.v0.shape[0]),
+        "val_examples": int(dva.v0.shape[0]),
+        "steps": steps,
+        "loss_start": hist["loss"][0],
+        "loss_end": hist["loss"][-1],
+        "feasible_share": float(np.asarray(_exact(tuned, dva, config).feasible).mean()),
+    }
     for name, e in errors.items():
         m.update(summary(e, scen, f"{name}.", n_boot=n_boot, seed=seed))
     m.update({f"weight.{k}": tuned[k] for k in SPEED_LEARNED})

@@ -5,6 +5,7 @@ Kernels are written for one scene (``jax.vmap`` them over demonstrations); shape
 the docstrings. Used by the imitation baselines (``baselines.idm``) and by the
 scene-by-candidate features (``features``).
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -71,10 +72,10 @@ def leader(traffic: FrenetTraffic, s, l, length, band):
     Returns:
         (gap ``(..., T)``, ``NO_GAP`` without a leader; leader speed ``(..., T)``; has_leader ``(..., T)``).
     """
-    ds = traffic.s - s[..., None, :]                                  # (..., K, T)
+    ds = traffic.s - s[..., None, :]  # (..., K, T)
     ahead = traffic.valid & (ds > 0) & (jnp.abs(traffic.l - l[..., None, :]) < band)
     gap = jnp.where(ahead, ds - 0.5 * (traffic.length + length), NO_GAP)
-    k = jnp.argmin(gap, axis=-2)                                      # (..., T)
+    k = jnp.argmin(gap, axis=-2)  # (..., T)
     g = jnp.min(gap, axis=-2)
     vl = jnp.take_along_axis(jnp.broadcast_to(traffic.v, gap.shape), k[..., None, :], axis=-2)[..., 0, :]
     has = jnp.any(ahead, axis=-2)
@@ -108,12 +109,23 @@ class IDMParams:
 def idm_accel(p: IDMParams, v, v_des, gap, v_lead, has_leader):
     """IDM acceleration (``jaxplan.models.idm.idm_accel`` with these parameters, unclipped); all
     args ``(...)``."""
-    return idm_model(v, v_des, gap, v - v_lead, a_max=p.a_max, b_comf=p.b_comf, time_gap=p.headway,
-                     min_gap=p.s_jam, delta=p.delta, has_leader=has_leader)
+    return idm_model(
+        v,
+        v_des,
+        gap,
+        v - v_lead,
+        a_max=p.a_max,
+        b_comf=p.b_comf,
+        time_gap=p.headway,
+        min_gap=p.s_jam,
+        delta=p.delta,
+        has_leader=has_leader,
+    )
 
 
-def idm_rollout(traffic: FrenetTraffic, s0, l0, v0, length, p: IDMParams, dt: float, band: float = 1.75,
-                a_min: float = -8.0):
+def idm_rollout(
+    traffic: FrenetTraffic, s0, l0, v0, length, p: IDMParams, dt: float, band: float = 1.75, a_min: float = -8.0
+):
     """Stations ``(T,)`` and speeds ``(T,)`` of an IDM car along the line at offset ``l0``,
     following whichever recorded obstacle leads it at each step (``leader``).
 
@@ -132,8 +144,9 @@ def idm_rollout(traffic: FrenetTraffic, s0, l0, v0, length, p: IDMParams, dt: fl
     def step(carry, k):
         s, v = carry
         sl = lambda x: lax.dynamic_index_in_dim(x, k, axis=-1, keepdims=True)
-        tk = FrenetTraffic(*(sl(f) for f in (traffic.s, traffic.l, traffic.v, traffic.length, traffic.width,
-                                             traffic.valid)))
+        tk = FrenetTraffic(
+            *(sl(f) for f in (traffic.s, traffic.l, traffic.v, traffic.length, traffic.width, traffic.valid))
+        )
         g, vl, has = leader(tk, s[None], l0[None], length, band)
         a = jnp.maximum(idm_accel(p, v, v_des, g[0], vl[0], has[0]), a_min)
         v_new = jnp.maximum(v + a * dt, 0.0)

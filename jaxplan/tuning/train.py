@@ -6,6 +6,7 @@ model is a softmin over candidates, ``p_i = softmax(-cost_i / temperature)``; it
 is the cross entropy to a target distribution that puts the probability on the
 candidates closest to the human trajectory (``target_distribution``).
 """
+
 from __future__ import annotations
 
 import json
@@ -54,8 +55,17 @@ def choice_nll(cost, target, valid, temperature=1.0):
     return -jnp.sum(jnp.where(target > 0, target * logp, 0.0), axis=-1)
 
 
-def fit(loss_fn: Callable, params: dict, data, steps: int = 300, lr: float = 0.05, batch_size: int | None = None,
-        seed: int = 0, log_every: int = 10, frozen: tuple = ()):
+def fit(
+    loss_fn: Callable,
+    params: dict,
+    data,
+    steps: int = 300,
+    lr: float = 0.05,
+    batch_size: int | None = None,
+    seed: int = 0,
+    log_every: int = 10,
+    frozen: tuple = (),
+):
     """Minimise ``loss_fn(params, batch)`` with Adam and a warm-up + cosine learning-rate schedule.
 
     Args:
@@ -97,8 +107,9 @@ def fit(loss_fn: Callable, params: dict, data, steps: int = 300, lr: float = 0.0
     return params, hist
 
 
-def random_search(loss_fn: Callable, params: dict, data, evals: int, scale: float = 2.0, seed: int = 0,
-                  frozen: tuple = ()):
+def random_search(
+    loss_fn: Callable, params: dict, data, evals: int, scale: float = 2.0, seed: int = 0, frozen: tuple = ()
+):
     """The best of ``evals`` random log-weight vectors around ``params`` (uniform in +-``scale``).
 
     Returns:
@@ -151,8 +162,10 @@ def load_weights(path: str, allowed=None, planner: str | None = None) -> dict:
     except LookupError as e:
         if isinstance(e, KeyError):
             raise ValueError(f"{path}: not a weights file (KeyError: {e})") from None
-        raise ValueError(f"{path}: an imitation cost over scene features (jaxplan.tuning.imitation.ImitationModel), "
-                         "not the lattice rule's weights (the `.rule.json` beside it holds those)") from None
+        raise ValueError(
+            f"{path}: an imitation cost over scene features (jaxplan.tuning.imitation.ImitationModel), "
+            "not the lattice rule's weights (the `.rule.json` beside it holds those)"
+        ) from None
     except (OSError, json.JSONDecodeError, TypeError, ValueError, AttributeError) as e:
         raise ValueError(f"{path}: not a weights file ({type(e).__name__}: {e})") from None
     meta = d.get("meta") if isinstance(d, dict) else None
@@ -161,9 +174,11 @@ def load_weights(path: str, allowed=None, planner: str | None = None) -> dict:
     if allowed is not None:
         unknown = sorted(set(out) - set(allowed))
         if unknown:
-            raise ValueError(f"{path}: unknown weight {unknown[0]!r}"
-                             f"{f' (and {len(unknown) - 1} more)' if len(unknown) > 1 else ''}; "
-                             f"allowed: {', '.join(allowed)}")
+            raise ValueError(
+                f"{path}: unknown weight {unknown[0]!r}"
+                f"{f' (and {len(unknown) - 1} more)' if len(unknown) > 1 else ''}; "
+                f"allowed: {', '.join(allowed)}"
+            )
     bad = [k for k, v in out.items() if not (np.isfinite(v) and v > 0)]
     if bad:
         raise ValueError(f"{path}: weights must be positive and finite, not {bad}")

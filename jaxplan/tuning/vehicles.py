@@ -14,6 +14,7 @@ Two tracks are taken to be one vehicle (``vehicle_links``) when
 The identities are the connected components of these links (union-find), so a
 split by identity (``split_by_vehicle``) never trains and validates on the same car.
 """
+
 from __future__ import annotations
 
 import zlib
@@ -52,14 +53,15 @@ def _same_motion(xa, xb, min_steps: int, min_travel: float, tol: float) -> bool:
         n = min(len(ea) - i0, len(eb) - j0)
         if n < min_steps:
             continue
-        seg = ea[i0:i0 + n]
-        if np.abs(seg - eb[j0:j0 + n]).max() < tol and np.linalg.norm(seg, axis=1).sum() >= min_travel:
+        seg = ea[i0 : i0 + n]
+        if np.abs(seg - eb[j0 : j0 + n]).max() < tol and np.linalg.norm(seg, axis=1).sum() >= min_travel:
             return True
     return False
 
 
-def vehicle_links(scenarios, min_overlap: float = 1.0, min_travel: float = 3.0, size_tol: float = 0.01,
-                  step_tol: float = 1e-3) -> list[tuple]:
+def vehicle_links(
+    scenarios, min_overlap: float = 1.0, min_travel: float = 3.0, size_tol: float = 0.01, step_tol: float = 1e-3
+) -> list[tuple]:
     """Pairs of tracks in different scenarios taken to be one vehicle (see the module docstring).
 
     Returns:
@@ -129,8 +131,9 @@ def vehicle_identities(scenarios, **kw) -> dict:
 
 def vehicle_names(index: DemoIndex) -> np.ndarray:
     """``(B,)`` each demonstration's vehicle identity (its own ``scenario:obstacle`` where unknown)."""
-    return np.array([v if v else f"{s}:{o}" for v, s, o in zip(index.vehicle, index.scenario, index.obstacle_id)],
-                    dtype=object)
+    return np.array(
+        [v if v else f"{s}:{o}" for v, s, o in zip(index.vehicle, index.scenario, index.obstacle_id)], dtype=object
+    )
 
 
 def split_by_vehicle(index: DemoIndex, share: int = 4, salt: str = "") -> np.ndarray:

@@ -6,6 +6,7 @@ per-drive ``()`` arrays named ``<metric>.<figure>``; ``evaluate`` runs them all 
 over a batch). A new metric is one module that calls ``register_metric``; the drive
 summary and the report pick it up by name.
 """
+
 from jaxplan.sim.metrics import comfort, goal, offroad, overlap, progress, redlight, ttc  # noqa: F401  (they register)
 from jaxplan.sim.metrics.registry import METRICS, evaluate, register_metric
 

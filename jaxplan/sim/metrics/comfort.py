@@ -1,6 +1,7 @@
 """``comfort``: what the car did, from the driven states (finite differences, not the plans'
 claims): longitudinal acceleration ``dv/dt``, jerk ``d^2 v / dt^2``, lateral acceleration
 ``v dtheta/dt`` and curvature ``dtheta/ds`` (over steps that move at least ``MIN_STEP`` m)."""
+
 from __future__ import annotations
 
 import jax.numpy as jnp
@@ -23,6 +24,10 @@ def comfort(log, scene, vehicle):
     moving = ok2 & (ds > MIN_STEP)
     kappa = jnp.where(moving, dth / jnp.maximum(ds, MIN_STEP), 0.0)
     mx = lambda a, m: jnp.max(jnp.where(m, jnp.abs(a), 0.0), initial=0.0)
-    return {"max_abs_accel": mx(acc, ok2), "min_accel": jnp.min(jnp.where(ok2, acc, 0.0), initial=0.0),
-            "max_abs_jerk": mx(jerk, ok2[1:] & ok2[:-1]), "max_abs_lat_accel": mx(lat, ok2),
-            "max_abs_curvature": mx(kappa, moving)}
+    return {
+        "max_abs_accel": mx(acc, ok2),
+        "min_accel": jnp.min(jnp.where(ok2, acc, 0.0), initial=0.0),
+        "max_abs_jerk": mx(jerk, ok2[1:] & ok2[:-1]),
+        "max_abs_lat_accel": mx(lat, ok2),
+        "max_abs_curvature": mx(kappa, moving),
+    }

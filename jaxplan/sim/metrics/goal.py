@@ -7,6 +7,7 @@ inside their ranges where the goal gives them (the heading interval taken on the
 vertices, nor their centroids, lies inside a lanelet (some recorded scenes put the goal past
 the map's end; a car cannot reach it without leaving the road). Such drives are shown apart.
 """
+
 from __future__ import annotations
 
 import jax.numpy as jnp
@@ -59,5 +60,9 @@ def goal(log, scene, vehicle):
     k = jnp.argmax(ok)
     reached = jnp.any(ok)
     off_map = scene.goal.has_region & ~region_on_road(scene.goal, scene)
-    return {"reached": reached, "step": jnp.where(reached, k, -1),
-            "time": jnp.where(reached, log.t[k], jnp.inf), "off_map": off_map}
+    return {
+        "reached": reached,
+        "step": jnp.where(reached, k, -1),
+        "time": jnp.where(reached, log.t[k], jnp.inf),
+        "off_map": off_map,
+    }

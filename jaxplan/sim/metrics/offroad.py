@@ -15,6 +15,7 @@ Together these decide enclosure in the union buffered by ``TOL`` (a road edge is
 its vertices' outside ``PROBE`` away; holes inside the union smaller than a car are not looked for), as the drivability checker's
 ``obb_enclosure_polygons_static`` does (the referee, ``jaxplan.eval.referee``).
 """
+
 from __future__ import annotations
 
 import jax
@@ -96,9 +97,12 @@ def _offroad(log, scene, vehicle):
         d = jnp.sum((verts - b[:2]) ** 2, -1)
         return jnp.minimum(d2, jnp.where(b[5] > 0, d, jnp.inf)), None
 
-    d2, _ = jax.lax.scan(nearest, jnp.full(verts.shape[:1], jnp.inf, verts.dtype),
-                         jnp.concatenate([boxes, log.valid[:, None].astype(boxes.dtype)], -1))
-    within = vok & (d2 <= reach ** 2)
+    d2, _ = jax.lax.scan(
+        nearest,
+        jnp.full(verts.shape[:1], jnp.inf, verts.dtype),
+        jnp.concatenate([boxes, log.valid[:, None].astype(boxes.dtype)], -1),
+    )
+    within = vok & (d2 <= reach**2)
     n = min(EDGE_VERTICES, verts.shape[0])
     _, idx = jax.lax.top_k(jnp.where(within, -d2, -jnp.inf), n)
     edge, unchecked_probes = road_edge_vertices(scene, idx, within[idx])  # (n,)
@@ -116,5 +120,9 @@ def _offroad(log, scene, vehicle):
 def offroad(log, scene, vehicle):
     off, unchecked = _offroad(log, scene, vehicle)
     k = jnp.argmax(off)
-    return {"offroad": jnp.any(off), "first_step": jnp.where(jnp.any(off), k, -1), "steps": jnp.sum(off),
-            "unchecked": unchecked}
+    return {
+        "offroad": jnp.any(off),
+        "first_step": jnp.where(jnp.any(off), k, -1),
+        "steps": jnp.sum(off),
+        "unchecked": unchecked,
+    }

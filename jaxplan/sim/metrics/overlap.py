@@ -18,6 +18,7 @@ neighbour (a car whose centre is beside or only partly behind it), or cut in so 
 was hit from the side. The same rule judges every planner, the peers' drives included
 (``jaxplan.sim.verdict``).
 """
+
 from __future__ import annotations
 
 import jax.numpy as jnp
@@ -87,8 +88,14 @@ def overlap(log, scene, vehicle):
     k = jnp.argmax(any_hit)  # the drive's first contact
     first_obstacle = jnp.argmax(hit[k])
     fault_step = jnp.min(jnp.where(fault, first, N))
-    return {"collided": collided, "at_fault": jnp.any(fault), "first_step": jnp.where(collided, k, -1),
-            "obstacle": jnp.where(collided, first_obstacle, -1), "obstacles_hit": jnp.sum(touched),
-            "obstacles_at_fault": jnp.sum(fault), "fault_step": jnp.where(jnp.any(fault), fault_step, -1),
-            "fault_obstacle": jnp.where(jnp.any(fault), jnp.argmin(jnp.where(fault, first, N)), -1),
-            "min_separation": jnp.min(sep)}
+    return {
+        "collided": collided,
+        "at_fault": jnp.any(fault),
+        "first_step": jnp.where(collided, k, -1),
+        "obstacle": jnp.where(collided, first_obstacle, -1),
+        "obstacles_hit": jnp.sum(touched),
+        "obstacles_at_fault": jnp.sum(fault),
+        "fault_step": jnp.where(jnp.any(fault), fault_step, -1),
+        "fault_obstacle": jnp.where(jnp.any(fault), jnp.argmin(jnp.where(fault, first, N)), -1),
+        "min_separation": jnp.min(sep),
+    }

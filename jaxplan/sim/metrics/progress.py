@@ -1,6 +1,7 @@
 """``progress``: metres driven along the route (arc length of the box centre's projection
 at the drive's end minus at its start), and the share of the way to the goal region's
 near end covered."""
+
 from __future__ import annotations
 
 import jax.numpy as jnp

@@ -9,6 +9,7 @@ front is past it: red or red-yellow. Yellow, green and an inactive light let the
 Figures: ``crossings`` (how many stop lines were crossed against the light), ``crossed`` (any),
 ``first_step`` (the step at which the first such crossing ends, -1 without one).
 """
+
 from __future__ import annotations
 
 import jax.numpy as jnp
@@ -39,8 +40,11 @@ def redlight(log, scene, vehicle):
     lights = scene.lights
     f = log.x.dtype
     if lights is None or lights.s.shape[-1] == 0:  # static: no stop lines on the route
-        return {"crossings": jnp.asarray(0, jnp.int32), "crossed": jnp.asarray(False),
-                "first_step": jnp.asarray(-1, jnp.int32)}
+        return {
+            "crossings": jnp.asarray(0, jnp.int32),
+            "crossed": jnp.asarray(False),
+            "first_step": jnp.asarray(-1, jnp.int32),
+        }
     u = jnp.stack([jnp.cos(log.heading), jnp.sin(log.heading)], -1)
     front = jnp.stack([log.x, log.y], -1) + 0.5 * jnp.asarray(vehicle.length, f) * u  # (N, 2)
     N = front.shape[0]
@@ -51,5 +55,8 @@ def redlight(log, scene, vehicle):
     per_line = jnp.any(bad, axis=0)
     any_step = jnp.any(bad, axis=1)
     crossed = jnp.any(per_line)
-    return {"crossings": jnp.sum(per_line).astype(jnp.int32), "crossed": crossed,
-            "first_step": jnp.where(crossed, jnp.argmax(any_step) + 1, -1).astype(jnp.int32)}
+    return {
+        "crossings": jnp.sum(per_line).astype(jnp.int32),
+        "crossed": crossed,
+        "first_step": jnp.where(crossed, jnp.argmax(any_step) + 1, -1).astype(jnp.int32),
+    }

@@ -1,4 +1,5 @@
 """The metric registry (see the package docstring)."""
+
 from __future__ import annotations
 
 import functools
@@ -23,7 +24,7 @@ def register_metric(name: str):
 def evaluate(log, scene, vehicle, names=None) -> dict:
     """Every metric (or those in ``names``) of one drive (unbatched ``log`` and ``scene``)."""
     out = {}
-    for name in (names or sorted(METRICS)):
+    for name in names or sorted(METRICS):
         for k, v in METRICS[name](log, scene, vehicle).items():
             out[f"{name}.{k}"] = v
     return out

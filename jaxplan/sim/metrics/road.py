@@ -1,5 +1,6 @@
 """Points on the road: the lanelet outlines (``Scene.drivable``) near a group of points, and the
 points of the group that lie inside one of them (the off-road and goal metrics use it)."""
+
 from __future__ import annotations
 
 import jax
@@ -32,8 +33,9 @@ def in_drivable(pts, scene):
     lo, hi = lanelet_boxes(scene)  # (M, 2)
     centre = jnp.mean(pts, axis=-2)  # (G, 2)
     radius = jnp.max(jnp.linalg.norm(pts - centre[:, None], axis=-1), axis=-1) + TOL  # (G,)
-    gap = jnp.linalg.norm(jnp.maximum(jnp.maximum(lo[None] - centre[:, None], centre[:, None] - hi[None]), 0.0),
-                          axis=-1)  # (G, M) distance from the centre to each bounding box
+    gap = jnp.linalg.norm(
+        jnp.maximum(jnp.maximum(lo[None] - centre[:, None], centre[:, None] - hi[None]), 0.0), axis=-1
+    )  # (G, M) distance from the centre to each bounding box
     reach = gap <= radius[:, None]
     L = min(NEAR_LANELETS, lo.shape[0])
     neg, idx = jax.lax.top_k(-gap, L)  # (G, L) the nearest

@@ -2,6 +2,7 @@
 heading at its speed) and every obstacle ahead of it or static (at its velocity from the
 recording) are extrapolated at constant velocity; the TTC is the first of the times
 ``0, TTC_STEP, ..., TTC_MAX`` at which their boxes overlap (``inf`` when none does)."""
+
 from __future__ import annotations
 
 import jax
