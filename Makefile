@@ -9,10 +9,17 @@ $(BIN)/jaxplan: pyproject.toml
 	$(BIN)/pip install -q -e ".[test]"
 	touch $@
 
+# a handful of shared-format scenes where ../shared is there (the built-in ones always)
+DEMO_SCENES := $(wordlist 1,4,$(sort $(wildcard ../shared/data/commonroad2018a/*.json)))
+
 demo: $(BIN)/jaxplan
-	$(BIN)/jaxplan drive --builtin --quick --planner all --out results/drive
-	$(BIN)/jaxplan eval all --quick --out results
-	$(BIN)/jaxplan report results
+	$(BIN)/jaxplan drive --builtin --quick --planner lattice --out results/demo $(DEMO_SCENES)
+	@head -n 12 results/demo/report.md
+
+# every evaluation suite and its report (long: see docs/evaluation.md)
+eval: $(BIN)/jaxplan
+	$(BIN)/jaxplan eval all --out results/eval
+	$(BIN)/jaxplan report results/eval
 
 test: $(BIN)/jaxplan
 	$(BIN)/python -m pytest -n 2 --dist loadfile --no-loadscope-reorder --durations=15 tests
@@ -22,4 +29,4 @@ bench: $(BIN)/jaxplan
 	for b in geometry bounds lattice speed parkout sim; do \
 	  $(BIN)/python experiments/bench_$$b.py --out results/bench_$$b.json || exit 1; done
 
-.PHONY: demo test bench
+.PHONY: demo eval test bench
