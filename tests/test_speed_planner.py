@@ -2,7 +2,10 @@
 no collision of its own, the driven accelerations within the limits, the trajectory from the
 car's state, parity of the batched plan with the simulator's; the composed path (the bounds
 path, checked with shapely; the route path and the stop before a blockage when the road is
-blocked) and the route path."""
+blocked) and the route path. On synthetic roads in the same compiled drive: it passes a slow
+leader and a stopped car through the free neighbour lane, keeps its lane while a faster car
+comes up in the next one, keeps its lane decision from one cycle to the next, and leaves room
+to a car closing in from behind."""
 import dataclasses
 import functools
 
@@ -11,19 +14,41 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 import shapely.geometry as sg
+from test_sim import _record, _road_dict
 
 from jaxplan.plan_context import road_context
 from jaxplan.planner import EgoState, make_planner
+from jaxplan.scenarios import builtin
 from jaxplan.speed import SpeedConfig
 from jaxplan.speed.planner import PathSpeedPlanner, route_path
 
 KINDS = ("stopped_car", "slow_leader", "cut_in", "dense_next_lane")
-STEPS = 90  # 9 s
+STEPS = 120  # 12 s
+TT = np.arange(251) * 0.1
+START = builtin.START_S  # the car's station on the synthetic roads
+
+
+def _synthetic():
+    """``{name: record}``: synthetic two-lane roads, the car in the right lane at 12 m/s (15 m/s in
+    BEHIND). SLOW: a car 25 m ahead at 4 m/s; STOPPED: a car standing 40 m ahead; FASTER: the slow
+    car, and a car at 20 m/s in the next lane 15 m behind (moving over in front of it would make it
+    brake harder than 3 m/s^2); BEHIND: one lane, the car at 10 m/s between a car 20 m ahead at 10 m/s
+    and a car 10 m behind at 11.5 m/s (keeping the follow distance gets the car rear-ended within 4 s;
+    closing up to the car ahead leaves room until the goal's time)."""
+    lane0 = np.zeros(251)
+    slow = (START + 25.0 + 4.0 * TT, lane0)
+    roads = {"SLOW": _road_dict(obstacles=[slow]),
+             "STOPPED": _road_dict(obstacles=[(START + 40.0 + 0.0 * TT, lane0)]),
+             "FASTER": _road_dict(obstacles=[slow, (START - 15.0 + 20.0 * TT, np.full(251, builtin.LANE))]),
+             "BEHIND": _road_dict(obstacles=[(START + 20.0 + 10.0 * TT, lane0), (START - 10.0 + 11.5 * TT, lane0)],
+                                  n_lanes=1, v0=10.0, goal_t=(0.0, 8.0))}
+    return {k: dataclasses.replace(_record(d), name=k) for k, d in roads.items()}
 
 
 @functools.lru_cache(maxsize=None)
-def _drives():
-    """Four survivable built-in scenes (one per kind) and one shared jitted rollout."""
+def _rollout():
+    """The built-in scenes (one per kind, survivable) and the synthetic ones in one batch: one
+    compiled rollout."""
     from jaxplan.scenarios.builtin import builtin_dicts
     from jaxplan.scenarios.loader import parse_scenario
     from jaxplan.scenarios.scene import build_scene, stack_scenes
@@ -31,13 +56,31 @@ def _drives():
     from jaxplan.sim.rollout import SimConfig, rollout
 
     dicts = builtin_dicts(1, seed=3, kinds=KINDS)
-    scenes = [build_scene(parse_scenario(d, d["id"]))[0] for d in dicts]
+    synthetic = _synthetic()
+    scenes = [build_scene(parse_scenario(d, d["id"]))[0] for d in dicts] + [r.scene for r in synthetic.values()]
     cfg = SimConfig(n_steps=STEPS)
     batch = stack_scenes(scenes, min_steps=STEPS + 80)
     planner = make_planner("pathspeed")
     log = rollout(planner, batch, cfg)
     metrics = {k: np.asarray(v) for k, v in evaluate_batch(log, batch, planner.vehicle).items()}
-    return planner, batch, log, metrics
+    return planner, batch, log, metrics, synthetic
+
+
+@functools.lru_cache(maxsize=None)
+def _drives():
+    """The built-in scenes' part of ``_rollout``: ``(planner, batch, log, metrics)``."""
+    planner, batch, log, m, _ = _rollout()
+    n = len(KINDS)
+    part = lambda tree: jax.tree_util.tree_map(lambda x: x[:n], tree)  # noqa: E731
+    return planner, part(batch), part(log), {k: v[:n] for k, v in m.items()}
+
+
+def _synthetic_drive(name):
+    """``(log, metrics, record)`` of one synthetic drive (numpy)."""
+    _, _, log, m, synthetic = _rollout()
+    i = len(KINDS) + list(synthetic).index(name)
+    return (jax.tree_util.tree_map(lambda x: np.asarray(x)[i], log), {k: v[i] for k, v in m.items()},
+            synthetic[name])
 
 
 DENSE = KINDS.index("dense_next_lane")
@@ -229,3 +272,60 @@ def test_config_checks_and_nonblocking_switch():
     assert float(w.w_blind) == 0.0 and float(w.w_no_bypass) == 0.0 and float(w.v_cruise) == 10.0
     w = PathSpeedPlanner().cost_weights(p.init_params(), jnp.float32(10.0))
     assert float(w.w_blind) > 0.0 and float(w.w_no_bypass) > 0.0
+
+
+def _lateral(log, rec, n):
+    """The car's offset from its start lane's centre line at the first ``n`` steps (the road is straight)."""
+    th = rec.scenario.ego.heading
+    dx, dy = log.x[:n] - log.x[0], log.y[:n] - log.y[0]
+    return -np.sin(th) * dx + np.cos(th) * dy
+
+
+def _ahead_of(log, rec, k, n):
+    """Station of obstacle ``k`` minus the car's at the first ``n`` steps."""
+    th = rec.scenario.ego.heading
+    b = np.asarray(rec.scene.obstacles.boxes[k, :n])
+    return np.cos(th) * (b[:, 0] - log.x[:n]) + np.sin(th) * (b[:, 1] - log.y[:n])
+
+
+@pytest.mark.parametrize("name", ["SLOW", "STOPPED"])
+def test_passes_through_the_free_next_lane(name):
+    log, m, rec = _synthetic_drive(name)
+    n = int(log.end_step) + 1
+    assert not m["overlap.collided"] and not m["offroad.offroad"], name
+    assert _ahead_of(log, rec, 0, n)[-1] < -5.0  # ended ahead of the obstacle, not behind it
+    assert np.max(_lateral(log, rec, n)) > 0.5 * builtin.LANE  # the car's centre over the lane line
+    assert m["comfort.max_abs_lat_accel"] <= 4.0 and m["goal.reached"], name
+
+
+def test_does_not_move_over_in_front_of_a_faster_car():
+    """Whenever the car is over the lane line, the faster car is ahead of it or far enough behind to
+    slow down to the car's speed at no more than 3 m/s^2."""
+    log, m, rec = _synthetic_drive("FASTER")
+    n = int(log.end_step) + 1
+    assert not m["overlap.collided"]
+    over = _lateral(log, rec, n) > 0.5 * builtin.LANE
+    ahead = _ahead_of(log, rec, 1, n)
+    gap = -ahead - 0.5 * 4.6 - 0.5 * PathSpeedPlanner().vehicle.length  # its front to the car's rear
+    need = np.where(gap > 0, np.maximum(20.0 - log.v[:n], 0.0) ** 2 / (2.0 * np.maximum(gap, 1e-3)), np.inf)
+    bad = over & (ahead < 0) & (need > 3.0)
+    assert not bad.any(), np.nonzero(bad)[0]
+
+
+def test_the_lane_decision_does_not_flip_between_cycles():
+    """The lane change past the slow car, once taken, is kept for at least a second; in a scene that
+    does not change it is taken and left at most once each (the stopped car is passed on the bounds
+    path, with or without it)."""
+    for name in ("SLOW",):
+        log, _, _ = _synthetic_drive(name)
+        cycles = int(log.end_step) // 3 + 1  # one plan every 3 steps
+        change = np.asarray(log.info["lane_change"][:cycles], bool)
+        flips = np.nonzero(np.diff(change.astype(int)))[0]
+        assert change.any() and len(flips) <= 2, (name, change.astype(int))
+        assert np.all(np.diff(flips) >= 4), (name, change.astype(int))  # 4 cycles = 1.2 s
+
+
+def test_leaves_room_to_a_car_closing_in_from_behind():
+    log, m, _ = _synthetic_drive("BEHIND")
+    assert not m["overlap.collided"] and not m["offroad.offroad"]
+    assert log.v[5] >= log.v[0]  # it does not brake in front of it

@@ -51,6 +51,7 @@ rectangle of reachable stations and speeds (``DPCosts.ilo``, ``jlo``).
   keep ``follow_dist``; ``big`` if even ``a_min`` cannot stop in time; keep-clear: do not
   end in a region the car cannot leave.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -157,16 +158,18 @@ class SpeedConfig:
         if not (self.a_min <= 0 <= self.a_max) or 0 not in self.accel_offsets:
             raise ValueError("SpeedConfig: need a_min <= 0 <= a_max")
         if self.a_min > -self.da + 1e-9:
-            raise ValueError(f"SpeedConfig: a_min {self.a_min} allows no braking step (da = {self.da}); "
-                             "lower a_min or ds")
+            raise ValueError(
+                f"SpeedConfig: a_min {self.a_min} allows no braking step (da = {self.da}); lower a_min or ds"
+            )
         r = self.dt / self.n_sub / self.qp_dt
         if self.qp_dt <= 0 or abs(r - round(r)) > 1e-6:
             raise ValueError(f"SpeedConfig: qp_dt {self.qp_dt} must divide the check step dt / n_sub")
         if self.a_brake > self.a_min or self.jerk_max <= 0:
             raise ValueError("SpeedConfig: need a_brake <= a_min and jerk_max > 0")
         if not (self.pass_margin >= 0) or not (self.b_comfort > 0):
-            raise ValueError(f"SpeedConfig.pass_margin ({self.pass_margin}) must be >= 0 and b_comfort "
-                             f"({self.b_comfort}) > 0")
+            raise ValueError(
+                f"SpeedConfig.pass_margin ({self.pass_margin}) must be >= 0 and b_comfort ({self.b_comfort}) > 0"
+            )
         return self
 
 
@@ -216,7 +219,9 @@ def band_offsets(v0, config: SpeedConfig):
 @jax.tree_util.register_dataclass
 @dataclasses.dataclass(frozen=True)
 class CostWeights:
-    """Differentiable cost weights (scalars or arrays; tune with jax.grad / optax)."""
+    """Differentiable cost weights (scalars or arrays; tune with jax.grad / optax): the DP's terms
+    (the module docstring) and ``w_lane_change``, the path-speed planner's cost of changing lanes
+    (``jaxplan.speed.planner.PathSpeedPlanner.lane_change``)."""
 
     v_cruise: Any = 12.0
     w_speed: Any = 1.0
@@ -235,6 +240,7 @@ class CostWeights:
     w_goal_v: Any = 5.0
     w_rear: Any = 20.0
     rear_gap: Any = 2.0
+    w_lane_change: Any = 300.0
 
     def validate(self) -> CostWeights:
         """Host-side: every weight finite and >= 0 (a ``ValueError`` names the field)."""
@@ -279,8 +285,15 @@ class SpeedRoad:
         """No speed limit, nothing to stop for, no goal."""
         inf = jnp.asarray(jnp.inf, dtype)
         two = jnp.array([-jnp.inf, jnp.inf], dtype)
-        return cls(jnp.zeros((1,), dtype), jnp.full((1,), jnp.inf, dtype), inf, two, jnp.array([jnp.inf, jnp.inf], dtype),
-                   two, inf)
+        return cls(
+            jnp.zeros((1,), dtype),
+            jnp.full((1,), jnp.inf, dtype),
+            inf,
+            two,
+            jnp.array([jnp.inf, jnp.inf], dtype),
+            two,
+            inf,
+        )
 
 
 @jax.tree_util.register_dataclass
@@ -315,8 +328,12 @@ class SpeedScene:
         """(lower, upper, hit, v_along) ``(K + 1, F)``: the blocking obstacles and the wall."""
         b, w = self.classified.blocking, self.wall
         cat = lambda a, c: jnp.concatenate([a, c], 0)
-        return (cat(b.lower, w.lower), cat(b.upper, w.upper), cat(b.hit, w.hit),
-                cat(self.classified.v_along, jnp.zeros_like(w.lower)))
+        return (
+            cat(b.lower, w.lower),
+            cat(b.upper, w.upper),
+            cat(b.hit, w.hit),
+            cat(self.classified.v_along, jnp.zeros_like(w.lower)),
+        )
 
 
 @jax.tree_util.register_dataclass
@@ -362,6 +379,7 @@ def profile_at(plan: SpeedPlan, t):
 
 # ----------------------------------------------------------------------------- scene
 
+
 def speed_envelope(v_lim, ds, decel, accel):
     """The speed limit ``v_lim (N,)`` on stations ``i ds`` lowered to what a car that meets it
     everywhere can drive: ``v(s) <= sqrt(v_lim(s')^2 + 2 decel (s' - s))`` for every ``s' > s``
@@ -385,16 +403,24 @@ def time_margin(b: STBoundary, m: int) -> STBoundary:
     big = jnp.asarray(BIG, b.lower.dtype)
     lo, hi, hit = jnp.where(b.hit, b.lower, big), jnp.where(b.hit, b.upper, -big), b.hit
     # one windowed min / max over f .. f + m (the identity as padding past the last check time)
-    win = lambda a, init, op: jax.lax.reduce_window(a, init, op, (1,) * (a.ndim - 1) + (m + 1,), (1,) * a.ndim,
-                                                    [(0, 0)] * (a.ndim - 1) + [(0, m)])
+    win = lambda a, init, op: jax.lax.reduce_window(
+        a, init, op, (1,) * (a.ndim - 1) + (m + 1,), (1,) * a.ndim, [(0, 0)] * (a.ndim - 1) + [(0, m)]
+    )
     inf = jnp.asarray(jnp.inf, lo.dtype)
     L, H = win(lo, inf, jax.lax.min), win(hi, -inf, jax.lax.max)
     X = win(hit.astype(jnp.int32), jnp.asarray(np.iinfo(np.int32).min, jnp.int32), jax.lax.max) > 0
     return STBoundary(jnp.where(X, L, b.lower), jnp.where(X, H, b.upper), X)
 
 
-def build_scene(profile: PathProfile, obstacles: Obstacles, vehicle: VehicleParams, config: SpeedConfig,
-                keep_clear=None, v0=0.0, road: SpeedRoad | None = None) -> SpeedScene:
+def build_scene(
+    profile: PathProfile,
+    obstacles: Obstacles,
+    vehicle: VehicleParams,
+    config: SpeedConfig,
+    keep_clear=None,
+    v0=0.0,
+    road: SpeedRoad | None = None,
+) -> SpeedScene:
     """Resample obstacles to the check times, project them to the path once per time,
     classify them, project keep-clear regions, sample the speed limit.
 
@@ -411,31 +437,60 @@ def build_scene(profile: PathProfile, obstacles: Obstacles, vehicle: VehiclePara
     obs = resample_obstacles(obstacles, tf)
     s0 = profile.s[0]
     osl = project_obstacles(profile.ref, obs, s0)  # stations relative to the car now
-    c = classify(osl, obs, vehicle, tf, v0, config.a_min, lane_s=road.lane_s, side_width=config.side_width,
-                 buffer=config.buffer, no_overtake_side=config.no_overtake_side, v_moving=config.v_moving)
+    c = classify(
+        osl,
+        obs,
+        vehicle,
+        tf,
+        v0,
+        config.a_min,
+        lane_s=road.lane_s,
+        side_width=config.side_width,
+        buffer=config.buffer,
+        no_overtake_side=config.no_overtake_side,
+        v_moving=config.v_moving,
+    )
     held = int(round(config.pass_margin * config.n_sub / config.dt))  # check times in pass_margin
     c = dataclasses.replace(c, blocking=time_margin(c.blocking, held))
     front, rear = car_extent(vehicle, dtype)
     stop = jnp.asarray(road.stop_s, dtype)
     has = jnp.isfinite(stop)
     F = tf.shape[0]
-    wall = STBoundary(jnp.full((1, F), jnp.where(has, stop - front - config.buffer, BIG), dtype),
-                      jnp.full((1, F), BIG, dtype), jnp.full((1, F), has))
+    wall = STBoundary(
+        jnp.full((1, F), jnp.where(has, stop - front - config.buffer, BIG), dtype),
+        jnp.full((1, F), BIG, dtype),
+        jnp.full((1, F), has),
+    )
     if keep_clear is None:
         lo = hi = jnp.zeros((1,), dtype)
         hit = jnp.zeros((1,), bool)
     else:
         lo, hi, hit = keep_clear_intervals(profile, vehicle, *keep_clear)
         lo, hi = lo - s0, hi - s0
-    lane = jnp.interp(profile.s - s0, jnp.asarray(road.limit_s, dtype), jnp.minimum(jnp.asarray(road.limit_v, dtype), 1e3))
+    lane = jnp.interp(
+        profile.s - s0, jnp.asarray(road.limit_s, dtype), jnp.minimum(jnp.asarray(road.limit_v, dtype), 1e3)
+    )
     curve = jnp.sqrt(config.a_lat_max / jnp.maximum(jnp.abs(profile.kappa), 1e-6))
-    v_limit = speed_envelope(jnp.minimum(jnp.minimum(lane, curve), config.v_max), config.ds, config.b_comfort,
-                             config.a_max)
-    return SpeedScene(c, wall, lo, hi, hit, v_limit, jnp.asarray(road.goal_s, dtype), jnp.asarray(road.goal_t, dtype),
-                      jnp.asarray(road.goal_v, dtype), front, rear)
+    v_limit = speed_envelope(
+        jnp.minimum(jnp.minimum(lane, curve), config.v_max), config.ds, config.b_comfort, config.a_max
+    )
+    return SpeedScene(
+        c,
+        wall,
+        lo,
+        hi,
+        hit,
+        v_limit,
+        jnp.asarray(road.goal_s, dtype),
+        jnp.asarray(road.goal_t, dtype),
+        jnp.asarray(road.goal_v, dtype),
+        front,
+        rear,
+    )
 
 
 # ----------------------------------------------------------------------------- cost tables
+
 
 @jax.tree_util.register_dataclass
 @dataclasses.dataclass(frozen=True)
@@ -546,8 +601,12 @@ def _obstacle_tables(xs, x0, ds, scene: SpeedScene, config: SpeedConfig, w: Cost
     # behind: the room left ahead of the nearest one, and a contact (its fault, but a contact)
     rb = cl.rear
     r = jnp.max(jnp.where(rb.hit, rb.upper, -big), axis=0, initial=-big)[:, None]  # (F, 1)
-    struck = jnp.any(rb.hit[..., None] & (xs >= rb.lower[..., None] - 0.5 * ds) & (xs <= rb.upper[..., None] + 0.5 * ds), 0)
-    rate = rate + w.w_rear * jnp.maximum(r + w.rear_gap - xs, 0.0) ** 2 + jnp.where(struck, REAR_CONTACT * config.big, 0.0)
+    struck = jnp.any(
+        rb.hit[..., None] & (xs >= rb.lower[..., None] - 0.5 * ds) & (xs <= rb.upper[..., None] + 0.5 * ds), 0
+    )
+    rate = (
+        rate + w.w_rear * jnp.maximum(r + w.rear_gap - xs, 0.0) ** 2 + jnp.where(struck, REAR_CONTACT * config.big, 0.0)
+    )
     return rate + w.w_no_bypass * nbp + w.w_blind * zone, collide
 
 
@@ -562,7 +621,8 @@ def _goal_table(xs, f_goal, scene: SpeedScene, w: CostWeights):
 
 
 COLLISION_V = 10.0  # m/s: a collision's cost grows by big per this much impact speed
-REAR_CONTACT = 0.01  # per second in contact with a vehicle from behind, times big (far below a collision of the car's own)
+# per second in contact with a vehicle from behind, times big (far below a collision of the car's own)
+REAR_CONTACT = 0.01
 GOAL_TAIL = 1.0  # s: the goal is asked for in the last second of its time window
 GOAL_HUBER = 2.0  # m: the goal's distance cost is quadratic up to this, then linear
 
@@ -602,7 +662,9 @@ def stage_costs(scene: SpeedScene, config: SpeedConfig, w: CostWeights, v0, a0) 
     lim = scene.v_limit[k] + (q - k) * (scene.v_limit[k + 1] - scene.v_limit[k])  # (X,)
     vj = jnp.arange(V, dtype=dtype) * c.dv
     target = jnp.minimum(w.v_cruise, lim)
-    node = c.dt * (w.w_speed * (vj[None] - target[:, None]) ** 2 + w.w_limit * jnp.maximum(vj[None] - lim[:, None], 0.0) ** 2)
+    node = c.dt * (
+        w.w_speed * (vj[None] - target[:, None]) ** 2 + w.w_limit * jnp.maximum(vj[None] - lim[:, None], 0.0) ** 2
+    )
     gv = scene.goal_v
     gdist = jnp.maximum(gv[0] - vj, 0.0) + jnp.maximum(vj - gv[1], 0.0)
     goal_v = c.dt * w.w_goal_v * jnp.where(jnp.isfinite(gdist), gdist, 0.0) ** 2
@@ -617,7 +679,7 @@ def stage_costs(scene: SpeedScene, config: SpeedConfig, w: CostWeights, v0, a0) 
     vq = v0 + a1[:, None] * tq[None]
     slow = (vq < c.keep_clear_v).astype(jnp.int32)
     obst1 = segment_cost(table[slow, jnp.arange(0, ns + 1)[None], uq], vq, c.big)
-    first = w.w_accel * a1 ** 2 * c.dt + w.w_jerk * ((a1 - a0) / c.dt) ** 2 * c.dt + obst1
+    first = w.w_accel * a1**2 * c.dt + w.w_jerk * ((a1 - a0) / c.dt) ** 2 * c.dt + obst1
     ok1 = (a1 >= c.a_min - 1e-4) & (a1 <= c.a_max + 1e-4)
     first = jnp.where(ok1, first, unreach(c))
     terminal = _terminal(xs, x0, vj, lo[:, -1], hit[:, -1], vob[:, -1], kc, scene, c, w)
@@ -648,6 +710,7 @@ def _terminal(xs, x0, vj, lo, hit, vob, kc, scene, c: SpeedConfig, w: CostWeight
 
 
 # ----------------------------------------------------------------------------- the DP
+
 
 @functools.cache
 def _substep_tables(config: SpeedConfig):
@@ -720,8 +783,9 @@ def dp_offsets(first, config: SpeedConfig):
     c = config
     H, D, cap = dp_band(c)
     jlo1 = jnp.argmax(first < unreach(c)).astype(jnp.int32)
-    return jnp.stack([jnp.minimum(_h_range(jlo1, jlo1 + D, k, c, jnp)[0], cap[k - 1])
-                      for k in range(1, c.n_t + 1)]).astype(jnp.int32)
+    return jnp.stack(
+        [jnp.minimum(_h_range(jlo1, jlo1 + D, k, c, jnp)[0], cap[k - 1]) for k in range(1, c.n_t + 1)]
+    ).astype(jnp.int32)
 
 
 @functools.cache
@@ -850,8 +914,8 @@ def _backtrack(final, args, hlo, config: SpeedConfig):
         h, j = h - jp, jp
         hh.append(h)
         jj.append(j)
-    hh, jj = jnp.stack(hh[::-1]), jnp.stack(jj[::-1])
-    return 2 * hh + jj, jj, cost
+    hs, js = jnp.stack(hh[::-1]), jnp.stack(jj[::-1])
+    return 2 * hs + js, js, cost
 
 
 def dp_from_costs(d: DPCosts, config: SpeedConfig):
@@ -904,8 +968,17 @@ def profile_cost(d: DPCosts, config: SpeedConfig, j_seq):
 
 # ----------------------------------------------------------------------------- plans
 
-def make_scene(path: ReferenceLine, obstacles: Obstacles, config: SpeedConfig, vehicle=None, s0=0.0,
-               keep_clear=None, v0=0.0, road=None) -> tuple[PathProfile, SpeedScene]:
+
+def make_scene(
+    path: ReferenceLine,
+    obstacles: Obstacles,
+    config: SpeedConfig,
+    vehicle=None,
+    s0=0.0,
+    keep_clear=None,
+    v0=0.0,
+    road=None,
+) -> tuple[PathProfile, SpeedScene]:
     """Path profile on the DP station grid and the scene boundaries."""
     vehicle = VehicleParams() if vehicle is None else vehicle
     profile = path_profile(path, s0, config.n_s, config.ds)
@@ -1000,9 +1073,19 @@ def _plan_impl(path, obstacles, v0, a0, s0, keep_clear, road, vehicle, weights, 
 _plan_jit = jax.jit(_plan_impl, static_argnames=("config",))
 
 
-def plan_speed(path: ReferenceLine, obstacles: Obstacles, config: SpeedConfig = SpeedConfig(),
-               weights: CostWeights | None = None, *, v0=0.0, a0=0.0, s0=0.0, keep_clear=None,
-               vehicle: VehicleParams | None = None, road: SpeedRoad | None = None) -> SpeedPlan:
+def plan_speed(
+    path: ReferenceLine,
+    obstacles: Obstacles,
+    config: SpeedConfig = SpeedConfig(),
+    weights: CostWeights | None = None,
+    *,
+    v0=0.0,
+    a0=0.0,
+    s0=0.0,
+    keep_clear=None,
+    vehicle: VehicleParams | None = None,
+    road: SpeedRoad | None = None,
+) -> SpeedPlan:
     """Exact DP speed plan along ``path``.
 
     Args:
@@ -1032,10 +1115,20 @@ def _expected_impl(path, obstacles, v0, a0, s0, keep_clear, road, vehicle, weigh
 _expected_jit = jax.jit(_expected_impl, static_argnames=("config",))
 
 
-def expected_speed_profile(path: ReferenceLine, obstacles: Obstacles, config: SpeedConfig = SpeedConfig(),
-                           weights: CostWeights | None = None, temperature=1.0, *, v0=0.0, a0=0.0,
-                           s0=0.0, keep_clear=None, vehicle: VehicleParams | None = None,
-                           road: SpeedRoad | None = None) -> SpeedPlan:
+def expected_speed_profile(
+    path: ReferenceLine,
+    obstacles: Obstacles,
+    config: SpeedConfig = SpeedConfig(),
+    weights: CostWeights | None = None,
+    temperature=1.0,
+    *,
+    v0=0.0,
+    a0=0.0,
+    s0=0.0,
+    keep_clear=None,
+    vehicle: VehicleParams | None = None,
+    road: SpeedRoad | None = None,
+) -> SpeedPlan:
     """Smooth (soft-min) DP: the expected knot station and speed under the Gibbs
     distribution of speed profiles ``p ~ exp(-cost / temperature)``.
 
@@ -1046,5 +1139,6 @@ def expected_speed_profile(path: ReferenceLine, obstacles: Obstacles, config: Sp
     _check_inputs(path, obstacles, config, v0, weights)
     weights = CostWeights.default(path.xy.dtype) if weights is None else weights
     vehicle = VehicleParams() if vehicle is None else vehicle
-    return _expected_jit(path, obstacles, v0, a0, s0, keep_clear, road, vehicle, weights,
-                         jnp.asarray(temperature, path.xy.dtype), config)
+    return _expected_jit(
+        path, obstacles, v0, a0, s0, keep_clear, road, vehicle, weights, jnp.asarray(temperature, path.xy.dtype), config
+    )

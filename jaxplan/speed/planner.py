@@ -12,7 +12,13 @@ Each cycle (one scene, jittable; the simulator batches it with ``jax.vmap``):
    blockage. The speed is planned on both paths, and the route path is also taken when the
    bounds path's speed plan cannot avoid the moving obstacles while the route path's can
    (a bypass into a lane with traffic beside the car); ``info["path_bounds"]`` says which
-   path was used (and ``path_qp_ok``, ``path_clear``, ``path_blocked`` why);
+   path was used (and ``path_qp_ok``, ``path_clear``, ``path_blocked`` why). With
+   ``lane_change`` a third path joins the neighbour lane (``neighbour_lane``: the left one,
+   else the right, running the same way ahead, not away from a goal region ahead); the car
+   takes it when its speed plan is collision-free and cheaper than the lane's by the lane
+   change's cost (the speed plan sees that lane's traffic over the whole horizon: a gap that
+   closes, or a car from behind that would have to brake, makes it collide or cost more),
+   and stays in it while that holds (``info["lane_change"]``);
 3. the **speed**: the ST boundaries of the predictions on that path (blocking,
    non-blocking with decisions, a wall before the path's blockage and the end of the
    map), the DP over the reachable band (``dp.py``) with the lane speed limit, the
@@ -26,6 +32,7 @@ not keep the DP's corridor within the acceleration limits) or did not converge, 
 plan is not finite. ``nonblocking=False`` drops the non-blocking boundaries' costs (the
 seed-001 comparison).
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -94,7 +101,7 @@ def _frenet_start(ref, s, l, heading, kappa):
     dth = wrap_angle(heading - th0)
     dl0 = one * jnp.tan(jnp.clip(dth, -1.2, 1.2))
     cos_d = jnp.cos(dth)
-    ddl0 = (kappa * one / cos_d - k0) * one / cos_d ** 2 - (dk0 * l + k0 * dl0) * jnp.tan(dth)
+    ddl0 = (kappa * one / cos_d - k0) * one / cos_d**2 - (dk0 * l + k0 * dl0) * jnp.tan(dth)
     return l, dl0, jnp.clip(ddl0, -0.5, 0.5)
 
 
@@ -114,8 +121,9 @@ def _total_points(n_path: int, n_ext: int) -> tuple[int, int]:
     raise ValueError(f"no route path size fits a bounds path of {n_path} points")
 
 
-def route_path(scene, ctx: RoadContext, ego: EgoState, n: int = 96, back: float = 20.0, ahead: float = 240.0,
-               target_l=0.0) -> RoutePath:
+def route_path(
+    scene, ctx: RoadContext, ego: EgoState, n: int = 96, back: float = 20.0, ahead: float = 240.0, target_l=0.0
+) -> RoutePath:
     """The route's centre line (offset ``target_l``) joined from the car's pose: ``l(s)`` a
     quintic in the route station from the car's offset, heading and curvature to
     ``target_l`` over ``clip(10 + 2.5 v, 15, 60)`` m; ``n`` points from ``back`` metres behind
@@ -130,6 +138,31 @@ def route_path(scene, ctx: RoadContext, ego: EgoState, n: int = 96, back: float 
     xy, theta, kappa, l = _join_route(ref, sr, start, jnp.asarray(target_l, f), length, u)
     ones = jnp.ones_like(u, dtype=bool)
     return RoutePath(u, xy, theta, kappa, l, sr, ones, jnp.asarray(jnp.inf, f), jnp.asarray(True))
+
+
+def neighbour_lane(scene, ctx: RoadContext, ahead) -> tuple[Any, Any, Any]:
+    """The lane to pass in: ``(offset (), runs (), goal_ok ())``: the lane left of the route's own
+    lane where it runs the same way over the next ``ahead`` metres, else the one on the right
+    (``runs`` False when neither does); ``goal_ok`` False when the goal region is within
+    ``ahead`` and not in that lane (the car is not led away from its goal)."""
+    f = scene.route.xy.dtype
+    c, L = scene.own_lane, scene.n_lanes
+    q = ctx.s + jnp.linspace(0.0, 1.0, 16, dtype=f) * ahead
+
+    def runs(i):
+        if not 0 <= i < L:
+            return jnp.asarray(False)
+        ok = (route_sample(scene, scene.lane_valid[i].astype(f), q) > 0.5) & (
+            route_sample(scene, scene.lane_same_dir[i].astype(f), q) > 0.5
+        )
+        return jnp.all(ok)
+
+    left, right = runs(c + 1), runs(c - 1)
+    i = jnp.where(left, min(c + 1, L - 1), max(c - 1, 0))
+    l_lane = ctx.lane_offset[i]
+    goal_near = ctx.goal_s[0] - ctx.s < ahead
+    in_goal = (l_lane >= ctx.goal_l[0]) & (l_lane <= ctx.goal_l[1])
+    return l_lane.astype(f), left | right, ~goal_near | in_goal
 
 
 def bounds_route_path(scene, ctx: RoadContext, pp, back: RoutePath, n_ext: int, ahead: float) -> RoutePath:
@@ -187,11 +220,24 @@ def speed_road(scene, ctx: RoadContext, path, v_max: float, vehicle: VehiclePara
     end = ctx.route_end_s - ctx.s
     stop = jnp.minimum(path.blocked_s + front, jnp.where(jnp.isfinite(end), end, jnp.inf))
     goal_s = ctx.goal_s - ctx.s
-    return SpeedRoad(path.s, jnp.minimum(lim, v_max), stop, goal_s.astype(f), ctx.goal_t.astype(f),
-                     ctx.goal_v.astype(f), lane_leave_s(path))
+    return SpeedRoad(
+        path.s,
+        jnp.minimum(lim, v_max),
+        stop,
+        goal_s.astype(f),
+        ctx.goal_t.astype(f),
+        ctx.goal_v.astype(f),
+        lane_leave_s(path),
+    )
 
 
 LANE_SHIFT = 1.0  # m: a path that moves further sideways than this from the car leaves its lane
+LANE_RETURN_MARGIN = 0.1  # lane changes' cost share that staying in the neighbour lane costs
+LANE_GO_V = 1.0  # m/s: a lane change's plan must end faster than this
+LANE_GAIN = 5.0  # m: and further along than the lane's own plan, or
+LANE_DECISIVE = 2.0  # cheaper by this many lane changes' costs
+LANE_MOVING = 0.01  # the car's lateral slope (dl/ds) above which it is moving over
+LANE_HOLD = 1.0  # lane changes' cost share of turning back a move under way
 
 
 def lane_leave_s(path) -> Any:
@@ -213,8 +259,9 @@ def cruise_speed(ctx: RoadContext, vehicle: VehicleParams, horizon: float):
     t0, t1 = ctx.goal_t[0], ctx.goal_t[1]
     d_mid = 0.5 * (d_near + d_far)
     cap = jnp.where((t0 > 0.5) & jnp.isfinite(d_mid) & (d_mid > 0), d_mid / jnp.maximum(t0, 0.5), jnp.inf)
-    floor = jnp.where(jnp.isfinite(t1) & (t1 > 0.1) & jnp.isfinite(d_near) & (d_near > 0),
-                      d_near / jnp.maximum(t1, 0.1), 0.0)
+    floor = jnp.where(
+        jnp.isfinite(t1) & (t1 > 0.1) & jnp.isfinite(d_near) & (d_near > 0), d_near / jnp.maximum(t1, 0.1), 0.0
+    )
     v = jnp.minimum(ctx.v_set, jnp.maximum(cap, floor))
     return jnp.maximum(v, 0.0)
 
@@ -232,6 +279,9 @@ class PathSpeedPlanner:
             to plan the speed on the route path (``route_path``) only.
         path_points: points of the route path (the fallback, and the points behind the car).
         ext_points: points after the bounds path's end that join the route's lane again.
+        lane_change: also plan the speed on a path into the neighbour lane (``neighbour_lane``)
+            and take it when it is collision-free and cheaper by the lane change's cost
+            (``CostWeights.w_lane_change``).
     """
 
     vehicle: VehicleParams = SIM_VEHICLE
@@ -243,17 +293,27 @@ class PathSpeedPlanner:
     path: PathConfig | None = PathConfig()
     path_points: int = 96
     ext_points: int = 24
+    lane_change: bool = True
 
     def __post_init__(self):
         self.speed.validate()
         if self.path is not None and not (self.path.a_lat_max > 0 and self.path.lat_decel >= 0):
-            raise ValueError(f"PathSpeedPlanner.path: a_lat_max ({self.path.a_lat_max}) must be > 0 and lat_decel "
-                             f"({self.path.lat_decel}) >= 0")
+            raise ValueError(
+                f"PathSpeedPlanner.path: a_lat_max ({self.path.a_lat_max}) must be > 0 and lat_decel "
+                f"({self.path.lat_decel}) >= 0"
+            )
         if self.path is not None and self.path.vehicle != self.vehicle:
             object.__setattr__(self, "path", dataclasses.replace(self.path, vehicle=self.vehicle))
         if abs(self.speed.horizon - self.horizon) > 1e-9 or abs(self.speed.qp_dt - self.dt) > 1e-9:
-            raise ValueError(f"PathSpeedPlanner: speed.horizon ({self.speed.horizon}) and speed.qp_dt "
-                             f"({self.speed.qp_dt}) must equal horizon ({self.horizon}) and dt ({self.dt})")
+            raise ValueError(
+                f"PathSpeedPlanner: speed.horizon ({self.speed.horizon}) and speed.qp_dt "
+                f"({self.speed.qp_dt}) must equal horizon ({self.horizon}) and dt ({self.dt})"
+            )
+
+    @property
+    def path_ahead(self) -> float:
+        """Metres of path ahead of the car (what the horizon covers at ``v_max``, and some)."""
+        return self.speed.v_max * self.horizon + 30.0
 
     @property
     def horizon_steps(self) -> int:
@@ -280,7 +340,7 @@ class PathSpeedPlanner:
         blockage, if any, as its stop), the bounds ``PathPlan`` (or None) and whether the bounds
         path may be used (``()`` bool: its QP solved, it is clear of every blocking obstacle
         and nothing blocks it)."""
-        ahead = self.speed.v_max * self.horizon + 30.0
+        ahead = self.path_ahead
         if self.path is None:
             return None, route_path(scene, ctx, ego, self.path_points, 20.0, ahead), None, jnp.asarray(False)
         total, ext = _total_points(self.path.n_points, self.ext_points)
@@ -314,21 +374,70 @@ class PathSpeedPlanner:
             road = speed_road(scene, ctx, path, self.speed.v_max, self.vehicle)
             return path, ref, s0, _plan_one(ref, obs, v0, a0, s0, None, road, self.vehicle, self.speed, w)
 
+        # every path has one shape: one vmapped speed plan (the DP is traced once)
+        paths = [rp] if bp is None else [bp, rp]
+        if self.lane_change:
+            ahead_lane = jnp.maximum(v0, ctx.v_set) * self.horizon + 20.0
+            l_nb, runs, goal_ok = neighbour_lane(scene, ctx, ahead_lane)
+            paths.append(route_path(scene, ctx, ego, rp.s.shape[0], 20.0, self.path_ahead, target_l=l_nb))
+        every = jax.vmap(on)(jax.tree_util.tree_map(lambda *a: jnp.stack(a), *paths))
+        plans = every[3]
         if bp is None:
-            route = on(rp)
+            keep = jnp.asarray(0)
         else:
             # the path decision sees blocking obstacles only; the speed plan on each path sees
             # the moving ones too: the bounds path is taken when its speed plan is collision-free,
             # or when neither is and it costs less (a bypass into a lane where traffic already
             # is would be hit whatever the speed; then the car stays in its lane and stops).
-            # Both paths have one shape: one vmapped speed plan (the DP is traced once).
-            both = jax.vmap(on)(jax.tree_util.tree_map(lambda a, b: jnp.stack([a, b]), bp, rp))
-            pb, pr = (jax.tree_util.tree_map(lambda x, i=i: x[i], both[3]) for i in (0, 1))
-            use = use & (pb.feasible | (~pr.feasible & (pb.cost <= pr.cost)))
-            route = jax.tree_util.tree_map(lambda x: jnp.where(use, x[0], x[1]), both)
-        path, ref, s0, plan = route
+            use = use & (plans.feasible[0] | (~plans.feasible[1] & (plans.cost[0] <= plans.cost[1])))
+            keep = jnp.where(use, 0, 1)
+        change = jnp.asarray(False)
+        costs = jnp.full((2,), jnp.inf, f)  # the lane's and the lane change's, as compared
+        if self.lane_change:
+            # the neighbour lane when its plan is collision-free and cheaper than the lane's by the
+            # share of a lane still to move over (plus a margin: with nothing to gain the car goes
+            # back to the route's lane); a car already nearer that lane may stay in it
+            nb = len(paths) - 1
+            width = jnp.maximum(ctx.lane_width[scene.own_lane], 1.0)
+            shift = jnp.abs(l_nb - ctx.l) / width
+            # hysteresis from the car's own motion: a move under way (the car's slope to the route
+            # toward one lane) costs LANE_HOLD lane changes to turn back
+            _, slope, _ = _frenet_start(scene.route, ctx.s, ctx.l, ego.heading, ego.kappa)
+            toward = slope * jnp.sign(l_nb)  # > 0: moving over to the neighbour lane's side
+            hold = w.w_lane_change * LANE_HOLD
+            c_nb = (
+                plans.cost[nb]
+                + w.w_lane_change * (shift + LANE_RETURN_MARGIN)
+                + jnp.where(toward < -LANE_MOVING, hold, 0.0)
+            )
+            c_keep = plans.cost[keep] + jnp.where(toward > LANE_MOVING, hold, 0.0)
+            there = shift < 0.5
+            under_way = there | (toward > LANE_MOVING)  # in that lane, or moving over to it
+            # moving over must get the car further and keep it going (not stop in the other lane
+            # instead), unless the lane's own plan collides or costs far more (a car closing in from
+            # behind)
+            further = (plans.s[nb, -1] > plans.s[keep, -1] + LANE_GAIN) & (plans.v[nb, -1] > LANE_GO_V)
+            decisive = c_nb + LANE_DECISIVE * w.w_lane_change < c_keep
+            gain = further | decisive | ~plans.feasible[keep] | under_way
+            ok_nb = runs & (goal_ok | ~plans.feasible[keep]) & gain & plans.feasible[nb]
+            change = ok_nb & (c_nb < c_keep)
+            costs = jnp.stack([c_keep, jnp.where(ok_nb, c_nb, jnp.inf)]).astype(f)
+            use = use & ~change
+            keep = jnp.where(change, nb, keep)
+        path, ref, s0, plan = jax.tree_util.tree_map(lambda x: x[keep], every)
         prof = smooth_plan(plan, v0, a0, self.speed, self.smooth)
-        return dict(ctx=ctx, path=path, bounds=pp, use_bounds=use, ref=ref, s0=s0, plan=plan, profile=prof)
+        return dict(
+            ctx=ctx,
+            path=path,
+            bounds=pp,
+            use_bounds=use,
+            lane_change=change,
+            lane_costs=costs,
+            ref=ref,
+            s0=s0,
+            plan=plan,
+            profile=prof,
+        )
 
     def plan(self, params: CostWeights, scene, ego: EgoState, step) -> PlanOutput:
         return self.output(self.speed_plan(params, scene, ego, step))
@@ -343,16 +452,28 @@ class PathSpeedPlanner:
         ok = plan.feasible & prof.ok & (prof.slack < 0.05) & finite
         f = traj.x.dtype
         no = jnp.asarray(False)
-        info = {"dp_feasible": plan.feasible, "qp_ok": prof.ok, "qp_slack": prof.slack, "qp_r_prim": prof.r_prim,
-                "qp_r_dual": prof.r_dual, "blocking": cl.is_blocking, "behind": cl.behind,
-                "no_bypass": cl.no_bypass, "blind_zone": cl.blind_zone,
-                # the path: the bounds path used, or the route path as the fallback and why
-                "path_bounds": c["use_bounds"],
-                "path_qp_ok": no if pp is None else pp.qp_ok,
-                "path_clear": no if pp is None else pp.collision_free,
-                "path_blocked": no if pp is None else jnp.isfinite(pp.blocked_s),
-                "path_stop_s": c["path"].blocked_s.astype(f),
-                "path_max_abs_l": jnp.max(jnp.abs(c["path"].l)).astype(f)}
+        info = {
+            "dp_feasible": plan.feasible,
+            "qp_ok": prof.ok,
+            "qp_slack": prof.slack,
+            "qp_r_prim": prof.r_prim,
+            "qp_r_dual": prof.r_dual,
+            "blocking": cl.is_blocking,
+            "behind": cl.behind,
+            "no_bypass": cl.no_bypass,
+            "blind_zone": cl.blind_zone,
+            # the path: the bounds path used, or the route path as the fallback and why
+            "path_bounds": c["use_bounds"],
+            "lane_change": c["lane_change"],
+            # the lane's plan and the neighbour lane's as compared (inf: not an option)
+            "lane_cost_keep": c["lane_costs"][0],
+            "lane_cost_change": c["lane_costs"][1],
+            "path_qp_ok": no if pp is None else pp.qp_ok,
+            "path_clear": no if pp is None else pp.collision_free,
+            "path_blocked": no if pp is None else jnp.isfinite(pp.blocked_s),
+            "path_stop_s": c["path"].blocked_s.astype(f),
+            "path_max_abs_l": jnp.max(jnp.abs(c["path"].l)).astype(f),
+        }
         return PlanOutput(traj, ok, info)
 
 
