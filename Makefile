@@ -21,6 +21,13 @@ eval: $(BIN)/jaxplan
 	$(BIN)/jaxplan eval all --out results/eval
 	$(BIN)/jaxplan report results/eval
 
+# lint, format and types of the package (the test suite builds the docs)
+check: $(BIN)/jaxplan
+	$(BIN)/pip install -q -e ".[test,lint]"
+	$(BIN)/ruff check jaxplan
+	$(BIN)/ruff format --check jaxplan
+	$(BIN)/mypy
+
 test: $(BIN)/jaxplan
 	$(BIN)/python -m pytest -n 2 --dist loadfile --no-loadscope-reorder --durations=15 tests
 
@@ -29,4 +36,4 @@ bench: $(BIN)/jaxplan
 	for b in geometry bounds lattice speed parkout sim; do \
 	  $(BIN)/python experiments/bench_$$b.py --out results/bench_$$b.json || exit 1; done
 
-.PHONY: demo eval test bench
+.PHONY: demo eval check test bench
