@@ -396,7 +396,8 @@ class PathSpeedPlanner:
         if self.lane_change:
             # the neighbour lane when its plan is collision-free and cheaper than the lane's by the
             # share of a lane still to move over (plus a margin: with nothing to gain the car goes
-            # back to the route's lane); a car already nearer that lane may stay in it
+            # back to the route's lane); not toward a goal region ahead in another lane unless the
+            # lane's own plan collides
             nb = len(paths) - 1
             width = jnp.maximum(ctx.lane_width[scene.own_lane], 1.0)
             shift = jnp.abs(l_nb - ctx.l) / width
