@@ -1,4 +1,4 @@
-"""Contour-corner distance, exact distance, path bounds and the path QP (issue 3)."""
+"""Contour-corner distance, exact distance, path bounds and the path QP."""
 import jax
 import jax.numpy as jnp
 import numpy as np

@@ -1,4 +1,4 @@
-"""The path half of the path-speed planner (issue 16): box intervals, corridor decision,
+"""The path half of the path-speed planner: box intervals, corridor decision,
 the path QP against OSQP, and planned paths against shapely."""
 import functools
 

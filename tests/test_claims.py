@@ -49,4 +49,4 @@ def test_report_opens_with_the_claims(tmp_path):
     (tmp_path / "metrics.json").write_text(json.dumps({"parkout.claim.grid_runs_with_collision": 0, "tiny.n": 1}))
     text = open(write_report(str(tmp_path))).read()
     assert text.index("## Claims") < text.index("## tiny")
-    assert "| seed 002 | grid park-out never collides | `parkout.claim.grid_runs_with_collision` | 0 | == 0 | yes |" in text
+    assert "| park-out | grid park-out never collides | `parkout.claim.grid_runs_with_collision` | 0 | == 0 | yes |" in text

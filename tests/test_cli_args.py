@@ -107,7 +107,7 @@ BAD = [  # (argv, words the one error line must contain)
 
 
 @pytest.mark.parametrize("argv,words", BAD, ids=[" ".join(a) for a, _ in BAD])
-def test_item11_bad_argument_one_line_status_2_before_any_work(argv, words, paths, monkeypatch, capsys):
+def test_bad_argument_one_line_status_2_before_any_work(argv, words, paths, monkeypatch, capsys):
     calls = []
     _stub_work(monkeypatch, calls)
     argv = [a.format(**paths) for a in argv]
@@ -120,7 +120,7 @@ def test_item11_bad_argument_one_line_status_2_before_any_work(argv, words, path
     assert not calls and not out.out
 
 
-def test_item11_good_arguments_reach_the_work(paths, monkeypatch):
+def test_good_arguments_reach_the_work(paths, monkeypatch):
     calls = []
     _stub_work(monkeypatch, calls)
     with pytest.raises(Reached):
@@ -170,7 +170,7 @@ def test_drive_weights_handset_drives_every_planners_built_in_weights(paths, mon
     assert calls[-1]["run_info"]["weights"] == "handset"
 
 
-def test_item11_missing_scenario_file_or_folder_given_as_file(paths):
+def test_missing_scenario_file_or_folder_given_as_file(paths):
     from jaxplan.scenarios.loader import ScenarioError, load_scenario
 
     with pytest.raises(ScenarioError, match="missing: no such file"):
@@ -186,7 +186,7 @@ def test_item11_missing_scenario_file_or_folder_given_as_file(paths):
     assert cli_args.scenario_file(os.path.join(paths["good"], "a.json")).endswith("a.json")
 
 
-def test_item11_suite_args_are_checked_at_the_api_too(paths):
+def test_suite_args_are_checked_at_the_api_too(paths):
     from jaxplan.eval.registry import SuiteArgs, run_suite
 
     for kw, field in ((dict(n=0), "SuiteArgs.n"), (dict(n=-1), "SuiteArgs.n"), (dict(out=paths["file"]), "SuiteArgs.out"),
@@ -233,7 +233,7 @@ def _valid_dir(p):
 
 @settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(argv=command_lines())
-def test_item11_fuzzed_command_lines_fail_clearly_or_reach_the_work_with_good_values(argv, paths, capsys):
+def test_fuzzed_command_lines_fail_clearly_or_reach_the_work_with_good_values(argv, paths, capsys):
     argv = [a.format(**paths) for a in argv]
     calls = []
     with pytest.MonkeyPatch.context() as mp:
@@ -262,10 +262,10 @@ def test_item11_fuzzed_command_lines_fail_clearly_or_reach_the_work_with_good_va
         assert os.path.isdir(a[0])
 
 
-# ---------------------------------------------------------------------------- item 12
+# --------------------------------------------------------------- skipped files
 
 
-def test_item12_skipped_files_are_named_and_counted_by_one_helper(paths, monkeypatch, capsys):
+def test_skipped_files_are_named_and_counted_by_one_helper(paths, monkeypatch, capsys):
     import io
 
     from jaxplan.scenarios import loader
@@ -311,10 +311,10 @@ def test_item12_skipped_files_are_named_and_counted_by_one_helper(paths, monkeyp
     assert skipped == 1 and len(recs) == 1 and "b.json" in capsys.readouterr().err
 
 
-# ---------------------------------------------------------------------------- item 13
+# ---------------------------------------------------------- version and suites
 
 
-def test_item13_version_and_suite_list(capsys):
+def test_version_and_suite_list(capsys):
     import jaxplan
 
     assert main(["--version"]) == 0

@@ -57,10 +57,10 @@ def _static_only_scene():
     return d
 
 
-# ---------------------------------------------------------------------------- item 1
+# ------------------------------------------------------------ static obstacles
 
 
-def test_item1_static_obstacle_blocks_the_whole_horizon():
+def test_static_obstacle_blocks_the_whole_horizon():
     sc = parse_scenario(_static_only_scene(), "static.json")
     assert sc.obstacles.boxes.shape[1] == 1  # one time step, as in ZAM_Over-1_1
     res = plan(PlanState.make(0.0, 0.0, 0.0, 8.0), REF, sc.obstacles, CFG)
@@ -73,7 +73,7 @@ def test_item1_static_obstacle_blocks_the_whole_horizon():
     assert bool(sc.obstacles.static[0])
 
 
-def test_item1_suites_and_demonstrations_hold_static_obstacles(tmp_path):
+def test_suites_and_demonstrations_hold_static_obstacles(tmp_path):
     from jaxplan.eval.lattice_suite import recorded_obstacles
     from jaxplan.eval.speed_suite import recorded_scenes
     from jaxplan.tuning.demos import scenario_demos
@@ -102,7 +102,7 @@ def test_item1_suites_and_demonstrations_hold_static_obstacles(tmp_path):
     assert demos and all(bool(np.any(dm.obstacle_static)) for dm in demos)
 
 
-def test_item1_commonroad_static_held_dynamic_gone_after_its_recording():
+def test_commonroad_static_held_dynamic_gone_after_its_recording():
     pytest.importorskip("commonroad", reason="commonroad-io not installed (extra jaxplan[commonroad])")
     import warnings
 
@@ -128,10 +128,10 @@ def test_item1_commonroad_static_held_dynamic_gone_after_its_recording():
     assert v[1].all() and v[0, :10].all() and not v[0, 10:].any()
 
 
-# ---------------------------------------------------------------------------- item 2
+# ------------------------------------------------------------------- polylines
 
 
-def test_item2_polylines_extend_backwards_behind_the_start():
+def test_polylines_extend_backwards_behind_the_start():
     from jaxplan.scenarios.polylines import resample_polyline
 
     xy = np.array([[0.0, 0.0], [1.0, 0.0], [2.0, 0.0]])
@@ -143,10 +143,10 @@ def test_item2_polylines_extend_backwards_behind_the_start():
     np.testing.assert_allclose(q, [[-3.0, -4.0], [3.0, 11.0]], atol=1e-12)
 
 
-# ---------------------------------------------------------------------------- item 3
+# ----------------------------------------------------------------- time stamps
 
 
-def test_item3_obstacle_time_stamps_are_honoured():
+def test_obstacle_time_stamps_are_honoured():
     st = PlanState.make(0.0, 0.0, 0.0, 15.0)
     fine = np.arange(T) * CFG.dt          # 0.1 s, the planner's grid
     coarse = np.arange(T) * 0.2           # the same lead car sampled at 0.2 s (6 s of it)
@@ -165,7 +165,7 @@ def test_item3_obstacle_time_stamps_are_honoured():
     np.testing.assert_array_equal(np.asarray(c.collided), np.asarray(a.collided))
 
 
-# ---------------------------------------------------------------------------- item 4
+# ------------------------------------------------- bad reference lines and NaN
 
 
 def _dup_xy():
@@ -173,17 +173,17 @@ def _dup_xy():
     return np.insert(xy, 6, xy[6], axis=0).astype(np.float32)  # a repeated point just ahead of the car (60 points)
 
 
-def test_item4_plan_refuses_a_reference_line_with_repeated_points():
+def test_plan_refuses_a_reference_line_with_repeated_points():
     ref = reference_line(jnp.asarray(_dup_xy()))  # the jittable constructor keeps the repeated point
     with pytest.raises(ValueError, match="reference line: points 6 and 7 coincide"):
         plan(PlanState.make(0.0, 0.0, 0.0, 10.0), ref, Obstacles.empty(jnp.arange(T) * CFG.dt), CFG)
 
 
-def test_item4_nan_inside_jit_is_never_a_valid_free_plan():
+def test_nan_inside_jit_is_never_a_valid_free_plan():
     from jaxplan.lattice.plan import _plan_jit  # the jitted kernel plan dispatches to: no host checks
 
     st = PlanState.make(0.0, 0.0, 0.0, 8.0)
-    obs = parse_scenario(_static_only_scene(), "static.json").obstacles  # shapes of item 1: no new compile
+    obs = parse_scenario(_static_only_scene(), "static.json").obstacles  # the static-obstacle test's shapes: no new compile
     nan_obs = Obstacles(obs.boxes.at[0, 0, 0].set(jnp.nan), obs.valid, obs.t, obs.static)
     # called as plan calls it (jit's cache tells explicit arguments from defaults)
     bad = [_plan_jit(st, ref, o, CFG, CostWeights(), None, True)
@@ -198,11 +198,11 @@ def test_item4_nan_inside_jit_is_never_a_valid_free_plan():
     assert bool(good.ok) and int(good.mode) == FREE and np.asarray(good.finite).all()
 
 
-# ---------------------------------------------------------------------------- item 5
+# --------------------------------------------------------------------- weights
 
 
 @pytest.mark.parametrize("field,value", [("alpha", float("nan")), ("beta", -1.0), ("gamma", float("inf"))])
-def test_item5_bad_weights_are_refused_naming_the_field(field, value):
+def test_bad_weights_are_refused_naming_the_field(field, value):
     w = CostWeights(**{field: value})
     with pytest.raises(ValueError, match=f"CostWeights.{field}"):
         plan(PlanState.make(0.0, 0.0, 0.0, 10.0), REF, Obstacles.empty(jnp.arange(T) * CFG.dt), CFG, w)
@@ -210,7 +210,7 @@ def test_item5_bad_weights_are_refused_naming_the_field(field, value):
         w.validate()
 
 
-def test_item5_speed_weights_are_refused_naming_the_field():
+def test_speed_weights_are_refused_naming_the_field():
     from jaxplan.speed import CostWeights as SpeedWeights
     from jaxplan.speed import SpeedConfig, plan_speed
 
@@ -219,7 +219,7 @@ def test_item5_speed_weights_are_refused_naming_the_field():
         plan_speed(path, Obstacles.empty(jnp.arange(8) * 1.0), SpeedConfig(), SpeedWeights(w_jerk=-0.5), v0=5.0)
 
 
-def test_item5_weights_file_with_a_misspelled_name(tmp_path):
+def test_weights_file_with_a_misspelled_name(tmp_path):
     from jaxplan.eval.registry import SuiteArgs
     from jaxplan.eval.tune_suite import load_suite_weights
 
@@ -234,10 +234,10 @@ def test_item5_weights_file_with_a_misspelled_name(tmp_path):
         load_suite_weights(SuiteArgs(out=str(tmp_path), weights=str(p)))
 
 
-# ---------------------------------------------------------------------------- item 6
+# ------------------------------------------------------------------- gradients
 
 
-def test_item6_gradients_wrt_state_and_obstacles_are_finite_and_match_finite_differences():
+def test_gradients_wrt_state_and_obstacles_are_finite_and_match_finite_differences():
     from jaxplan.lattice.cost import FEATURES
     from jaxplan.lattice.plan import _plan
 
@@ -286,10 +286,10 @@ def test_item6_gradients_wrt_state_and_obstacles_are_finite_and_match_finite_dif
     assert directional == pytest.approx(float(fd), rel=1e-4, abs=1e-6)
 
 
-# ---------------------------------------------------------------------------- item 7
+# ---------------------------------------------------------------- state checks
 
 
-def test_item7_far_start_state_is_refused_in_float32():
+def test_far_start_state_is_refused_in_float32():
     with pytest.raises(ValueError, match="too far from the origin for float32"):
         PlanState.make(1e6, 0.0, 0.0, 10.0)
     raw = PlanState(jnp.float32(0.0), jnp.float32(-1e6), 0.0, 0.0, 10.0, 0.0, 10.0, jnp.inf)
@@ -297,7 +297,7 @@ def test_item7_far_start_state_is_refused_in_float32():
         plan(raw, REF, Obstacles.empty(jnp.arange(T) * CFG.dt), CFG)
 
 
-def test_item7_batched_state_in_plan_says_plan_batch():
+def test_batched_state_in_plan_says_plan_batch():
     st = PlanState.make(jnp.zeros(2), jnp.array([0.0, 0.3]), jnp.zeros(2), jnp.array([10.0, 12.0]))
     obs = _obs(_lead(np.arange(T) * CFG.dt, 30.0, 5.0), np.arange(T) * CFG.dt)
     with pytest.raises(ValueError) as e:
@@ -309,7 +309,7 @@ def test_item7_batched_state_in_plan_says_plan_batch():
     # (plan_batch's default weights: test_lattice_core.test_batched_plan_matches_single_and_does_not_recompile)
 
 
-def test_item7_loader_refuses_a_negative_start_speed():
+def test_loader_refuses_a_negative_start_speed():
     d = copy.deepcopy(_minimal())
     d["planning_problems"][0]["initial_state"]["velocity"] = -3.0
     with pytest.raises(ScenarioError, match=r"neg.json: field planning_problems\[0\].initial_state.velocity"):

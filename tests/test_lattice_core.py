@@ -383,7 +383,7 @@ def test_batched_plan_matches_single_and_does_not_recompile():
     assert _plan_jit._cache_size() == n0
     stack = lambda xs: jax.tree_util.tree_map(lambda *a: jnp.stack(a), *xs)
     refs = stack([ref, ref])
-    b = plan_batch(stack(states), refs, stack(obs), CFG)  # weights default like plan's (issue 13, item 7)
+    b = plan_batch(stack(states), refs, stack(obs), CFG)  # weights default like plan's
     for i, r in enumerate(singles):
         assert int(b.chosen[i]) == int(r.chosen)
         np.testing.assert_allclose(np.asarray(b.cost[i]), np.asarray(r.cost), rtol=1e-5, atol=1e-5)

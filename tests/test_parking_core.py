@@ -147,7 +147,7 @@ def _virtual_centres(band=6.0):
 
 def test_footprint_check_matches_shapely(rng):
     """Box slab scan and polygon scan both equal shapely's cell-centre containment, where the cells
-    beyond the grid count as occupied (issue 13: a footprint reaching past the grid is a hit)."""
+    beyond the grid count as occupied (a footprint reaching past the grid is a hit)."""
     bad, hits, beyond = 0, 0, 0
     virtual = shapely.STRtree(shapely.points(_virtual_centres()))  # in the grid's own frame
 

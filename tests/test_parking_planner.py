@@ -1,4 +1,4 @@
-"""Park-out planner beyond the seed: grid extent (issue 13 item 8), both road sides, walls and stopped
+"""Park-out planner: grid extent, both road sides, walls and stopped
 cars (the search), the batch driver, the renderer, the speed profile, scene files and ``jaxplan parkout``.
 
 Results are judged by shapely (``parking_oracle``), not by the planner's own grid check. All
@@ -28,7 +28,7 @@ D = float(pk.stop_line(CAR, CFG.c))
 
 
 def test_wall_just_beyond_the_old_grid_is_seen():
-    """Issue 13 item 8: a wall across the road at y = 5.0 m (just beyond the old +-5 m grid, whose outside
+    """A wall across the road at y = 5.0 m (just beyond the old +-5 m grid, whose outside
     read free) gave success and a collision at once. Now the grid covers it and outside is occupied."""
     rng = np.random.default_rng(0)
     walls = np.array([5.0, 5.05, 5.1])

@@ -1,4 +1,4 @@
-"""The park-out planner (issue 6) driven by the replanning supervisor through the planner callback.
+"""The park-out planner driven by the replanning supervisor through the planner callback.
 
 Needs two extra compilations (the park-out planner and the host-loop steps at its
 plan size): set JAXPLAN_SLOW=1 to run.

@@ -32,7 +32,7 @@ def _make(offset):
     return make
 
 
-def test_item9_resume_only_the_same_run(tmp_path):
+def test_resume_only_the_same_run(tmp_path):
     out = str(tmp_path / "run")
     kw = dict(progress=False, process_index=0, process_count=1)
     first = run_chunked(_double, _make(0), 10, out, chunk_size=4, **kw)
@@ -57,7 +57,7 @@ def test_item9_resume_only_the_same_run(tmp_path):
     np.testing.assert_array_equal(load_results(out)["y"], np.arange(10.0) ** 2)
 
 
-def test_item9_chunks_without_a_manifest_are_refused(tmp_path):
+def test_chunks_without_a_manifest_are_refused(tmp_path):
     out = tmp_path / "old"
     out.mkdir()
     np.savez(out / "chunk_00000.npz", _start=np.int64(0), y=np.zeros(4))
@@ -65,7 +65,7 @@ def test_item9_chunks_without_a_manifest_are_refused(tmp_path):
         run_chunked(_double, _make(0), 4, str(out), chunk_size=4, progress=False, process_index=0, process_count=1)
 
 
-# ---------------------------------------------------------------------------- item 10
+# --------------------------------------------------------- metrics and reports
 
 
 @pytest.fixture
@@ -84,7 +84,7 @@ def tiny_suite(monkeypatch):
     return "tiny"
 
 
-def test_item10_metrics_replaced_never_merged(tmp_path, tiny_suite, capsys):
+def test_metrics_replaced_never_merged(tmp_path, tiny_suite, capsys):
     from jaxplan.cli import main
 
     out = tmp_path / "res"
@@ -103,7 +103,7 @@ def test_item10_metrics_replaced_never_merged(tmp_path, tiny_suite, capsys):
     assert json.loads((out / "metrics.json").read_text())["tiny.n"] == 7
 
 
-def test_item10_report_shows_the_run_and_keeps_foreign_reports(tmp_path, tiny_suite, capsys):
+def test_report_shows_the_run_and_keeps_foreign_reports(tmp_path, tiny_suite, capsys):
     from jaxplan.cli import main
 
     out = tmp_path / "res"

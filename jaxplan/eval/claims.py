@@ -1,4 +1,4 @@
-"""The seeds' claims and the issues' targets, each read from a run's figures.
+"""The project's headline claims, each read from a run's figures.
 
 A claim names the figure that decides it (a ``metrics.json`` key, or the ratio of two), the
 comparison and the target. ``judge(metrics)`` gives one row per claim: the value, and whether it
@@ -17,14 +17,14 @@ class Claim:
     """One claim.
 
     Attributes:
-        seed: where it comes from (``"seed 000"``, ``"issue 18"``).
+        topic: the part of the library it is about (``"path bounds"``, ``"park-out"``).
         text: the claim in a few words.
         figure: the deciding figure: a key, or ``"A / B"`` for the ratio of two keys.
         op: ``"<="``, ``">="`` or ``"=="``.
         target: the number it is compared with.
     """
 
-    seed: str
+    topic: str
     text: str
     figure: str
     op: str
@@ -33,50 +33,50 @@ class Claim:
 
 CLAIMS = (
     Claim(
-        "seed 000",
+        "path bounds",
         "contour corners bound the path >= 3x closer than the centre line (radius <= 12 m)",
         "bounds.claim.r_le12.centerline_over_contour",
         ">=",
         3.0,
     ),
-    Claim("seed 002", "grid park-out never collides", "parkout.claim.grid_runs_with_collision", "==", 0),
+    Claim("park-out", "grid park-out never collides", "parkout.claim.grid_runs_with_collision", "==", 0),
     Claim(
-        "seed 002",
+        "park-out",
         "grid park-out gets out of every slot >= the analytic minimum",
         "parkout.claim.success_rate_slot_ge_min",
         ">=",
         1.0,
     ),
     Claim(
-        "issue 17",
+        "park-out",
         "park-out gets out of every slot with >= 1.5 m spare",
         "parkout.claim.success_rate_spare_ge_1.5",
         ">=",
         1.0,
     ),
     Claim(
-        "seed 003",
+        "lazy replanning",
         "lazy re-planning: >= 5x fewer re-plans than periodic",
         "replan.claim.periodic_over_lazy_replans",
         ">=",
         5.0,
     ),
     Claim(
-        "seed 003",
+        "lazy replanning",
         "lazy re-planning: no more collisions than periodic (share difference)",
         "replan.claim.lazy_minus_periodic_collision_share",
         "<=",
         0.0,
     ),
     Claim(
-        "issue 18",
+        "weights by imitation",
         "tuned weights: ADE3 >= 20 % below the default weights",
         "lattice.imitation.weights.ade3 / lattice.imitation.default.ade3",
         "<=",
         0.8,
     ),
     Claim(
-        "issue 18",
+        "weights by imitation",
         "tuned weights: ADE3 below constant velocity",
         "lattice.imitation.weights.ade3 / lattice.imitation.constant_velocity.ade3",
         "<=",
@@ -119,9 +119,9 @@ def judge(metrics: dict, claims=CLAIMS) -> list:
 
 def claims_table(metrics: dict, claims=CLAIMS) -> list:
     """Markdown lines of the claims table."""
-    lines = ["| from | claim | figure | value | target | met |", "| --- | --- | --- | --- | --- | --- |"]
+    lines = ["| topic | claim | figure | value | target | met |", "| --- | --- | --- | --- | --- | --- |"]
     for c, v, ok in judge(metrics, claims):
         shown = "not measured in this run" if v is None else f"{v:.4g}"
         verdict = "-" if ok is None else ("yes" if ok else "**no**")
-        lines.append(f"| {c.seed} | {c.text} | `{c.figure}` | {shown} | {c.op} {c.target:g} | {verdict} |")
+        lines.append(f"| {c.topic} | {c.text} | `{c.figure}` | {shown} | {c.op} {c.target:g} | {verdict} |")
     return lines

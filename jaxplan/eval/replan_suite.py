@@ -194,7 +194,7 @@ def replan_suite(args: SuiteArgs) -> dict:
 
 @register("replan_parkout")
 def replan_parkout_suite(args: SuiteArgs) -> dict:
-    """The park-out planner (issue 6) driven by the same supervisor (host loop, slow)."""
+    """The park-out planner driven by the same supervisor (host loop, slow)."""
     return parkout_figures(n=args.n or (2 if args.quick else 8), seed=args.seed)
 
 

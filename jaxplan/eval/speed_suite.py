@@ -1,5 +1,5 @@
 """Suite ``speed``: the ``pathspeed`` planner in closed loop, with and without the non-blocking
-boundaries (seed 001's claim).
+boundaries.
 
 Every scene is driven by ``jaxplan.sim.rollout`` (re-plan every 0.3 s, exact tracking,
 recorded traffic as recorded) twice: by ``PathSpeedPlanner()`` and by
@@ -20,7 +20,7 @@ Figures, measured on the driven states with the geometry core (not the planner's
 * ``time_to_goal_s`` over the drives that reach the goal in both variants, and
   ``travel_time_ratio`` (with / without) on them; ``goal_share``.
 
-The claim (seed 001): with non-blocking boundaries at least 50 % less blind-zone time, no
+The claim: with non-blocking boundaries at least 50 % less blind-zone time, no
 forbidden overtake, no more collisions, at most 10 % more travel time.
 """
 
