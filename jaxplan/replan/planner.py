@@ -68,8 +68,8 @@ def finish_plan(xy, theta, gear, valid, v0, limits: MotionLimits, ok, kappa=None
     Args:
         xy: ``(N, 2)``; theta: ``(N,)`` car heading; gear: ``(N,)`` the gear used to reach
         each point; valid: ``(N,)`` prefix mask; v0: ``()`` speed (>= 0) at the start;
-        limits: the longitudinal model; ok: ``()``; kappa: ``(N,)`` curvature, default
-        ``d theta / ds`` between consecutive points.
+        limits: the longitudinal model; ok: ``()``; kappa: ``(N,)`` curvature (default: the
+            heading's rate ``d theta / ds`` between consecutive points).
 
     Speed on each single-direction leg: ``min(vmax, sqrt(v_in^2 + 2 a s), sqrt(2 d (s_leg - s)))``
     (``jaxplan.replan.longitudinal.profile_speed``), ``v_in = v0`` on the first leg and 0

@@ -712,8 +712,8 @@ def load_records(paths: list, config: SceneConfig = SceneConfig(), horizon: floa
     Names are the scenario ids; give several files to ``unique_names`` to make them unique.
 
     Raises:
-        ValueError naming the file: unreadable files, scenarios without a planning problem,
-        without lanelets, or with a goal region of an unknown kind.
+        ValueError: naming the file, for unreadable files, scenarios without a planning
+            problem, without lanelets, or with a goal region of an unknown kind.
     """
     from jaxplan.scenarios.files import load_file
     from jaxplan.scenarios.loader import ScenarioError
@@ -742,7 +742,7 @@ def load_scenes(paths: list, config: SceneConfig = SceneConfig(), horizon: float
         ...; the module docstring); ``stack_scenes`` pads them into one batch with a leading scene axis.
 
     Raises:
-        ValueError naming the file (as ``load_records``).
+        ValueError: naming the file (as ``load_records``).
     """
     return [r.scene for r in load_records(paths, config, horizon)]
 
