@@ -50,6 +50,69 @@ def curve_speed(scene, s, reach, a_lat, decel, n: int = 32):
     return jnp.min(jnp.sqrt(v_curve**2 + 2.0 * decel * d))
 
 
+GOAL_SPEEDUP = 1.2  # the set speed may exceed the limit by this factor to reach a goal before its window closes
+CURVE_LAT_ACC = 0.8  # share of the comfortable lateral acceleration the set speed leaves for curves
+CURVE_DECEL = 2.0  # m/s^2: the set speed slows this gently before a curve or a dead end
+
+
+def goal_region_ahead(goal_s, s_centre):
+    """``()`` bool: a goal region lies on the route (``goal_s (2,)`` finite) and its far end is
+    ahead of the car's box centre at station ``s_centre ()``."""
+    goal_s = jnp.asarray(goal_s)
+    return jnp.all(jnp.isfinite(goal_s)) & (goal_s[1] > s_centre)
+
+
+def goal_speed(v_set, s_centre, goal_s, goal_t, goal_v=None, reach=None):
+    """The set speed ``()`` bent towards the goal's timing and speed: no faster than reaching
+    the far end of the goal region when its time window opens, no slower than reaching its near
+    end when the window closes (at most ``GOAL_SPEEDUP`` times the limit); once the region is
+    within ``reach``, inside the goal's speed range (a tenth of the range in from either end).
+
+    Args:
+        v_set: ``()`` the speed limit ahead; s_centre: ``()`` the car's box centre on the route.
+        goal_s: ``(2,)`` the goal region on the route; goal_t: ``(2,)`` its time window from now.
+        goal_v: ``(2,)`` the goal's speed range (None or infinite: none); reach: ``()`` metres
+            ahead within which the goal's speed range holds (the plan's reach).
+    """
+    has = jnp.all(jnp.isfinite(goal_s))
+    d_far = jnp.where(has, goal_s[1] - s_centre, jnp.inf)
+    d_near = jnp.where(has, goal_s[0] - s_centre, 0.0)
+    v_hi = jnp.where(goal_t[0] > 0.1, jnp.maximum(d_far, 0.0) / jnp.maximum(goal_t[0], 0.1), jnp.inf)
+    v_lo = jnp.where(
+        jnp.isfinite(goal_t[1]) & (goal_t[1] > 0.1), jnp.maximum(d_near, 0.0) / jnp.maximum(goal_t[1], 0.1), 0.0
+    )
+    v = jnp.maximum(jnp.minimum(v_set, v_hi), jnp.minimum(v_lo, GOAL_SPEEDUP * v_set))
+    if goal_v is not None:
+        lo, hi = goal_v[0], goal_v[1]
+        span = jnp.where(jnp.isfinite(hi - lo), hi - lo, 0.0)
+        near = has & (d_near < reach) & (d_far > 0.0)
+        v_in = jnp.clip(
+            v,
+            jnp.where(jnp.isfinite(lo), lo + 0.1 * span, -jnp.inf),
+            jnp.where(jnp.isfinite(hi), hi - 0.1 * span, jnp.inf),
+        )
+        v = jnp.where(near, jnp.maximum(v_in, 0.0), v)
+    return jnp.where(has, v, v_set)
+
+
+def set_speed(scene, ctx: RoadContext, ego: EgoState, vehicle: VehicleParams, horizon: float, lat_acc):
+    """``()`` the speed a road planner cruises at this cycle: the limit ahead (``ctx.v_set``)
+    bent towards the goal's timing and speed (``goal_speed``, the goal's speed range within the
+    reach ``max(v, 5) * horizon``), never above the speed from which the car slows at
+    ``CURVE_DECEL`` to the route's curvature limit (``CURVE_LAT_ACC * lat_acc``) on that reach,
+    nor, without a goal region ahead, above the speed from which it stops as gently before a
+    dead end of the road (``ctx.route_end_s``, the car's front)."""
+    f = scene.route.xy.dtype
+    s_centre = ctx.s + jnp.asarray(vehicle.center_offset, f)
+    reach = jnp.maximum(jnp.asarray(ego.v, f), 5.0) * horizon
+    v = goal_speed(ctx.v_set, s_centre, ctx.goal_s, ctx.goal_t, ctx.goal_v, reach)
+    v = jnp.minimum(v, curve_speed(scene, ctx.s, reach, CURVE_LAT_ACC * lat_acc, CURVE_DECEL))
+    d_end = ctx.route_end_s - (ctx.s + front_offset(vehicle, f))
+    dead_end = ~goal_region_ahead(ctx.goal_s, s_centre) & jnp.isfinite(d_end)
+    v_end = jnp.sqrt(2.0 * CURVE_DECEL * jnp.maximum(jnp.where(jnp.isfinite(d_end), d_end, 0.0), 0.0))
+    return jnp.where(dead_end, jnp.minimum(v, v_end), v)
+
+
 def route_sample(scene, values, s):
     """Linear interpolation of per-route-point ``values (..., R)`` at arc lengths ``s (...)``
     (clamped to the route's ends)."""

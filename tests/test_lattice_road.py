@@ -411,7 +411,7 @@ def test_set_speed_follows_the_goal_range_and_the_curves():
     from types import SimpleNamespace
 
     from jaxplan.geometry.frenet import reference_line
-    from jaxplan.lattice.planner import goal_speed
+    from jaxplan.plan_context import goal_speed
     from jaxplan.plan_context import curve_speed
 
     inf = jnp.inf

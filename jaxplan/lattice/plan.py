@@ -48,7 +48,8 @@ from jaxplan.lattice.risk import (
     min_separation_topk,
     risk_from_separation,
 )
-from jaxplan.lattice.targets import RoadTargets, extents, goal_region_ahead, lane_leader, obstacle_frenet, speed_along
+from jaxplan.lattice.targets import RoadTargets, extents, lane_leader, obstacle_frenet, speed_along
+from jaxplan.plan_context import goal_region_ahead
 from jaxplan.types import Obstacles, is_concrete, pytree_dataclass
 
 

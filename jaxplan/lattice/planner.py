@@ -9,14 +9,9 @@ three lateral times (lanes running the other way only borrowed to pass a blockag
 the feasibility filter, safety buffers, the road edges (``Scene.road_left / road_right``)
 and the terminal condition (``jaxplan.lattice.plan``).
 
-The set speed is the speed limit, bent towards the goal's timing: no faster than reaching
-the far end of the goal region when its time window opens, no slower than reaching its
-near end when the window closes (at most ``GOAL_SPEEDUP`` times the limit); and, once the
-goal region is within the plan's reach, inside the goal's speed range; never above the speed
-from which the car slows gently (``CURVE_DECEL``) to the route's curvature limit
-(``CURVE_LAT_ACC`` of the comfortable lateral acceleration) on the reach ahead, nor, without
-a goal region ahead, above the speed from which it stops as gently before a dead end of the
-road (``Scene.route_end_s``).
+The set speed is ``jaxplan.plan_context.set_speed``: the speed limit bent towards the goal's
+timing and speed range, slowing before the route's curves and, without a goal region ahead,
+before a dead end of the road.
 
 ``ok`` is False when every candidate collides (mode RISK) or the plan is not finite (INVALID);
 ``info`` has the mode, the candidates the feasibility filter rejected and the target lane.
@@ -35,48 +30,11 @@ from jaxplan.compile_options import NO_YNN
 from jaxplan.lattice.candidates import LatticeConfig, PlanState
 from jaxplan.lattice.cost import INVALID, MODE_NAMES, RISK, CostWeights
 from jaxplan.lattice.plan import LatticeResult, _plan
-from jaxplan.lattice.targets import RoadTargets, goal_region_ahead
-from jaxplan.plan_context import curve_speed, front_offset, road_context, route_sample
+from jaxplan.lattice.targets import RoadTargets
+from jaxplan.plan_context import road_context, route_sample, set_speed
 from jaxplan.planner import EgoState, PlanOutput
 from jaxplan.types import VehicleParams, weights_from
 
-GOAL_SPEEDUP = 1.2
-
-
-def goal_speed(v_set, s_centre, goal_s, goal_t, goal_v=None, reach=None):
-    """The set speed ``()`` bent towards the goal's timing and speed (see the module docstring).
-
-    Args:
-        v_set: ``()`` the speed limit ahead; s_centre: ``()`` the car's box centre on the route.
-        goal_s: ``(2,)`` the goal region on the route; goal_t: ``(2,)`` its time window from now.
-        goal_v: ``(2,)`` the goal's speed range (None or infinite: none); reach: ``()`` metres
-            ahead within which the goal's speed range holds (the plan's reach).
-    """
-    has = jnp.all(jnp.isfinite(goal_s))
-    d_far = jnp.where(has, goal_s[1] - s_centre, jnp.inf)
-    d_near = jnp.where(has, goal_s[0] - s_centre, 0.0)
-    v_hi = jnp.where(goal_t[0] > 0.1, jnp.maximum(d_far, 0.0) / jnp.maximum(goal_t[0], 0.1), jnp.inf)
-    v_lo = jnp.where(
-        jnp.isfinite(goal_t[1]) & (goal_t[1] > 0.1), jnp.maximum(d_near, 0.0) / jnp.maximum(goal_t[1], 0.1), 0.0
-    )
-    v = jnp.maximum(jnp.minimum(v_set, v_hi), jnp.minimum(v_lo, GOAL_SPEEDUP * v_set))
-    if goal_v is not None:
-        # near the goal (its region within reach, not yet passed) aim inside its speed range, a
-        # tenth of the range in from either end
-        lo, hi = goal_v[0], goal_v[1]
-        span = jnp.where(jnp.isfinite(hi - lo), hi - lo, 0.0)
-        near = has & (d_near < reach) & (d_far > 0.0)
-        v_in = jnp.clip(
-            v,
-            jnp.where(jnp.isfinite(lo), lo + 0.1 * span, -jnp.inf),
-            jnp.where(jnp.isfinite(hi), hi - 0.1 * span, jnp.inf),
-        )
-        v = jnp.where(near, jnp.maximum(v_in, 0.0), v)
-    return jnp.where(has, v, v_set)
-
-
-CURVE_LAT_ACC = 0.8  # share of the comfortable lateral acceleration the set speed leaves for curves
-CURVE_DECEL = 2.0  # m/s^2: the set speed slows this gently before a curve
 LANE_LOOKAHEAD = 2.5  # s: the lanes are read this far ahead (15-60 m)
 
 
@@ -118,17 +76,7 @@ class LatticePlanner:
         cfg = self.scene_config(scene.lane_offset.shape[-2])
         ctx = road_context(scene, ego, step, cfg.n_steps, self.vehicle)
         f = scene.route.xy.dtype
-        s_centre = ctx.s + jnp.asarray(self.vehicle.center_offset, f)
-        reach = jnp.maximum(ego.v, 5.0) * self.horizon
-        v_set = goal_speed(ctx.v_set, s_centre, ctx.goal_s, ctx.goal_t, ctx.goal_v, reach)
-        # no faster than the route's curves allow (slowing gently before them)
-        v_set = jnp.minimum(v_set, curve_speed(scene, ctx.s, reach, CURVE_LAT_ACC * cfg.lat_acc_max, CURVE_DECEL))
-        # without a goal region ahead, no faster than the car can stop from, as gently, before a dead end
-        # of the road (where the mapped road ends: beyond it is off road)
-        d_end = ctx.route_end_s - (ctx.s + front_offset(self.vehicle, f))
-        no_goal_ahead = ~goal_region_ahead(ctx.goal_s, s_centre)
-        v_end = jnp.sqrt(2.0 * CURVE_DECEL * jnp.maximum(jnp.where(jnp.isfinite(d_end), d_end, 0.0), 0.0))
-        v_set = jnp.where(no_goal_ahead & jnp.isfinite(d_end), jnp.minimum(v_set, v_end), v_set)
+        v_set = set_speed(scene, ctx, ego, self.vehicle, self.horizon, cfg.lat_acc_max)
         state = PlanState(ego.x, ego.y, ego.heading, ego.kappa, ego.v, ego.a, v_set, jnp.inf)
         # the max_lanes lanes about the car's current one (every lane on a road up to that wide), read
         # LANE_LOOKAHEAD s ahead, where the lateral manoeuvres end: where the route blends into another

@@ -91,13 +91,6 @@ class RoadTargets:
         )
 
 
-def goal_region_ahead(goal_s, s_centre):
-    """``()`` bool: a goal region lies on the route (``goal_s (2,)`` finite) and its far end is
-    ahead of the car's box centre at station ``s_centre ()``."""
-    goal_s = jnp.asarray(goal_s)
-    return jnp.all(jnp.isfinite(goal_s)) & (goal_s[1] > s_centre)
-
-
 def obstacle_frenet(ref, obstacles):
     """``(K, T, 2)`` Frenet ``(s, l)`` of the obstacles' centres (geometry core's ``to_frenet``)."""
     s, l = to_frenet(ref, obstacles.boxes[..., :2])

@@ -46,7 +46,7 @@ from jaxplan.baselines.brake import SIM_VEHICLE
 from jaxplan.bounds.path_planner import PathConfig, plan_path
 from jaxplan.geometry.frenet import ReferenceLine, frenet_to_cartesian_state, ref_state, wrap_angle
 from jaxplan.lattice.quintic import quintic_coeffs, quintic_eval
-from jaxplan.plan_context import RoadContext, road_context, route_sample
+from jaxplan.plan_context import RoadContext, road_context, route_sample, set_speed
 from jaxplan.planner import EgoState, PlanOutput
 from jaxplan.speed.compose import compose_profile
 from jaxplan.speed.dp import CostWeights, SpeedConfig, SpeedRoad, _plan_one
@@ -248,24 +248,6 @@ def lane_leave_s(path) -> Any:
     return jnp.min(jnp.where(away, path.s, jnp.inf)).astype(path.xy.dtype)
 
 
-def cruise_speed(ctx: RoadContext, vehicle: VehicleParams, horizon: float):
-    """The cruise speed: the set speed from the limits ahead, lowered so as not to pass the
-    goal region before its time window opens, raised (up to the set speed) to reach it
-    before the window closes."""
-    f = ctx.v_set.dtype
-    centre = jnp.asarray(vehicle.center_offset, f)
-    d_near = ctx.goal_s[0] - (ctx.s + centre)
-    d_far = ctx.goal_s[1] - (ctx.s + centre)
-    t0, t1 = ctx.goal_t[0], ctx.goal_t[1]
-    d_mid = 0.5 * (d_near + d_far)
-    cap = jnp.where((t0 > 0.5) & jnp.isfinite(d_mid) & (d_mid > 0), d_mid / jnp.maximum(t0, 0.5), jnp.inf)
-    floor = jnp.where(
-        jnp.isfinite(t1) & (t1 > 0.1) & jnp.isfinite(d_near) & (d_near > 0), d_near / jnp.maximum(t1, 0.1), 0.0
-    )
-    v = jnp.minimum(ctx.v_set, jnp.maximum(cap, floor))
-    return jnp.maximum(v, 0.0)
-
-
 @dataclasses.dataclass(frozen=True)
 class PathSpeedPlanner:
     """The path-speed planner (static config; see the module docstring).
@@ -365,7 +347,9 @@ class PathSpeedPlanner:
         bp, rp, pp, use = self.plan_path(scene, ctx, ego)
         v0 = jnp.maximum(jnp.asarray(ego.v, f), 0.0)
         a0 = jnp.asarray(ego.a, f)
-        w = self.cost_weights(params, cruise_speed(ctx, self.vehicle, self.horizon).astype(f))
+        w = self.cost_weights(
+            params, set_speed(scene, ctx, ego, self.vehicle, self.horizon, self.speed.a_lat_max).astype(f)
+        )
         obs = ctx.obstacles
         obs = Obstacles(obs.boxes, obs.valid, obs.t - obs.t[0], obs.static)
 
