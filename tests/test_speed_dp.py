@@ -11,7 +11,7 @@ import pytest
 from jaxplan.geometry.frenet import ReferenceLine
 from jaxplan.speed import (CostWeights, DPCosts, SpeedConfig, SpeedRoad, dp_from_costs, expected_speed_profile,
                            make_scene, plan_speed, profile_cost, soft_value, stage_costs)
-from jaxplan.speed.dp import _n_table, _u0, band_widths, unreach
+from jaxplan.speed.dp import REAR_CONTACT, _n_table, _u0, band_widths, unreach
 from jaxplan.types import Obstacles, VehicleParams
 
 SMALL = SpeedConfig(dt=1.0, n_t=4, ds=0.5, v_max=6.0, a_min=-2.0, a_max=1.0, n_sub=2, qp_dt=0.5)
@@ -41,14 +41,17 @@ def _exhaustive(d, cfg):
     return best, arg
 
 
-def _lead_scene(rng, T=9, dt=0.5):
+def _lead_scene(rng, T=9, dt=0.5, behind=False):
     t = np.arange(T) * dt
-    b = np.zeros((3, T, 5), np.float32)
+    K = 4 if behind else 3
+    b = np.zeros((K, T, 5), np.float32)
     b[..., 2], b[..., 3] = 4.5, 1.8
     b[0, :, 0] = rng.uniform(8, 20) + rng.uniform(0, 3) * t
     b[1, :, 0], b[1, :, 1] = rng.uniform(5, 25), rng.uniform(-4, 4)
     b[2, :, 0], b[2, :, 1] = rng.uniform(0, 15) + 4 * t, 3.5  # a neighbour on the left
-    return Obstacles(jnp.asarray(b), jnp.ones((3, T), bool), jnp.asarray(t, jnp.float32))
+    if behind:  # a vehicle closing in from behind in the car's lane (the car is at x = 0)
+        b[3, :, 0] = -rng.uniform(5, 7) + rng.uniform(7, 9) * t
+    return Obstacles(jnp.asarray(b), jnp.ones((K, T), bool), jnp.asarray(t, jnp.float32))
 
 
 def test_dp_matches_exhaustive_search_on_scene_costs(rng):
@@ -142,17 +145,25 @@ def _direct_table(scene, cfg, w, v0):
                     r += float(w.w_no_bypass) * mult[k] * max(x + front - rk, 0.0) ** 2
                 if bool(cl.blind_zone[k]) and rk - cfg.blind_back <= x + front and x + rear <= rk + cfg.blind_front:
                     r += float(w.w_blind) * mult[k]
+            # behind: room ahead of the nearest one, and a contact while the car is not ahead of one
+            rb = cl.rear
+            ups = [float(rb.upper[k, f]) for k in range(rb.hit.shape[0]) if bool(rb.hit[k, f])]
+            if ups:
+                r += float(w.w_rear) * max(max(ups) + float(w.rear_gap) - x, 0.0) ** 2
+                if any(x <= q + cfg.ds / 2 for q in ups):
+                    r += REAR_CONTACT * cfg.big
             rate[f, u] = r
     h = cfg.dt / cfg.n_sub
     return rate * h + np.where(col, cfg.big, 0.0)
 
 
 def test_cost_table_matches_direct_formula(rng):
-    for _ in range(2):
-        obs = _lead_scene(rng)
+    for trial in range(4):
+        obs = _lead_scene(rng, behind=trial >= 2)
         v0 = float(rng.uniform(1, 6))
         d, scene = _small_costs(obs, v0, 0.0, W)
         assert bool(np.asarray(scene.classified.no_bypass).any() or np.asarray(scene.classified.blind_zone).any())
+        assert bool(np.asarray(scene.classified.rear.hit).any()) == (trial >= 2)
         ref = _direct_table(scene, SMALL, W, v0)
         got = np.asarray(d.table[0], np.float64)
         near = np.abs(got - ref) > 1e-3 * np.maximum(1.0, np.abs(ref))
@@ -237,6 +248,29 @@ def test_obstacles_behind_do_not_block():
     assert float(p.v[-1]) >= 9.9  # keeps its speed: no braking for a follower
     ahead = _plan(_moving([[30.0, 0.0, 4.5, 1.8, 0.0]], [2.0]), 10.0)
     assert bool(ahead.scene.classified.is_blocking[0])
+
+
+def test_speeds_up_hard_only_to_get_away_from_a_car_closing_in():
+    """With the default limits (``a_max`` 4 m/s^2, ``a_comfort`` 2) and no reason to speed up
+    (cruise = the car's speed), a car closing in at 6 m/s from 5 m behind is outrun by speeding up
+    harder than comfortable, and the car stays ahead of it (a contact is not ended by letting the
+    recording drive through); without it the car never speeds up harder than comfortable."""
+    cfg = SpeedConfig()
+    w = dataclasses.replace(W, v_cruise=jnp.float32(10.0))
+    rear_bumper = FRONT - CAR.length  # x of the car's rear bumper now (its reference point at x = 0)
+
+    def plan(obs):
+        return plan_speed(REF, obs, cfg, w, v0=10.0, s0=10.0, vehicle=CAR, road=_road())
+
+    follower_x = rear_bumper - 5.0 - 2.25  # the follower's centre: its front 5 m behind the car
+    chased = plan(_moving([[follower_x, 0.0, 4.5, 1.8, 0.0]], [16.0]))
+    a = np.asarray(chased.a)
+    assert a[0] > float(w.a_comfort) + 0.5, a
+    t = np.asarray(chased.t)
+    car_rear = rear_bumper + np.asarray(chased.s)
+    assert np.all(car_rear > follower_x + 2.25 + 16.0 * t), (car_rear, t)
+    alone = plan(_moving([[250.0, 30.0, 1.0, 1.0, 0.0]], [0.0]))
+    assert np.all(np.asarray(alone.a) <= float(w.a_comfort) + 1e-4)
 
 
 def test_yields_to_and_passes_crossing_obstacles():

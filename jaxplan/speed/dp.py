@@ -32,8 +32,9 @@ rectangle of reachable stations and speeds (``DPCosts.ilo``, ``jlo``).
   ``d_follow = follow_dist + follow_headway * v_obstacle``; ``w_block relu(overtake_dist
   - lead)^2`` ahead of one passed; ``w_rear relu(upper + rear_gap - s)^2`` ahead of the
   nearest one behind (the room left to a vehicle closing in from behind) and ``REAR_CONTACT
-  big`` per second inside its boundary (contact the other's fault: far below one the car's
-  own); non-blocking (times a size factor ``(area / 8 m^2) **
+  big`` per second not ahead of its boundary (contact the other's fault: far below one the
+  car's own; it lasts until the car is ahead again, so letting a recorded vehicle drive
+  through the car does not end it); non-blocking (times a size factor ``(area / 8 m^2) **
   size_exp``): ``w_no_bypass relu(front - rear_of_neighbour)^2``, ``w_blind`` while the
   footprint is alongside the zone ``[rear - blind_back, rear + blind_front]``; keep-clear
   ``w_keep_clear`` while inside a region slower than ``keep_clear_v``; the goal
@@ -46,7 +47,9 @@ rectangle of reachable stations and speeds (``DPCosts.ilo``, ``jlo``).
   no faster before a slow stretch than braking at ``b_comfort`` reaches, nor after it than
   accelerating at ``a_max`` reaches)); ``w_goal_v dist(v, goal speeds)^2`` at knots in that
   part of the window;
-* per segment: ``w_accel a^2``; the first segment also ``w_jerk ((a_1 - a0) / dt)^2``;
+* per segment: ``w_accel a^2`` and ``w_hard_accel relu(a - a_comfort)^2`` (``accel_cost``:
+  harder than comfortable only to get away from a vehicle closing in from behind); the first
+  segment also ``w_jerk ((a_1 - a0) / dt)^2``;
 * end of horizon: stopping at ``b_comfort`` (the obstacle ahead braking the same) must
   keep ``follow_dist``; ``big`` if even ``a_min`` cannot stop in time; keep-clear: do not
   end in a region the car cannot leave.
@@ -102,7 +105,7 @@ class SpeedConfig:
     ds: float = 1.0
     v_max: float = 30.0
     a_min: float = -5.0
-    a_max: float = 2.0
+    a_max: float = 4.0
     n_sub: int = 5
     a_lat_max: float = 3.0
     buffer: float = 0.3
@@ -226,6 +229,8 @@ class CostWeights:
     v_cruise: Any = 12.0
     w_speed: Any = 1.0
     w_accel: Any = 1.0
+    a_comfort: Any = 2.0
+    w_hard_accel: Any = 100.0
     w_jerk: Any = 0.5
     w_block: Any = 20.0
     follow_dist: Any = 4.0
@@ -601,9 +606,9 @@ def _obstacle_tables(xs, x0, ds, scene: SpeedScene, config: SpeedConfig, w: Cost
     # behind: the room left ahead of the nearest one, and a contact (its fault, but a contact)
     rb = cl.rear
     r = jnp.max(jnp.where(rb.hit, rb.upper, -big), axis=0, initial=-big)[:, None]  # (F, 1)
-    struck = jnp.any(
-        rb.hit[..., None] & (xs >= rb.lower[..., None] - 0.5 * ds) & (xs <= rb.upper[..., None] + 0.5 * ds), 0
-    )
+    # a contact lasts while the car is not ahead of it: one that drives through the car (a
+    # recording does not brake) is not left behind by letting it pass
+    struck = jnp.any(rb.hit[..., None] & (xs <= rb.upper[..., None] + 0.5 * ds), 0)
     rate = (
         rate + w.w_rear * jnp.maximum(r + w.rear_gap - xs, 0.0) ** 2 + jnp.where(struck, REAR_CONTACT * config.big, 0.0)
     )
@@ -631,6 +636,14 @@ def goal_times(goal_t, t):
     """``(T,)`` bool: times ``t`` in the last ``GOAL_TAIL`` seconds of the goal's window
     ``goal_t (2,)`` (the car must be in the goal region before the window closes)."""
     return (t >= jnp.maximum(goal_t[0], goal_t[1] - GOAL_TAIL) - 1e-6) & (t <= goal_t[1] + 1e-6)
+
+
+def accel_cost(a, w: CostWeights):
+    """Acceleration cost rate ``(...)`` of accelerations ``a (...)``: ``w_accel a^2`` and, above
+    the comfortable ``a_comfort``, ``w_hard_accel relu(a - a_comfort)^2`` (the DP may speed up
+    harder, up to ``SpeedConfig.a_max``, only for much: to get away from a vehicle closing in
+    from behind)."""
+    return w.w_accel * a**2 + w.w_hard_accel * jnp.maximum(a - w.a_comfort, 0.0) ** 2
 
 
 def stage_costs(scene: SpeedScene, config: SpeedConfig, w: CostWeights, v0, a0) -> DPCosts:
@@ -670,7 +683,7 @@ def stage_costs(scene: SpeedScene, config: SpeedConfig, w: CostWeights, v0, a0) 
     goal_v = c.dt * w.w_goal_v * jnp.where(jnp.isfinite(gdist), gdist, 0.0) ** 2
     goal_k = goal_times(scene.goal_t, jnp.arange(1, c.n_t + 1, dtype=dtype) * c.dt)
     offs = jnp.asarray(c.accel_offsets, dtype)
-    accel = w.w_accel * (offs * c.da) ** 2 * c.dt
+    accel = accel_cost(offs * c.da, w) * c.dt
     # first segment: from (0, v0) to speed j with the exact acceleration (v_j - v0) / dt
     a1 = (vj - v0) / c.dt
     tq = jnp.arange(0, ns + 1, dtype=dtype) * h
@@ -679,7 +692,7 @@ def stage_costs(scene: SpeedScene, config: SpeedConfig, w: CostWeights, v0, a0) 
     vq = v0 + a1[:, None] * tq[None]
     slow = (vq < c.keep_clear_v).astype(jnp.int32)
     obst1 = segment_cost(table[slow, jnp.arange(0, ns + 1)[None], uq], vq, c.big)
-    first = w.w_accel * a1**2 * c.dt + w.w_jerk * ((a1 - a0) / c.dt) ** 2 * c.dt + obst1
+    first = accel_cost(a1, w) * c.dt + w.w_jerk * ((a1 - a0) / c.dt) ** 2 * c.dt + obst1
     ok1 = (a1 >= c.a_min - 1e-4) & (a1 <= c.a_max + 1e-4)
     first = jnp.where(ok1, first, unreach(c))
     terminal = _terminal(xs, x0, vj, lo[:, -1], hit[:, -1], vob[:, -1], kc, scene, c, w)
