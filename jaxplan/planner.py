@@ -29,6 +29,7 @@ use (``make_planner("lattice")``). Nothing in the simulator knows a planner's in
 
 from __future__ import annotations
 
+import dataclasses
 import importlib
 import importlib.util
 from collections.abc import Callable, Mapping
@@ -198,6 +199,45 @@ def get_factory(name: str):
     return PLANNERS[name]
 
 
+def planner_spec(spec: str) -> tuple[str, dict]:
+    """``(name, options)`` of a planner spec ``NAME[:OPTION=VALUE]...`` (e.g.
+    ``"pathspeed:nonblocking=false"``): values ``true`` / ``false``, numbers, else strings.
+
+    Raises:
+        ValueError: naming the part that is not ``OPTION=VALUE``.
+    """
+    name, *parts = spec.strip().split(":")
+    options: dict[str, Any] = {}
+    for part in parts:
+        key, eq, raw = part.partition("=")
+        if not eq or not key.strip() or not raw.strip():
+            raise ValueError(f"planner {spec!r}: {part!r} is not OPTION=VALUE")
+        raw = raw.strip()
+        value: Any = {"true": True, "false": False}.get(raw.lower(), raw)
+        if isinstance(value, str):
+            for kind in (int, float):
+                try:
+                    value = kind(raw)
+                    break
+                except ValueError:
+                    pass
+        options[key.strip()] = value
+    return name.strip(), options
+
+
 def make_planner(name: str, **options) -> Planner:
-    """A planner by name, with keyword options for its config (e.g. ``vehicle=...``)."""
-    return get_factory(name)(**options)
+    """A planner by name or spec (``planner_spec``: ``"pathspeed:nonblocking=false"``), with
+    keyword options for its config (e.g. ``vehicle=...``) over the spec's.
+
+    Raises:
+        ValueError: an unknown planner, or an option its config does not have (named).
+    """
+    base, given = planner_spec(name)
+    factory = get_factory(base)
+    given.update(options)
+    if dataclasses.is_dataclass(factory):
+        fields = sorted(f.name for f in dataclasses.fields(factory))
+        unknown = sorted(set(given) - set(fields))
+        if unknown:
+            raise ValueError(f"planner {name!r}: no option {', '.join(unknown)}; options: {', '.join(fields)}")
+    return factory(**given)

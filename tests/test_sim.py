@@ -164,6 +164,38 @@ def test_overlap_matches_shapely_and_fault_rule(rng):
         assert bool(m["collided"]) and bool(m["at_fault"]) == fault and int(m["obstacle"]) == 0
 
 
+def test_blind_zone_matches_shapely(rng):
+    """The ``blindzone`` metric's kernel against shapely: the zone drawn as a polygon in the
+    obstacle's frame (beside it, ZONE_GAP .. ZONE_GAP + ZONE_WIDTH off its side, BLIND_BACK behind
+    its rear to BLIND_FRONT ahead of it); only moving obstacles count."""
+    from jaxplan.sim.metrics.blindzone import BLIND_BACK, BLIND_FRONT, ZONE_GAP, ZONE_WIDTH, blind_zone_steps
+
+    n, K = 3000, 2
+    obs = np.concatenate([rng.uniform(-5, 5, (n, K, 2)), np.tile([4.5, 1.9], (n, K, 1)),
+                          rng.uniform(-np.pi, np.pi, (n, K, 1))], -1)
+    car = np.concatenate([rng.uniform(-9, 9, (n, 2)), np.tile([CAR.length, CAR.width], (n, 1)),
+                          rng.uniform(-np.pi, np.pi, (n, 1))], -1)
+    moving = rng.random((n, K)) < 0.8
+    ours = np.asarray(jax.jit(blind_zone_steps)(jnp.asarray(car), jnp.asarray(obs.swapaxes(0, 1)), jnp.asarray(moving.T)))
+
+    def zone(b, side):
+        x, y, L, W, h = b
+        c, s = math.cos(h), math.sin(h)
+        lo, hi = -L / 2 - BLIND_BACK, -L / 2 + BLIND_FRONT
+        a, d = side * (W / 2 + ZONE_GAP), side * (W / 2 + ZONE_GAP + ZONE_WIDTH)
+        return Polygon([(x + c * u - s * v, y + s * u + c * v) for u, v in ((lo, a), (hi, a), (hi, d), (lo, d))])
+
+    ref = []
+    for i in range(n):
+        cp = _box_poly(*car[i])
+        ref.append(any(moving[i, k] and any(cp.intersection(zone(obs[i, k], sd)).area > 1e-6 for sd in (1, -1))
+                       for k in range(K)))
+    ref = np.asarray(ref)
+    assert 300 < ref.sum() < n - 300
+    # touching (zero-area contact) may go either way
+    assert np.mean(ours != ref) < 1e-3
+
+
 def _beside(box, along, across, heading_offset=0.0):
     """Car poses ``(n, 2)``, headings ``(n,)`` placed ``along`` / ``across`` (n,) metres from obstacle boxes ``(n, 5)``."""
     h = box[:, 4]
@@ -442,6 +474,34 @@ def test_drive_cli_unknown_planner(tmp_path, capsys):
     rc = main(["drive", "--builtin", "--planner", "nosuch", "--out", str(tmp_path)])
     err = capsys.readouterr().err.strip().splitlines()
     assert rc == 2 and len(err) == 1 and "nosuch" in err[0] and "lattice" in err[0]
+
+
+@pytest.mark.parametrize(
+    "spec, words",
+    [
+        ("pathspeed:nosuch=1", ["no option nosuch", "nonblocking"]),
+        ("pathspeed:nonblocking", ["'nonblocking' is not OPTION=VALUE"]),
+        ("idm,idm", ["named twice"]),
+    ],
+)
+def test_drive_cli_bad_planner_option_one_line(tmp_path, capsys, spec, words):
+    from jaxplan.cli import main
+
+    rc = main(["drive", "--builtin", "--planner", spec, "--out", str(tmp_path)])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2 and len(err) == 1 and all(w in err[0] for w in words), err
+
+
+def test_planner_spec_sets_config_options():
+    """``NAME:OPTION=VALUE`` makes the planner with those config options (booleans, numbers); keyword
+    options given to ``make_planner`` come on top."""
+    from jaxplan.planner import make_planner, planner_spec
+
+    assert planner_spec("pathspeed:nonblocking=false:horizon=6.5") == ("pathspeed", {"nonblocking": False, "horizon": 6.5})
+    p = make_planner("pathspeed:nonblocking=false:lane_change=true")
+    assert p.nonblocking is False and p.lane_change is True
+    assert make_planner("pathspeed:path_points=40", path_points=50).path_points == 50
+    assert make_planner("pathspeed") == make_planner("pathspeed", nonblocking=True)
 
 
 SHARD_SCRIPT = """

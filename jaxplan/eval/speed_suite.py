@@ -9,9 +9,8 @@ non-blocking boundaries (no-bypass, blind zone, keep-clear: zero without). Scene
 is ``../shared/data/commonroad2018a`` and ``commonroad2020a``), else the built-in scenes.
 Figures, measured on the driven states with the geometry core (not the planner's model):
 
-* ``blind_zone_s``: time the car's box overlaps a moving obstacle's blind zone (beside it,
-  from ``blind_back`` behind its rear to ``blind_front`` ahead of it, from 0.5 m off its
-  side, 3 m wide);
+* ``blind_zone_s``: time the car's box overlaps a moving obstacle's blind zone (the drive
+  metric ``blindzone``'s zone, with the planner's ``blind_back`` and ``blind_front``);
 * ``forbidden_overtakes``: obstacles the planner decided not to bypass (at some cycle)
   whose front the car's front then passed (along the obstacle's heading), having been
   behind it at that cycle;
@@ -33,7 +32,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxplan.eval.registry import SuiteArgs, register
-from jaxplan.geometry.boxes import box_has_overlap
+from jaxplan.sim.metrics.blindzone import blind_zone_steps
 
 CLAIM_BLIND_REDUCTION = 0.5
 CLAIM_TIME_RATIO = 1.10
@@ -93,27 +92,11 @@ def _records(args: SuiteArgs) -> tuple[list, str, int | None]:
 
 @jax.jit
 def _blind_zone_steps(x, y, heading, valid, boxes, ok, moving, length, width, back, front):
-    """``(B, N)`` bool: the car's box (centres ``x, y (B, N)``) overlaps the blind zone of a
-    moving obstacle (``boxes (B, K, N, 5)``) at that step."""
-    car = jnp.stack([x, y, jnp.full_like(x, length), jnp.full_like(x, width), heading], -1)[:, None]  # (B, 1, N, 5)
-    L, W, h = boxes[..., 2], boxes[..., 3], boxes[..., 4]
-    c, s = jnp.cos(h), jnp.sin(h)
-    lon = -0.5 * L + 0.5 * (front - back)
-    hit = jnp.zeros(boxes.shape[:-1], bool)
-    for side in (1.0, -1.0):
-        lat = side * (0.5 * W + 0.5 + 1.5)
-        zone = jnp.stack(
-            [
-                boxes[..., 0] + c * lon - s * lat,
-                boxes[..., 1] + s * lon + c * lat,
-                jnp.full_like(L, back + front),
-                jnp.full_like(L, 3.0),
-                h,
-            ],
-            -1,
-        )
-        hit = hit | box_has_overlap(car, zone)
-    return jnp.any(hit & ok & moving[..., None], 1) & valid
+    """``(B, N)`` bool: the car's box (centres ``x, y (B, N)``) in the blind zone of a moving
+    obstacle (``boxes (B, K, N, 5)``; the drive metric's ``blind_zone_steps``)."""
+    car = jnp.stack([x, y, jnp.full_like(x, length), jnp.full_like(x, width), heading], -1)  # (B, N, 5)
+    steps = jax.vmap(blind_zone_steps, in_axes=(0, 0, 0, None, None))(car, boxes, ok & moving[..., None], back, front)
+    return steps & valid
 
 
 def _forbidden_overtakes(log, boxes, ok, no_bypass, vehicle, replan: int) -> np.ndarray:

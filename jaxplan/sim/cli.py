@@ -31,7 +31,8 @@ def add_parser(sub) -> None:
         "--planner",
         default="lattice",
         help="planner name, several separated by commas, or 'all' (every planner that loads, "
-        "the baselines brake and idm included)",
+        "the baselines brake and idm included); NAME:OPTION=VALUE sets an option of its config "
+        "(e.g. pathspeed:nonblocking=false)",
     )
     d.add_argument(
         "--out",
@@ -110,7 +111,7 @@ def _fail(msg: str) -> int:
 
 
 def run(args) -> int:
-    from jaxplan.planner import get_factory, loadable_planners, make_planner
+    from jaxplan.planner import loadable_planners, make_planner, planner_spec
     from jaxplan.scenarios.files import expand_paths, sample_files
     from jaxplan.sim.drive import DEFAULT_BATCH, DEFAULT_MAX_STEPS, drive
 
@@ -119,10 +120,12 @@ def run(args) -> int:
     names = loadable_planners() if args.planner == "all" else [p.strip() for p in args.planner.split(",") if p.strip()]
     if not names:
         return _fail("--planner: no planner named")
+    if len(set(names)) < len(names):
+        return _fail("--planner: a planner named twice")
     for n in names:
         try:
-            get_factory(n)
-        except ValueError as e:
+            make_planner(n)
+        except (ValueError, TypeError) as e:
             return _fail(f"--planner: {e}")
     try:
         files = expand_paths(args.paths)
@@ -139,7 +142,7 @@ def run(args) -> int:
 
         for n in names:  # every planner takes them as its params, or the run is refused
             try:
-                w = load_weights(args.weights, planner=n)
+                w = load_weights(args.weights, planner=planner_spec(n)[0])
                 make_planner(n).init_params(w)
             except (OSError, ValueError, TypeError) as e:
                 return _fail(f"--weights {args.weights}: planner {n}: {e}")

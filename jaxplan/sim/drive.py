@@ -83,6 +83,7 @@ SUMMARY = (  # figure, row key, how it aggregates over drives
     ("max_abs_lat_accel", "comfort.max_abs_lat_accel", "max"),
     ("max_abs_curvature", "comfort.max_abs_curvature", "max"),
     ("min_ttc", "ttc.min_ttc", "min"),
+    ("blind_zone_s", "blindzone.time_s", "sum"),
     ("progress_m_mean", "progress.route_m", "mean"),
 )
 

@@ -17,6 +17,7 @@ HEADLINE = (  # column, figure, format
     ("goal off map", "goal_off_map", "{:.0f}"),
     ("max abs accel (m/s^2)", "max_abs_accel", "{:.1f}"),
     ("max abs lat accel (m/s^2)", "max_abs_lat_accel", "{:.1f}"),
+    ("in blind zones (s)", "blind_zone_s", "{:.1f}"),
     ("plan not ok", "plan_not_ok_share", "{:.1%}"),
 )
 
