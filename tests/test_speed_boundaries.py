@@ -146,6 +146,7 @@ def test_classification_hand_built_scenes():
             [-2 + 9 * t, 3.5, 4.5, 1.8, 0.0],             # 8 neighbour beside-behind on the left: blind zone, no no-bypass
             [-25 + 15 * t, -3.5, 4.5, 1.8, 0.0],          # 9 neighbour far behind on the right: side strip behind the car
             [-12 + 9 * t, -3.5 + 1.0 * t, 4.5, 1.8, 0.1],  # 10 merges in behind the car: behind, ignored
+            [45 - 8 * t, 3.5, 4.5, 1.8, np.pi],           # 11 oncoming on the left: non-blocking, no decision
         ])
 
     obs = _scene(boxes)
@@ -153,12 +154,13 @@ def test_classification_hand_built_scenes():
     osl = jax.tree_util.tree_map(lambda a: a, osl)
     osl = type(osl)(osl.corners.at[..., 0].add(-60.0), osl.centre.at[..., 0].add(-60.0), osl.kappa, osl.valid)
     c = _classify(osl, obs, CAR, obs.t, 10.0, -5.0, buffer=0.3)
-    assert list(np.asarray(c.is_blocking)) == [True, False, False, False, False, True, True, False, False, False, False]
-    assert list(np.asarray(c.behind)) == [False] * 7 + [True, False, False, True]
-    assert list(np.asarray(c.is_nonblocking)) == [False, True, True, True, False, False, False, False, True, True, True]
+    assert list(np.asarray(c.is_blocking)) == [True, False, False, False, False, True, True] + [False] * 5
+    assert list(np.asarray(c.behind)) == [False] * 7 + [True, False, False, True, False]
+    assert list(np.asarray(c.is_nonblocking)) == [False, True, True, True] + [False] * 4 + [True] * 4
     assert list(np.asarray(c.side_of))[:4] == [0, LEFT, RIGHT, RIGHT] and int(c.side_of[8]) == LEFT
-    assert list(np.asarray(c.no_bypass)) == [False, True] + [False] * 9
-    assert list(np.asarray(c.blind_zone)) == [False, True, True, False, False, False, False, False, True, True, True]
+    assert int(c.side_of[11]) == LEFT
+    assert list(np.asarray(c.no_bypass)) == [False, True] + [False] * 10
+    assert list(np.asarray(c.blind_zone)) == [False, True, True] + [False] * 5 + [True, True, True, False]
     assert float(c.size[2]) == pytest.approx(30.0)
     # the side strips reach behind the car: the far neighbour's range at t = 0 is its own extent
     assert float(c.side.lower[9, 0]) == pytest.approx(-25 - 2.25, abs=0.01)

@@ -13,14 +13,16 @@ car's lane, the car is the one moving over: the centre must be behind the car's 
 there, and one that only grazes the band there is blocking (a car beside the path that the
 path moves over to, coming up from behind, is one the car would merge in front of). An
 obstacle that is not blocking (or is behind) and enters a side strip is *non-blocking*, and
-gets decisions:
+gets decisions if it drives the car's way (faster than ``v_moving`` and, over its prediction,
+moving along the path at least ``SAME_WAY_SHARE`` of its speed: an oncoming or crossing
+vehicle has no blind zone beside the car and is not overtaken):
 
-* ``no_bypass``: stay behind it (do not pass it), for moving neighbours on the configured
+* ``no_bypass``: stay behind it (do not pass it), for neighbours on the configured
   no-overtake side (the left, where overtaking on the right is illegal) that are **ahead**
   of the car when they first come beside the path (its rear ahead of the car's front at
   the car's current speed): a neighbour the car is already beside or ahead of is no
   reason to brake;
-* ``blind_zone``: do not stay alongside its blind zone (beside its rear), for every moving
+* ``blind_zone``: do not stay alongside its blind zone (beside its rear), for every such
   neighbour.
 
 An obstacle behind keeps its band boundary as ``rear``: the speed plan leaves it room (a
@@ -45,6 +47,7 @@ from jaxplan.speed.st_boundary import BIG, ObstaclesSL, STBoundary, car_extent, 
 from jaxplan.types import Obstacles, VehicleParams
 
 LEFT, RIGHT, NONE = 1, -1, 0
+SAME_WAY_SHARE = 0.5  # a neighbour drives the car's way when it moves along the path this share of its speed
 
 
 @jax.tree_util.register_dataclass
@@ -160,7 +163,13 @@ def classify(
     lo = jnp.minimum(jnp.where(left.hit, left.lower, big), jnp.where(right.hit, right.lower, big))
     hi = jnp.maximum(jnp.where(left.hit, left.upper, -big), jnp.where(right.hit, right.upper, -big))
     side = STBoundary(lo, hi, hit & is_nb[..., None])
-    moving = obstacle_speed(obstacles) > v_moving
+    # decisions are for neighbours driving the car's way (an oncoming or crossing vehicle has no
+    # blind zone beside the car and is not overtaken): moving, mostly along the path
+    speed = obstacle_speed(obstacles)
+    along = along_speed(osl, t)
+    n_ok = jnp.maximum(jnp.sum(osl.valid, -1), 1)
+    same_way = jnp.sum(jnp.where(osl.valid, along, 0.0), -1) / n_ok > SAME_WAY_SHARE * speed
+    moving = (speed > v_moving) & same_way
     front, _ = car_extent(vehicle, dtype)
     fs = _first(side.hit)
     rear_first = jnp.take_along_axis(side.lower, fs[:, None], -1)[:, 0]
@@ -169,7 +178,7 @@ def classify(
     blind = is_nb & moving
     b0 = jnp.max(jnp.where(obstacles.valid[..., None], obstacles.boxes, 0.0), axis=-2)
     size = b0[..., 2] * b0[..., 3]
-    return Classified(blk, side, is_blk, is_nb, behind, side_of, no_bypass, blind, size, along_speed(osl, t), rear)
+    return Classified(blk, side, is_blk, is_nb, behind, side_of, no_bypass, blind, size, along, rear)
 
 
 def keep_clear_intervals(profile: PathProfile, vehicle: VehicleParams, vertices, valid=None, active=None):
