@@ -5,43 +5,14 @@ from __future__ import annotations
 
 import numpy as np
 
+from jaxplan.scenarios.draw import draw_box, draw_scene
 
-def _axes_box(ax, xy_list, margin=15.0):
+
+def _axesdraw_box(ax, xy_list, margin=15.0):
     pts = np.concatenate([p.reshape(-1, 2) for p in xy_list if p.size])
     lo, hi = pts.min(0) - margin, pts.max(0) + margin
     ax.set_xlim(lo[0], hi[0])
     ax.set_ylim(lo[1], hi[1])
-
-
-def _draw_static(ax, scene, drive_xy):
-    import matplotlib.patches as mpatches
-
-    drv, ok = np.asarray(scene.drivable), np.asarray(scene.drivable_valid)
-    for p, m in zip(drv, ok):
-        if m.any():
-            ax.add_patch(mpatches.Polygon(p[m], closed=True, fc="0.9", ec="0.6", lw=0.5, zorder=0))
-    g = scene.goal
-    for p, m in zip(np.asarray(g.region), np.asarray(g.region_valid)):
-        if m.any():
-            ax.add_patch(
-                mpatches.Polygon(p[m], closed=True, fc=(0.2, 0.7, 0.2, 0.25), ec="g", lw=1, zorder=1, label="goal")
-            )
-    r = np.asarray(scene.route.xy)
-    ax.plot(r[:, 0], r[:, 1], "--", color="0.4", lw=0.8, label="route", zorder=2)
-
-
-def _box(ax, b, **kw):
-    import matplotlib.patches as mpatches
-
-    x, y, L, W, h = b
-    c, s = np.cos(h), np.sin(h)
-    corners = np.array(
-        [
-            [x + c * dx - s * dy, y + s * dx + c * dy]
-            for dx, dy in ((L / 2, W / 2), (-L / 2, W / 2), (-L / 2, -W / 2), (L / 2, -W / 2))
-        ]
-    )
-    ax.add_patch(mpatches.Polygon(corners, closed=True, **kw))
 
 
 def plot_drive(path: str, scene, row: dict, log: dict, vehicle, title: str) -> str:
@@ -57,7 +28,7 @@ def plot_drive(path: str, scene, row: dict, log: dict, vehicle, title: str) -> s
     n = int(np.sum(log["valid"]))
     xy = np.stack([log["x"][:n], log["y"][:n]], -1)
     fig, ax = plt.subplots(figsize=(9, 6))
-    _draw_static(ax, scene, xy)
+    draw_scene(ax, scene)
     obs = scene.obstacles
     K = np.asarray(obs.boxes).shape[0]
     boxes, valid = np.asarray(obs.boxes), np.asarray(obs.valid)
@@ -65,20 +36,22 @@ def plot_drive(path: str, scene, row: dict, log: dict, vehicle, title: str) -> s
     T = boxes.shape[1]
     for k in range(K):
         if static[k] and valid[k].any():
-            _box(ax, boxes[k, np.argmax(valid[k])], fc="0.3", ec="k", zorder=3)
+            draw_box(ax, boxes[k, np.argmax(valid[k])], fc="0.3", ec="k", zorder=3)
             continue
         steps = np.arange(0, min(n, T))
         steps = steps[valid[k, steps]] if len(steps) else steps
         if len(steps):
             ax.plot(boxes[k, steps, 0], boxes[k, steps, 1], "-", color="tab:blue", lw=0.6, alpha=0.6, zorder=3)
-            _box(ax, boxes[k, steps[0]], fc=(0.12, 0.47, 0.71, 0.25), ec="tab:blue", lw=0.6, zorder=3)
+            draw_box(ax, boxes[k, steps[0]], fc=(0.12, 0.47, 0.71, 0.25), ec="tab:blue", lw=0.6, zorder=3)
     sc = ax.scatter(xy[:, 0], xy[:, 1], c=log["v"][:n], cmap="viridis", s=6, zorder=5)
     fig.colorbar(sc, ax=ax, label="speed (m/s)")
-    _box(ax, [xy[0, 0], xy[0, 1], vehicle.length, vehicle.width, log["heading"][0]], fc="none", ec="k", lw=1, zorder=6)
+    draw_box(
+        ax, [xy[0, 0], xy[0, 1], vehicle.length, vehicle.width, log["heading"][0]], fc="none", ec="k", lw=1, zorder=6
+    )
     marks = []
     k = int(row.get("overlap.first_step", -1))
     if k >= 0:
-        _box(
+        draw_box(
             ax,
             [log["x"][k], log["y"][k], vehicle.length, vehicle.width, log["heading"][k]],
             fc="red",
@@ -88,7 +61,7 @@ def plot_drive(path: str, scene, row: dict, log: dict, vehicle, title: str) -> s
         )
         o = int(row.get("overlap.obstacle", -1))
         if o >= 0:
-            _box(
+            draw_box(
                 ax,
                 boxes[o, min(k, T - 1)] if not static[o] else boxes[o, np.argmax(valid[o])],
                 fc="orange",
@@ -105,7 +78,7 @@ def plot_drive(path: str, scene, row: dict, log: dict, vehicle, title: str) -> s
     if k >= 0:
         ax.plot(log["x"][k], log["y"][k], "*", color="g", ms=14, zorder=8)
         marks.append(f"goal at t = {log['t'][k]:.1f} s")
-    _axes_box(ax, [xy, np.asarray(scene.goal.region)[np.asarray(scene.goal.region_valid)]])
+    _axesdraw_box(ax, [xy, np.asarray(scene.goal.region)[np.asarray(scene.goal.region_valid)]])
     ax.set_aspect("equal", adjustable="box")
     ax.set_xlabel("x (m)")
     ax.set_ylabel("y (m)")
@@ -130,13 +103,15 @@ def animate_drive(path: str, scene, log: dict, vehicle, title: str, fps: int = 1
 
     def frame(i):
         ax.clear()
-        _draw_static(ax, scene, xy)
+        draw_scene(ax, scene)
         for k in range(boxes.shape[0]):
             j = np.argmax(valid[k]) if static[k] else min(i, T - 1)
             if (static[k] and valid[k].any()) or (i < T and valid[k, j]):
-                _box(ax, boxes[k, j], fc="0.3" if static[k] else "tab:blue", ec="k", alpha=0.7, zorder=3)
+                draw_box(ax, boxes[k, j], fc="0.3" if static[k] else "tab:blue", ec="k", alpha=0.7, zorder=3)
         ax.plot(xy[: i + 1, 0], xy[: i + 1, 1], "-", color="tab:green", lw=1.5, zorder=4)
-        _box(ax, [xy[i, 0], xy[i, 1], vehicle.length, vehicle.width, log["heading"][i]], fc="tab:red", ec="k", zorder=5)
+        draw_box(
+            ax, [xy[i, 0], xy[i, 1], vehicle.length, vehicle.width, log["heading"][i]], fc="tab:red", ec="k", zorder=5
+        )
         c = xy[i]
         ax.set_xlim(c[0] - 40, c[0] + 40)
         ax.set_ylim(c[1] - 25, c[1] + 25)

@@ -91,7 +91,7 @@ def plot_cycle(out: str, planner, scene, ego, step: int = 0, title: str = "") ->
     import matplotlib.pyplot as plt
 
     from jaxplan.geometry.frenet import to_cartesian
-    from jaxplan.sim.plots import _box, _draw_static
+    from jaxplan.scenarios.draw import draw_box, draw_scene
     from jaxplan.speed.compose import compose_profile
 
     c = _cycle_fn(planner)(scene, ego, step)
@@ -102,13 +102,13 @@ def plot_cycle(out: str, planner, scene, ego, step: int = 0, title: str = "") ->
     use = bool(c["use_bounds"])
     fig, axes = plt.subplots(1, 3, figsize=(18, 5.2), gridspec_kw={"width_ratios": [1.5, 1.2, 1.0]})
     ax = axes[0]
-    _draw_static(ax, scene, None)
+    draw_scene(ax, scene)
     boxes, valid = np.asarray(ctx.obstacles.boxes), np.asarray(ctx.obstacles.valid)
     blk = np.zeros(boxes.shape[0], bool) if pp is None else np.asarray(pp.blocking)
     for k in range(boxes.shape[0]):
         if valid[k, 0]:
             red = bool(blk[k])
-            _box(
+            draw_box(
                 ax,
                 boxes[k, 0],
                 fc=(0.8, 0.1, 0.1, 0.5) if red else (0.12, 0.47, 0.71, 0.3),
@@ -132,7 +132,7 @@ def plot_cycle(out: str, planner, scene, ego, step: int = 0, title: str = "") ->
     )
     sc = ax.scatter(traj.x, traj.y, c=traj.v, cmap="viridis", s=8, zorder=5)
     fig.colorbar(sc, ax=ax, label="planned speed (m/s)")
-    _box(
+    draw_box(
         ax,
         [float(ego.x), float(ego.y), planner.vehicle.length, planner.vehicle.width, float(ego.heading)],
         fc="none",
