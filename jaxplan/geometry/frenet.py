@@ -78,7 +78,7 @@ class ReferenceLine:
             a = a[keep]
         if len(a) < 2:
             raise ValueError("reference line: needs at least two distinct points")
-        _check_turns(a)
+        check_turns(a)
         return reference_line(jnp.asarray(a, dtype=jnp.result_type(float)))
 
     def validate(self) -> ReferenceLine:
@@ -102,11 +102,11 @@ class ReferenceLine:
             a = check_finite(f"reference line {name}", getattr(self, name))
             if a.shape != xy.shape[:-1]:
                 raise ValueError(f"reference line: {name} has shape {a.shape}, xy has {xy.shape}")
-        _check_turns(xy)
+        check_turns(xy)
         return self
 
 
-def _check_turns(a: np.ndarray) -> None:
+def check_turns(a: np.ndarray) -> None:
     """Refuse consecutive segments of ``a (..., N, 2)`` that turn by more than ``MAX_TURN_COS``."""
     d = np.diff(a, axis=-2)
     n = np.linalg.norm(d, axis=-1)

@@ -81,7 +81,7 @@ def speed_data(
     Returns:
         (data, kept) where ``kept`` indexes the demonstrations used.
     """
-    from jaxplan.geometry.frenet import _check_turns
+    from jaxplan.geometry.frenet import check_turns
 
     hxy = np.asarray(demos.human_xy, np.float64)
     hv = np.asarray(demos.human_valid, bool)
@@ -97,7 +97,7 @@ def speed_data(
         sb = s[b][keep]
         path = resample_polyline(hxy[b][keep], sb, np.linspace(0.0, sb[-1] + extend, points))
         try:
-            _check_turns(path)
+            check_turns(path)
         except ValueError:
             continue
         paths.append(path)
