@@ -19,7 +19,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxplan.baselines.brake import SIM_VEHICLE
+from jaxplan.planner import SIM_VEHICLE
 from jaxplan.eval.speed_suite import _blind_zone_steps
 from jaxplan.eval.timing import write_figures
 from jaxplan.scenarios.scene import load_records, stack_scenes

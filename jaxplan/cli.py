@@ -202,7 +202,7 @@ def _tune(args) -> int:
         demonstrations,
         tune_speed,
     )
-    from jaxplan.tuning.train import save_weights
+    from jaxplan.weights import save_weights
 
     folder = None
     if args.scenarios:

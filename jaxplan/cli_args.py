@@ -18,6 +18,8 @@ import argparse
 import os
 import sys
 
+from jaxplan.weights import HANDSET
+
 
 class BadArgument(argparse.ArgumentTypeError, ValueError):
     """A bad argument value; the message names it."""
@@ -179,9 +181,6 @@ def output_file(text) -> str:
     return path
 
 
-HANDSET = "handset"  # the name (not a file) of every planner's built-in, hand-set weights (``--weights``)
-
-
 def weights_file_or_handset(text) -> str:
     """``jaxplan drive --weights``: an existing weights file, or the name ``handset`` (every planner's
     built-in, hand-set weights); the file's content is checked per planner by the command."""
@@ -204,7 +203,7 @@ def weights_file(planner: str):
                 load_cost(path)
             else:
                 from jaxplan.tuning.speed_tuning import default_speed_weights
-                from jaxplan.tuning.train import load_weights
+                from jaxplan.weights import load_weights
 
                 load_weights(path, allowed=tuple(default_speed_weights()), planner=planner)
         except ValueError as e:

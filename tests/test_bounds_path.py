@@ -241,7 +241,7 @@ def _wall_scene():
 
 @functools.lru_cache(maxsize=None)
 def _plan_batch():
-    from jaxplan.baselines.brake import SIM_VEHICLE
+    from jaxplan.planner import SIM_VEHICLE
     from jaxplan.plan_context import road_context
     from jaxplan.planner import EgoState
     from jaxplan.scenarios.scene import stack_scenes

@@ -170,7 +170,7 @@ def test_scenes_with_and_without_lights_stack_padded():
 # ----------------------------------------------------------------------------- the planners' stop target
 
 def test_road_context_makes_stop_targets_of_red_and_stoppable_yellow():
-    from jaxplan.baselines.brake import SIM_VEHICLE
+    from jaxplan.planner import SIM_VEHICLE
     from jaxplan.plan_context import LIGHT_DEPTH, road_context
 
     scene = jax.tree_util.tree_map(jnp.asarray, _scene(RED_20S, 20.0))
@@ -236,7 +236,7 @@ def _straight_log(v, n=80, x0=0.0):
 
 
 def test_redlight_metric_counts_a_red_run_only():
-    from jaxplan.baselines.brake import SIM_VEHICLE
+    from jaxplan.planner import SIM_VEHICLE
     from jaxplan.sim.metrics import METRICS
     from jaxplan.sim.metrics.registry import evaluate
 

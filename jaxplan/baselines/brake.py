@@ -13,10 +13,8 @@ from collections.abc import Mapping
 import jax.numpy as jnp
 
 from jaxplan.baselines.route_follow import braking_profile, follow_route
-from jaxplan.planner import EgoState, PlanOutput
+from jaxplan.planner import SIM_VEHICLE, EgoState, PlanOutput
 from jaxplan.types import VehicleParams
-
-SIM_VEHICLE = VehicleParams(length=4.508, width=1.61, wheelbase=2.578, rear_overhang=0.8313, max_steer=0.55)
 
 
 @dataclasses.dataclass(frozen=True)

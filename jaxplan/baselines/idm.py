@@ -15,12 +15,11 @@ from typing import Any
 import jax.numpy as jnp
 from jax import lax
 
-from jaxplan.baselines.brake import SIM_VEHICLE
 from jaxplan.baselines.route_follow import follow_route
 from jaxplan.geometry.frenet import ref_state
 from jaxplan.models.idm import idm_accel as idm_model
 from jaxplan.plan_context import NO_LEADER, road_context
-from jaxplan.planner import EgoState, PlanOutput
+from jaxplan.planner import SIM_VEHICLE, EgoState, PlanOutput
 from jaxplan.types import VehicleParams, pytree_dataclass, weights_from
 
 

@@ -6,7 +6,7 @@ from __future__ import annotations
 import jax.numpy as jnp
 
 from jaxplan.geometry.frenet import frenet_to_cartesian_state, ref_state
-from jaxplan.lattice.quintic import cartesian_to_frenet_state, quintic_coeffs, quintic_eval
+from jaxplan.geometry.quintic import cartesian_to_frenet_state, quintic_coeffs, quintic_eval
 from jaxplan.types import Trajectory
 
 ALIGN_TIME = 2.0  # s of driving over which the heading is aligned with the lane

@@ -44,6 +44,7 @@ from jaxplan.geometry.polygons import (
     polygon_edges,
     separation,
 )
+from jaxplan.geometry.quintic import cartesian_to_frenet_state, quintic_coeffs, quintic_eval
 
 __all__ = [
     "CORNER_OF_A",
@@ -54,6 +55,7 @@ __all__ = [
     "box_corners",
     "box_has_overlap",
     "box_separation",
+    "cartesian_to_frenet_state",
     "cross2",
     "dot2",
     "frenet_to_cartesian_state",
@@ -72,6 +74,8 @@ __all__ = [
     "polygon_edges",
     "poses_to_boxes",
     "project_point",
+    "quintic_coeffs",
+    "quintic_eval",
     "ref_state",
     "reference_line",
     "safe_norm",

@@ -1,5 +1,6 @@
 """Quintic candidate lattice with velocity profiles, time-aware collision risk and cost selection."""
 
+from jaxplan.geometry.quintic import cartesian_to_frenet_state, quintic_coeffs, quintic_eval
 from jaxplan.lattice.candidates import KMH, Candidates, LatticeConfig, PlanState, generate
 from jaxplan.lattice.cost import (
     CONSTRAINED,
@@ -21,7 +22,6 @@ from jaxplan.lattice.cost import (
 from jaxplan.lattice.crossroad import stop_box, with_stop_target
 from jaxplan.lattice.plan import LatticeResult, plan, plan_batch
 from jaxplan.lattice.profiles import accel_profile, jerk_profile, jerk_profile_params
-from jaxplan.lattice.quintic import cartesian_to_frenet_state, quintic_coeffs, quintic_eval
 from jaxplan.lattice.risk import (
     Risk,
     align_obstacles,

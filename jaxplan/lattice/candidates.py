@@ -28,7 +28,7 @@ from jax import lax
 
 from jaxplan.geometry.frenet import ReferenceLine, ref_state
 from jaxplan.geometry.lines import safe_sqrt
-from jaxplan.lattice.quintic import cartesian_to_frenet_state, quintic_coeffs, quintic_eval
+from jaxplan.geometry.quintic import cartesian_to_frenet_state, quintic_coeffs, quintic_eval
 from jaxplan.types import Trajectory, VehicleParams, check_coordinates, check_finite, pytree_dataclass
 
 KMH = 1.0 / 3.6

@@ -25,14 +25,13 @@ from typing import ClassVar
 
 import jax.numpy as jnp
 
-from jaxplan.baselines.brake import SIM_VEHICLE
 from jaxplan.compile_options import NO_YNN
 from jaxplan.lattice.candidates import LatticeConfig, PlanState
 from jaxplan.lattice.cost import INVALID, MODE_NAMES, RISK, CostWeights
 from jaxplan.lattice.plan import LatticeResult, _plan
 from jaxplan.lattice.targets import RoadTargets
 from jaxplan.plan_context import road_context, route_sample, set_speed
-from jaxplan.planner import EgoState, PlanOutput
+from jaxplan.planner import SIM_VEHICLE, EgoState, PlanOutput
 from jaxplan.types import VehicleParams, weights_from
 
 LANE_LOOKAHEAD = 2.5  # s: the lanes are read this far ahead (15-60 m)

@@ -138,7 +138,7 @@ def run(args) -> int:
     options: dict[str, dict[str, Any]] = {}
     params: dict[str, Any] = {}
     if args.weights:
-        from jaxplan.tuning.train import load_weights
+        from jaxplan.weights import load_weights
 
         for n in names:  # every planner takes them as its params, or the run is refused
             try:

@@ -558,7 +558,7 @@ def judge_drives(
         planner_name: the ``planner`` of the rows.
         max_steps: the drives' step cap (default: the longest drive's).
     """
-    from jaxplan.baselines.brake import SIM_VEHICLE
+    from jaxplan.planner import SIM_VEHICLE
 
     todo = [r for r in records if r.name in driven]
     if not todo:

@@ -42,12 +42,11 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 
-from jaxplan.baselines.brake import SIM_VEHICLE
 from jaxplan.bounds.path_planner import PathConfig, plan_path
 from jaxplan.geometry.frenet import ReferenceLine, frenet_to_cartesian_state, ref_state, wrap_angle
-from jaxplan.lattice.quintic import quintic_coeffs, quintic_eval
+from jaxplan.geometry.quintic import quintic_coeffs, quintic_eval
 from jaxplan.plan_context import RoadContext, road_context, route_sample, set_speed
-from jaxplan.planner import EgoState, PlanOutput
+from jaxplan.planner import SIM_VEHICLE, EgoState, PlanOutput
 from jaxplan.speed.compose import compose_profile
 from jaxplan.speed.dp import CostWeights, SpeedConfig, SpeedRoad, _plan_one
 from jaxplan.speed.smooth import SmoothWeights, smooth_plan
@@ -76,7 +75,7 @@ class RoutePath:
 
 def _quintic(p0, p1, length, u):
     """Quintic ``l(u)`` (and dl/du, d2l/du2) from ``p0 = (l, dl, ddl)`` at 0 to ``p1`` at
-    ``length`` (``jaxplan.lattice.quintic``), held at ``p1``'s ``l`` beyond and continued
+    ``length`` (``jaxplan.geometry.quintic``), held at ``p1``'s ``l`` beyond and continued
     straight behind 0; ``u (N,)``."""
     l0, d0, _ = p0
     l, dl, ddl = quintic_eval(quintic_coeffs(*p0, p1, length), length, u)

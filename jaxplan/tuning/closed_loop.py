@@ -328,7 +328,7 @@ def tune_files(
     from jaxplan.scenarios.scene import stack_scenes
     from jaxplan.sim import sizes
     from jaxplan.sim.rollout import SimConfig
-    from jaxplan.tuning.train import save_weights
+    from jaxplan.weights import save_weights
 
     if planner_name not in CLOSED_LOOP_PLANNERS:
         raise ValueError(

@@ -334,7 +334,7 @@ def load_cost(path: str):
     import json
 
     from jaxplan.tuning.imitation import MODEL_KIND
-    from jaxplan.tuning.train import load_weights
+    from jaxplan.weights import load_weights
 
     try:
         with open(path) as f:
