@@ -155,3 +155,60 @@ def test_builtin_scenes():
     assert not np.array_equal(np.asarray(a[0].start), np.asarray(other[0].start))
     checked = jaxplan.builtin_scenes(n_per_kind=1, kinds=("stopped_car",))  # survivable ones (a brake drive)
     assert len(checked) == 1 and isinstance(checked[0], jaxplan.Scene)
+
+
+# The layers, lowest first: a package imports (at module level or inside a function) only from its
+# own layer or the ones below. ``jaxplan`` itself (the lazy public surface) and ``__main__`` are the top.
+LAYERS = (
+    ("types", "geometry", "models", "compile_options", "weights", "planner"),
+    ("scenarios", "plan_context"),
+    ("lattice", "bounds", "speed", "baselines", "parking", "replan"),
+    ("sim",),
+    ("tuning",),
+    ("eval", "cli", "cli_args", "jaxplan", "__main__"),
+)
+# command-line front-ends (``cli.py`` wherever it sits) are the top layer: they read arguments for
+# every part
+# the one known exception: the built-in scenes keep only those that braking in lane survives, which
+# the simulator decides
+LAYER_EXCEPTIONS = {("jaxplan/scenarios/builtin.py", "baselines"), ("jaxplan/scenarios/builtin.py", "sim")}
+
+
+def _imports_of(path: str) -> set:
+    import ast
+
+    out = set()
+    for node in ast.walk(ast.parse(open(path).read())):
+        names = [node.module] if isinstance(node, ast.ImportFrom) and node.module else []
+        if isinstance(node, ast.ImportFrom) and node.module == "jaxplan":  # from jaxplan import cli_args
+            names = [f"jaxplan.{a.name}" if a.name.islower() and a.name.isidentifier() and not a.name.startswith("_")
+                     else "jaxplan" for a in node.names]
+        names += [a.name for a in node.names] if isinstance(node, ast.Import) else []
+        for n in names:
+            if n.startswith("jaxplan."):
+                out.add(n.split(".")[1])
+            elif n == "jaxplan":
+                out.add("jaxplan")
+    return out
+
+
+def test_packages_import_only_from_their_layer_or_below():
+    """Every import of ``jaxplan/`` (function-local ones included) goes down the layers: core <-
+    scenarios <- planners <- simulator <- tuning <- evaluation and command line (so no import cycle
+    between packages)."""
+    rank = {p: i for i, layer in enumerate(LAYERS) for p in layer}
+    bad = []
+    for dirpath, _, files in os.walk(os.path.join(ROOT, "jaxplan")):
+        for f in files:
+            if not f.endswith(".py"):
+                continue
+            path = os.path.join(dirpath, f)
+            rel = os.path.relpath(path, ROOT)
+            parts = rel[:-3].split(os.sep)
+            own = "jaxplan" if parts[1] == "__init__" else "cli" if parts[-1] == "cli" else parts[1]
+            assert own in rank, f"{rel}: package {own!r} is in no layer"
+            for dep in _imports_of(path):
+                assert dep in rank, f"{rel}: imports jaxplan.{dep}, in no layer"
+                if dep != "jaxplan" and rank[dep] > rank[own] and (rel, dep) not in LAYER_EXCEPTIONS:
+                    bad.append(f"{rel} -> jaxplan.{dep}")
+    assert not bad, bad
