@@ -44,7 +44,7 @@ import jax.numpy as jnp
 
 from jaxplan.bounds.path_planner import PathConfig, plan_path
 from jaxplan.geometry.frenet import ReferenceLine, frenet_to_cartesian_state, ref_state, wrap_angle
-from jaxplan.geometry.quintic import quintic_coeffs, quintic_eval
+from jaxplan.geometry.quintic import cartesian_to_frenet_state, quintic_coeffs, quintic_eval
 from jaxplan.plan_context import RoadContext, road_context, route_sample, set_speed
 from jaxplan.planner import SIM_VEHICLE, EgoState, PlanOutput
 from jaxplan.speed.compose import compose_profile
@@ -93,15 +93,18 @@ def _join_route(ref, sr, start, target_l, length, u):
     return xy, th_r + jnp.arctan2(dl, 1.0 - kr * l), kappa, l
 
 
+MAX_START_ANGLE = 1.2  # rad: the car's heading off the route counts as at most this for its start slope
+MAX_START_DDL = 0.5  # 1/m: and its start d2l/ds2 as at most this
+
+
 def _frenet_start(ref, s, l, heading, kappa):
-    """The car's ``(l, dl/ds, d2l/ds2)`` on the route at ``(s, l)`` with ``heading``, ``kappa``."""
-    _, th0, k0, dk0 = ref_state(ref, s)
-    one = 1.0 - k0 * l
-    dth = wrap_angle(heading - th0)
-    dl0 = one * jnp.tan(jnp.clip(dth, -1.2, 1.2))
-    cos_d = jnp.cos(dth)
-    ddl0 = (kappa * one / cos_d - k0) * one / cos_d**2 - (dk0 * l + k0 * dl0) * jnp.tan(dth)
-    return l, dl0, jnp.clip(ddl0, -0.5, 0.5)
+    """The car's ``(l, dl/ds, d2l/ds2)`` on the route at ``(s, l)`` with ``heading``, ``kappa``
+    (``cartesian_to_frenet_state``; the heading off the route counted as at most
+    ``MAX_START_ANGLE``, the second derivative clipped to ``MAX_START_DDL``)."""
+    _, th0, _, _ = ref_state(ref, s)
+    heading = th0 + jnp.clip(wrap_angle(heading - th0), -MAX_START_ANGLE, MAX_START_ANGLE)
+    _, _, dl0, ddl0 = cartesian_to_frenet_state(ref, None, heading, kappa, sl=(s, l))
+    return l, dl0, jnp.clip(ddl0, -MAX_START_DDL, MAX_START_DDL)
 
 
 def _n_behind(n: int) -> int:
