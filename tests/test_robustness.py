@@ -3,7 +3,7 @@
 import json
 
 import numpy as np
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
 from jaxplan.scenarios.loader import Scenario, ScenarioError, parse_scenario
@@ -81,6 +81,8 @@ def _check(d):
 @settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(edits=st.lists(st.tuples(st.sampled_from(LOCATIONS), st.one_of(st.just("delete"), JUNK)),
                       min_size=1, max_size=3))
+# found by the fuzzer: a list as the obstacle type of an obstacle without a length
+@example(edits=[(("obstacles", 0, "length"), "delete"), (("obstacles", 0, "type"), [])])
 def test_mutated_scenarios_fail_clearly_or_load(edits):
     _check(_edited(_minimal(), edits))
 

@@ -308,7 +308,8 @@ def _adjacent(ln: dict, key: str, where: str, path: str, same: bool = True) -> i
 
 
 def _size(o, where, path) -> tuple[float, float]:
-    if "length" not in o and o.get("type") in DEFAULT_SIZE:
+    kind = o.get("type")
+    if "length" not in o and isinstance(kind, str) and kind in DEFAULT_SIZE:
         return DEFAULT_SIZE[o["type"]]  # the format gives no size for these
     length, width = _number(o, "length", where, path), _number(o, "width", where, path)
     if length <= 0 or width <= 0:
