@@ -8,6 +8,7 @@ comes up in the next one, keeps its lane decision from one cycle to the next, an
 to a car closing in from behind."""
 import dataclasses
 import functools
+import os
 
 import jax
 import jax.numpy as jnp
@@ -169,6 +170,27 @@ def test_plan_starts_at_the_car_and_matches_the_simulator():
     # the batched and the single-scene programs round the smoothing QP differently (float32)
     assert np.allclose(np.asarray(log.v[:, 1:4]), np.asarray(tr.v[:, 1:4]), atol=5e-3)
     assert set(out.info) >= {"dp_feasible", "qp_ok", "no_bypass", "blocking", "behind", "path_bounds"}
+
+
+def test_cycle_picture_names_the_decision_and_the_obstacle_classes(tmp_path):
+    """The picture of a computed cycle: the map, the SL view titled with the lane decision, the ST
+    graph titled with the obstacles' classes, every axis labelled; ``plot_cycle`` writes it."""
+    import matplotlib
+    import matplotlib.pyplot as plt
+
+    from jaxplan.speed.plot import draw_cycle, plot_cycle
+
+    matplotlib.use("Agg")
+    planner, scenes, egos, _, c, _ = _plans()
+    one = lambda tree: jax.tree_util.tree_map(lambda x: np.asarray(x[0]), tree)
+    fig = draw_cycle(planner, one(scenes), one(egos), 0, KINDS[0], planned=one(c))
+    titles = [ax.get_title() for ax in fig.axes]
+    assert any("decision: keep the lane" in t or "decision: change" in t for t in titles), titles
+    assert any(t.startswith("ST graph:") and "blocking" in t and "blind zones" in t for t in titles), titles
+    assert all(ax.get_xlabel() and ax.get_ylabel() for ax in fig.axes[:3])
+    plt.close(fig)
+    out = plot_cycle(str(tmp_path / "cycle.png"), planner, one(scenes), one(egos), 0, KINDS[0], planned=one(c))
+    assert os.path.getsize(out) > 10_000
 
 
 def test_trajectory_runs_along_the_bounds_path():

@@ -79,14 +79,29 @@ def draw_st(ax, planner, plan, prof) -> None:
     ax.legend(fontsize=7, loc="upper left")
 
 
-def plot_cycle(out: str, planner, scene, ego, step: int = 0, title: str = "") -> str:
-    """Write a PNG of one cycle: (1) the map with the obstacles now (blocking for the path:
+def plot_cycle(
+    out: str, planner, scene, ego, step: int = 0, title: str = "", params=None, planned: dict | None = None
+) -> str:
+    """Write ``draw_cycle``'s picture of one cycle to the PNG file ``out``; returns ``out``."""
+    import matplotlib.pyplot as plt
+
+    fig = draw_cycle(planner, scene, ego, step, title, params, planned)
+    fig.savefig(out, dpi=90)
+    plt.close(fig)
+    return out
+
+
+def draw_cycle(planner, scene, ego, step: int = 0, title: str = "", params=None, planned: dict | None = None):
+    """The matplotlib figure of one cycle: (1) the map with the obstacles now (blocking for the path:
     red), the path's bounds, the path and the trajectory's points coloured by speed; (2) the
-    same in the route's SL frame; (3) the ST graph (``draw_st``).
+    same in the route's SL frame, titled with the lane decision and the two costs compared;
+    (3) the ST graph (``draw_st``), titled with the obstacles' classes.
 
     Args:
-        out: PNG file; planner: a ``PathSpeedPlanner``; scene: one (unbatched) ``Scene``;
+        planner: a ``PathSpeedPlanner``; scene: one (unbatched) ``Scene``;
         ego: the car's ``EgoState``; step: the scene step of the cycle.
+        params: the planner's params (default ``planner.init_params()``).
+        planned: the cycle's ``planner.speed_plan`` dict when already computed (else ``cycle``).
     """
     import matplotlib.pyplot as plt
 
@@ -94,12 +109,16 @@ def plot_cycle(out: str, planner, scene, ego, step: int = 0, title: str = "") ->
     from jaxplan.scenarios.draw import draw_box, draw_scene
     from jaxplan.speed.compose import compose_profile
 
-    c = _cycle_fn(planner)(scene, ego, step)
+    c = cycle(planner, scene, ego, step, params) if planned is None else planned
     traj = jax.tree_util.tree_map(np.asarray, compose_profile(c["ref"], c["s0"], c["profile"]))
     path = jax.tree_util.tree_map(np.asarray, c["path"])
     pp = None if c["bounds"] is None else jax.tree_util.tree_map(np.asarray, c["bounds"])
     ctx = jax.tree_util.tree_map(np.asarray, c["ctx"])
     use = bool(c["use_bounds"])
+    if bool(c["lane_change"]):
+        which = "path to the neighbour lane"
+    else:
+        which = "bounds path" if use else "route path (bounds path failed or blocked)"
     fig, axes = plt.subplots(1, 3, figsize=(18, 5.2), gridspec_kw={"width_ratios": [1.5, 1.2, 1.0]})
     ax = axes[0]
     draw_scene(ax, scene)
@@ -127,7 +146,7 @@ def plot_cycle(out: str, planner, scene, ego, step: int = 0, title: str = "") ->
         "-",
         color="k",
         lw=1.0,
-        label="bounds path" if use else "route path (fallback)",
+        label=which,
         zorder=4,
     )
     sc = ax.scatter(traj.x, traj.y, c=traj.v, cmap="viridis", s=8, zorder=5)
@@ -151,8 +170,7 @@ def plot_cycle(out: str, planner, scene, ego, step: int = 0, title: str = "") ->
     ax.set_ylabel("y (m)")
     ax.legend(fontsize=7, loc="upper left")
     ax.set_title(
-        f"{title} t = {step * float(scene.dt):.1f} s: "
-        + ("bounds path" if use else "route path (bounds path failed or blocked)"),
+        f"{title} t = {step * float(scene.dt):.1f} s: " + which,
         fontsize=9,
     )
     ax = axes[1]
@@ -182,11 +200,17 @@ def plot_cycle(out: str, planner, scene, ego, step: int = 0, title: str = "") ->
     ax.set_xlabel("s along the route from the car (m)")
     ax.set_ylabel("l, offset left of the route (m)")
     ax.legend(fontsize=7)
-    ax.set_title("SL: bounds and path", fontsize=9)
+    keep, change = (float(x) for x in np.asarray(c["lane_costs"]))
+    decision = "change to the neighbour lane" if bool(c["lane_change"]) else "keep the lane"
+    costs = f" (cost keep {keep:.0f}, change {change:.0f})" if np.isfinite(change) else ""
+    ax.set_title(f"SL: bounds and path; decision: {decision}{costs}", fontsize=9)
     ax = axes[2]
     draw_st(ax, planner, c["plan"], c["profile"])
-    ax.set_title("ST graph", fontsize=9)
+    cl = jax.tree_util.tree_map(np.asarray, c["plan"].scene.classified)
+    ax.set_title(
+        f"ST graph: {int(cl.is_blocking.sum())} blocking, {int(cl.no_bypass.sum())} not to pass,\n"
+        f"{int(cl.blind_zone.sum())} blind zones, {int(cl.rear.hit.any(-1).sum())} closing in from behind",
+        fontsize=9,
+    )
     fig.tight_layout()
-    fig.savefig(out, dpi=90)
-    plt.close(fig)
-    return out
+    return fig
