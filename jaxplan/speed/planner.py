@@ -21,7 +21,8 @@ Each cycle (one scene, jittable; the simulator batches it with ``jax.vmap``):
    and stays in it while that holds (``info["lane_change"]``);
 3. the **speed**: the ST boundaries of the predictions on that path (blocking,
    non-blocking with decisions, a wall before the path's blockage and the end of the
-   map), the DP over the reachable band (``dp.py``) with the lane speed limit, the
+   map), the DP over the reachable band (``dp.py``) towards the set speed
+   (``jaxplan.plan_context.set_speed``, the lattice's) with the lane speed limit, the
    curvature limit, the time-headway follow distance and the goal's window, then the
    smoothing QP (``smooth.py``) for the executed profile;
 4. the **composed trajectory**: the profile along the path, ``horizon_steps`` points every
