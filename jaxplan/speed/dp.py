@@ -606,9 +606,9 @@ def _obstacle_tables(xs, x0, ds, scene: SpeedScene, config: SpeedConfig, w: Cost
     # behind: the room left ahead of the nearest one, and a contact (its fault, but a contact)
     rb = cl.rear
     r = jnp.max(jnp.where(rb.hit, rb.upper, -big), axis=0, initial=-big)[:, None]  # (F, 1)
-    # a contact lasts while the car is not ahead of it: one that drives through the car (a
-    # recording does not brake) is not left behind by letting it pass
-    struck = jnp.any(rb.hit[..., None] & (xs <= rb.upper[..., None] + 0.5 * ds), 0)
+    # a contact lasts while the car is not ahead of the nearest one: one that drives through the
+    # car (a recording does not brake) is not left behind by letting it pass
+    struck = xs <= r + 0.5 * ds  # (F, X); r = -big where none is behind
     rate = (
         rate + w.w_rear * jnp.maximum(r + w.rear_gap - xs, 0.0) ** 2 + jnp.where(struck, REAR_CONTACT * config.big, 0.0)
     )
