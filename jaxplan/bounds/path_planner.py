@@ -75,7 +75,7 @@ class PathConfig:
         edge_buffer: margin to the road's edges (m).
         static_speed: dynamic obstacles slower than this (m/s) over the horizon are blocking.
         opposite_lanes: the corridor may use opposite-direction lanes (to pass a blockage).
-        max_rounds: bounds-at-heading / QP rounds (4: on one seed-000 frame, R 8 m, the third
+        max_rounds: bounds-at-heading / QP rounds (4: on one frame of the bounds suite, R 8 m, the third
             round's QP is solved but its path turns past that round's heading range; the fourth
             clears it; the loop stops at the first clear path, so easy frames run one or two).
         heading_max: |heading - route heading| bound (rad).

@@ -8,7 +8,7 @@ import numpy as np
 from jaxplan.scenarios.draw import draw_box, draw_scene
 
 
-def _axesdraw_box(ax, xy_list, margin=15.0):
+def _axes_box(ax, xy_list, margin=15.0):
     pts = np.concatenate([p.reshape(-1, 2) for p in xy_list if p.size])
     lo, hi = pts.min(0) - margin, pts.max(0) + margin
     ax.set_xlim(lo[0], hi[0])
@@ -78,7 +78,7 @@ def plot_drive(path: str, scene, row: dict, log: dict, vehicle, title: str) -> s
     if k >= 0:
         ax.plot(log["x"][k], log["y"][k], "*", color="g", ms=14, zorder=8)
         marks.append(f"goal at t = {log['t'][k]:.1f} s")
-    _axesdraw_box(ax, [xy, np.asarray(scene.goal.region)[np.asarray(scene.goal.region_valid)]])
+    _axes_box(ax, [xy, np.asarray(scene.goal.region)[np.asarray(scene.goal.region_valid)]])
     ax.set_aspect("equal", adjustable="box")
     ax.set_xlabel("x (m)")
     ax.set_ylabel("y (m)")

@@ -31,7 +31,7 @@ Each cycle (one scene, jittable; the simulator batches it with ``jax.vmap``):
 ``ok`` is False when the DP found no collision-free profile, the QP needed slack (it could
 not keep the DP's corridor within the acceleration limits) or did not converge, or the
 plan is not finite. ``nonblocking=False`` drops the non-blocking boundaries' costs (the
-seed-001 comparison).
+``speed`` suite's and ``jaxplan drive --planner pathspeed:nonblocking=false``'s comparison).
 """
 
 from __future__ import annotations
