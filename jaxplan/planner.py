@@ -229,19 +229,33 @@ def planner_spec(spec: str) -> tuple[str, dict]:
     return name.strip(), options
 
 
+def _kind_of(value):
+    """``"true or false"``, ``"a number"`` or None (any other value) for a config option's value."""
+    if isinstance(value, bool):
+        return "true or false"
+    return "a number" if isinstance(value, (int, float)) else None
+
+
 def make_planner(name: str, **options) -> Planner:
     """A planner by name or spec (``planner_spec``: ``"pathspeed:nonblocking=false"``), with
     keyword options for its config (e.g. ``vehicle=...``) over the spec's.
 
     Raises:
-        ValueError: an unknown planner, or an option its config does not have (named).
+        ValueError: an unknown planner, an option its config does not have, or a spec value of
+            another kind than the option's default (a word for a switch or a number; named).
     """
-    base, given = planner_spec(name)
+    base, spec_options = planner_spec(name)
     factory = get_factory(base)
-    given.update(options)
+    given = {**spec_options, **options}
     if dataclasses.is_dataclass(factory):
-        fields = sorted(f.name for f in dataclasses.fields(factory))
-        unknown = sorted(set(given) - set(fields))
+        defaults = {f.name: f.default for f in dataclasses.fields(factory)}
+        unknown = sorted(set(given) - set(defaults))
         if unknown:
-            raise ValueError(f"planner {name!r}: no option {', '.join(unknown)}; options: {', '.join(fields)}")
+            raise ValueError(
+                f"planner {name!r}: no option {', '.join(unknown)}; options: {', '.join(sorted(defaults))}"
+            )
+        for key, value in spec_options.items():
+            want = _kind_of(defaults[key])
+            if want is not None and _kind_of(value) != want:
+                raise ValueError(f"planner {name!r}: option {key} needs {want}, got {value!r}")
     return factory(**given)

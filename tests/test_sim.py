@@ -481,6 +481,7 @@ def test_drive_cli_unknown_planner(tmp_path, capsys):
     [
         ("pathspeed:nosuch=1", ["no option nosuch", "nonblocking"]),
         ("pathspeed:nonblocking", ["'nonblocking' is not OPTION=VALUE"]),
+        ("pathspeed:lane_change=maybe", ["option lane_change needs true or false", "'maybe'"]),
         ("idm,idm", ["named twice"]),
     ],
 )
