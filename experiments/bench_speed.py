@@ -72,14 +72,13 @@ def main(argv=None):
         os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") +
                                    f" --xla_force_host_platform_device_count={args.devices}")
     import jax
-    import jax.numpy as jnp
     import numpy as np
 
     from jaxplan.eval.batch import sharded_map
     from jaxplan.eval.timing import best_time, timed, write_figures
     from jaxplan.speed import CostWeights, SpeedConfig
     from jaxplan.speed.compose import compose_profile
-    from jaxplan.speed.dp import _batched, _plan_one, dp_band
+    from jaxplan.speed.dp import dp_band, map_batched, plan_one
     from jaxplan.speed.smooth import SmoothWeights, smooth_plan
     from jaxplan.types import VehicleParams
 
@@ -90,14 +89,14 @@ def main(argv=None):
         w = CostWeights.default()
 
         def one(ref, obs, v0):
-            plan = _plan_one(ref, obs, v0, 0.0, 20.0, None, None, veh, cfg, w)
+            plan = plan_one(ref, obs, v0, 0.0, 20.0, None, None, veh, cfg, w)
             if not with_qp:
                 return plan.s, plan.v, plan.cost
             prof = smooth_plan(plan, v0, 0.0, cfg, SmoothWeights())
             tr = compose_profile(ref, 20.0, prof)
             return tr.x, tr.y, tr.v, prof.ok
 
-        return jax.jit(lambda *batch: _batched(one, 1, batch))  # plan_speed's batching (chunks of BATCH_CHUNK)
+        return jax.jit(lambda *batch: map_batched(one, 1, batch))  # plan_speed's batching (chunks of BATCH_CHUNK)
 
     def bench(fn, B, reps):
         refs, obs, v0 = scenes(rng, B, 7.0)
@@ -145,8 +144,7 @@ def qp_comparison(n_cases, rng, reps):
     import scipy.sparse as sps
 
     from jaxplan.eval.timing import best_time
-    from jaxplan.speed import CostWeights, SpeedConfig
-    from jaxplan.speed.dp import _plan_one, profile_at
+    from jaxplan.speed import CostWeights, SpeedConfig, plan_one, profile_at
     from jaxplan.speed.smooth import SmoothWeights, SolverConfig, admm, corridor, qp_matrices, qp_problem
     from jaxplan.types import VehicleParams
 
@@ -155,7 +153,7 @@ def qp_comparison(n_cases, rng, reps):
     refs, obs, v0 = scenes(rng, n_cases, 7.0)
 
     def problem(ref, ob, v):
-        plan = _plan_one(ref, ob, v, 0.0, 20.0, None, None, veh, cfg, CostWeights.default())
+        plan = plan_one(ref, ob, v, 0.0, 20.0, None, None, veh, cfg, CostWeights.default())
         t = jnp.arange(1, n + 1, dtype=jnp.float32) * h
         s_ref, v_ref, _ = profile_at(plan, t)
         lo, up = corridor(plan, cfg, t)

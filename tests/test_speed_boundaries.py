@@ -8,10 +8,22 @@ import pytest
 import shapely
 
 from jaxplan.geometry.frenet import ReferenceLine, ref_state
-from jaxplan.speed import (LEFT, RIGHT, blocking_boundaries, classify, compose_plan, first_trajectory,
-                           keep_clear_intervals, path_profile, project_obstacles, resample_obstacles,
-                           side_boundaries, strip_boundaries, strip_extent)
-from jaxplan.speed.dp import SpeedPlan
+from jaxplan.speed import (
+    LEFT,
+    RIGHT,
+    SpeedPlan,
+    blocking_boundaries,
+    classify,
+    compose_plan,
+    first_trajectory,
+    keep_clear_intervals,
+    path_profile,
+    project_obstacles,
+    resample_obstacles,
+    side_boundaries,
+    strip_boundaries,
+    strip_extent,
+)
 from jaxplan.types import Obstacles, VehicleParams
 
 CAR = VehicleParams()

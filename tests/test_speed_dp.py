@@ -9,9 +9,21 @@ import numpy as np
 import pytest
 
 from jaxplan.geometry.frenet import ReferenceLine
-from jaxplan.speed import (CostWeights, DPCosts, SpeedConfig, SpeedRoad, dp_from_costs, expected_speed_profile,
-                           make_scene, plan_speed, profile_cost, soft_value, stage_costs)
-from jaxplan.speed.dp import REAR_CONTACT, _n_table, _u0, band_widths, unreach
+from jaxplan.speed import (
+    CostWeights,
+    DPCosts,
+    SpeedConfig,
+    SpeedRoad,
+    dp_from_costs,
+    expected_speed_profile,
+    make_scene,
+    plan_speed,
+    profile_cost,
+    soft_value,
+    stage_costs,
+)
+from jaxplan.speed.costs import REAR_CONTACT, table_origin, table_size, unreach
+from jaxplan.speed.problem import band_widths
 from jaxplan.types import Obstacles, VehicleParams
 
 SMALL = SpeedConfig(dt=1.0, n_t=4, ds=0.5, v_max=6.0, a_min=-2.0, a_max=1.0, n_sub=2, qp_dt=0.5)
@@ -76,7 +88,7 @@ def test_dp_matches_exhaustive_search_on_scene_costs(rng):
 def test_dp_matches_exhaustive_search_on_random_costs(rng):
     """Random cost tensors (with blocked cells) in the DP's layout."""
     d0, _ = _small_costs(_lead_scene(rng), 3.0, 0.0, W)
-    X, V = _n_table(SMALL), SMALL.n_v
+    X, V = table_size(SMALL), SMALL.n_v
     for _ in range(4):
         table = rng.uniform(0, 5, d0.table.shape).astype(np.float32)
         table[rng.uniform(size=table.shape) < 0.2] = SMALL.big
@@ -97,7 +109,7 @@ def test_dp_matches_exhaustive_search_on_random_costs(rng):
 def test_band_covers_every_reachable_state(rng):
     """Every station / speed reachable from v0 under the acceleration limits lies inside the
     band at every knot (else the DP would miss profiles)."""
-    from jaxplan.speed.dp import band_offsets
+    from jaxplan.speed import band_offsets
 
     bw = band_widths(CFG)
     offs = CFG.accel_offsets
@@ -115,7 +127,7 @@ def test_band_covers_every_reachable_state(rng):
 def _direct_table(scene, cfg, w, v0):
     """The obstacle cost table from its definition (numpy double loop over obstacles and
     stations; independent of the scan)."""
-    X, U0 = _n_table(cfg), _u0(cfg)
+    X, U0 = table_size(cfg), table_origin(cfg)
     c0 = v0 * cfg.dt / 2
     xs = c0 + (np.arange(X) - U0) * cfg.ds
     lo, hi, hit, vob = (np.asarray(a, np.float64) for a in scene.blocking())
@@ -409,7 +421,7 @@ def test_hopeless_scene_still_gives_a_valid_profile():
 
 
 def test_speed_envelope_matches_brute_force(rng):
-    from jaxplan.speed.dp import speed_envelope
+    from jaxplan.speed.st_graph import speed_envelope
 
     env = jax.jit(speed_envelope)  # one compile per length
     for _ in range(300):
@@ -443,8 +455,8 @@ def test_a_corner_shorter_than_a_segment_is_slowed_for():
 
 
 def test_time_margin_matches_brute_force(rng):
-    from jaxplan.speed.dp import time_margin
     from jaxplan.speed.st_boundary import STBoundary
+    from jaxplan.speed.st_graph import time_margin
 
     K, F = 4, 23
     lo = rng.uniform(0, 50, (K, F))
@@ -488,12 +500,13 @@ def test_crossing_is_passed_only_with_the_time_margin():
 def _dense_dp(d, cfg):
     """The DP's optimum over every (station, speed) state (host numpy, float64, no band):
     the reference of the band DP on grids too large for ``_exhaustive``."""
-    from jaxplan.speed.dp import COLLISION_V, _substep_tables
+    from jaxplan.speed.costs import COLLISION_V
+    from jaxplan.speed.dp import substep_tables
 
     table, node, terminal = (np.asarray(a, np.float64) for a in (d.table, d.node, d.terminal))
     first, accel, gv, gk = (np.asarray(a, np.float64) for a in (d.first, d.accel, d.goal_v, d.goal_k))
-    R, SLOW, VQ = _substep_tables(cfg)
-    U0, X, ns, V = _u0(cfg), table.shape[-1], cfg.n_sub, cfg.n_v
+    R, SLOW, VQ = substep_tables(cfg)
+    U0, X, ns, V = table_origin(cfg), table.shape[-1], cfg.n_sub, cfg.n_v
     n_i = cfg.n_s + 2 * V
     i = np.arange(n_i)
     val = np.full((n_i, V), np.inf)
@@ -531,9 +544,9 @@ def test_dp_matches_dense_reference_at_every_start_speed(rng):
     bands), random cost tables (3 % of the cells in collision) tilted towards the least or
     the most distance, so optima lie at the band's edges: the DP's optimum equals a DP over
     every state, and its profile costs that much (``profile_cost``)."""
-    from jaxplan.speed.dp import band_offsets
+    from jaxplan.speed import band_offsets
 
-    X, V, F = _n_table(CFG), CFG.n_v, CFG.n_t * CFG.n_sub + 1
+    X, V, F = table_size(CFG), CFG.n_v, CFG.n_t * CFG.n_sub + 1
     dp = jax.jit(dp_from_costs, static_argnums=1)
     for trial, v0 in enumerate((0.0, 0.7, 10.0, 10.0, 12.0, 12.0, 13.9, 16.0)):
         vj = np.arange(V) * CFG.dv

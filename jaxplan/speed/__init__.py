@@ -2,25 +2,8 @@
 composition, and the ``pathspeed`` road planner (``jaxplan.speed.planner``)."""
 
 from jaxplan.speed.compose import compose, compose_plan, compose_profile
-from jaxplan.speed.dp import (
-    CostWeights,
-    DPCosts,
-    SpeedConfig,
-    SpeedCostWeights,
-    SpeedPlan,
-    SpeedRoad,
-    SpeedScene,
-    band_widths,
-    build_scene,
-    dp_from_costs,
-    expected_speed_profile,
-    make_scene,
-    plan_speed,
-    profile_at,
-    profile_cost,
-    soft_value,
-    stage_costs,
-)
+from jaxplan.speed.costs import DPCosts, accel_cost, goal_times, segment_cost, stage_costs
+from jaxplan.speed.dp import dp_from_costs, expected_speed_profile, plan_one, plan_speed, profile_cost, soft_value
 from jaxplan.speed.nonblocking import (
     LEFT,
     NONE,
@@ -38,6 +21,17 @@ from jaxplan.speed.path_profile import (
     path_profile,
     resample_obstacles,
 )
+from jaxplan.speed.problem import (
+    CostWeights,
+    SpeedConfig,
+    SpeedCostWeights,
+    SpeedPlan,
+    SpeedRoad,
+    SpeedScene,
+    band_offsets,
+    band_widths,
+    profile_at,
+)
 from jaxplan.speed.smooth import SmoothWeights, SpeedProfile, smooth_plan
 from jaxplan.speed.st_boundary import (
     ObstaclesSL,
@@ -50,16 +44,17 @@ from jaxplan.speed.st_boundary import (
     strip_boundaries,
     strip_extent,
 )
+from jaxplan.speed.st_graph import build_scene, make_scene, speed_envelope
 
 __all__ = [
-    "LEFT",
-    "NONE",
-    "RIGHT",
     "Classified",
     "CostWeights",
     "DPCosts",
+    "LEFT",
+    "NONE",
     "ObstaclesSL",
     "PathProfile",
+    "RIGHT",
     "STBoundary",
     "SmoothWeights",
     "SpeedConfig",
@@ -68,6 +63,8 @@ __all__ = [
     "SpeedProfile",
     "SpeedRoad",
     "SpeedScene",
+    "accel_cost",
+    "band_offsets",
     "band_widths",
     "blocking_boundaries",
     "build_scene",
@@ -79,20 +76,24 @@ __all__ = [
     "dp_from_costs",
     "expected_speed_profile",
     "first_trajectory",
+    "goal_times",
     "keep_clear_intervals",
     "make_scene",
     "obstacle_speed",
     "path_from_polyline",
     "path_from_trajectory",
     "path_profile",
+    "plan_one",
     "plan_speed",
     "profile_at",
     "profile_cost",
     "project_obstacles",
     "resample_obstacles",
+    "segment_cost",
     "side_boundaries",
     "smooth_plan",
     "soft_value",
+    "speed_envelope",
     "stage_costs",
     "station_intervals",
     "strip_boundaries",

@@ -5,6 +5,7 @@ from __future__ import annotations
 import jax.numpy as jnp
 
 from jaxplan.geometry.frenet import ReferenceLine, ref_state
+from jaxplan.speed.problem import profile_at
 from jaxplan.types import Trajectory
 
 
@@ -31,8 +32,6 @@ def compose_profile(ref: ReferenceLine, s0, profile) -> Trajectory:
 def compose_plan(ref: ReferenceLine, s0, plan, dt_out: float, n: int) -> Trajectory:
     """Trajectory of ``n`` samples every ``dt_out`` of a DP ``SpeedPlan``'s exact
     piecewise-constant-acceleration profile (no smoothing)."""
-    from jaxplan.speed.dp import profile_at
-
     t = jnp.arange(n, dtype=plan.s.dtype) * dt_out
     s, v, a = profile_at(plan, t)
     return compose(ref, s0, s, v, a, t)

@@ -21,7 +21,7 @@ Each cycle (one scene, jittable; the simulator batches it with ``jax.vmap``):
    and stays in it while that holds (``info["lane_change"]``);
 3. the **speed**: the ST boundaries of the predictions on that path (blocking,
    non-blocking with decisions, a wall before the path's blockage and the end of the
-   map), the DP over the reachable band (``dp.py``) towards the set speed
+   map), the DP over the reachable band (``dp.py``, its costs ``costs.py``) towards the set speed
    (``jaxplan.plan_context.set_speed``, the lattice's) with the lane speed limit, the
    curvature limit, the time-headway follow distance and the goal's window, then the
    smoothing QP (``smooth.py``) for the executed profile;
@@ -49,7 +49,8 @@ from jaxplan.geometry.quintic import cartesian_to_frenet_state, quintic_coeffs, 
 from jaxplan.plan_context import RoadContext, road_context, route_sample, set_speed
 from jaxplan.planner import SIM_VEHICLE, EgoState, PlanOutput
 from jaxplan.speed.compose import compose_profile
-from jaxplan.speed.dp import CostWeights, SpeedConfig, SpeedRoad, _plan_one
+from jaxplan.speed.dp import plan_one
+from jaxplan.speed.problem import CostWeights, SpeedConfig, SpeedRoad
 from jaxplan.speed.smooth import SmoothWeights, smooth_plan
 from jaxplan.speed.st_boundary import car_extent
 from jaxplan.types import Obstacles, VehicleParams, pytree_dataclass, weights_from
@@ -359,7 +360,7 @@ class PathSpeedPlanner:
         def on(path):
             ref, s0 = path_reference(path)
             road = speed_road(scene, ctx, path, self.speed.v_max, self.vehicle)
-            return path, ref, s0, _plan_one(ref, obs, v0, a0, s0, None, road, self.vehicle, self.speed, w)
+            return path, ref, s0, plan_one(ref, obs, v0, a0, s0, None, road, self.vehicle, self.speed, w)
 
         # every path has one shape: one vmapped speed plan (the DP is traced once)
         paths = [rp] if bp is None else [bp, rp]

@@ -40,7 +40,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxplan.speed.dp import SpeedConfig, SpeedPlan, profile_at
+from jaxplan.speed.problem import SpeedConfig, SpeedPlan, profile_at
 
 INF = 1e20
 RHO_LADDER = tuple(float(r) for r in 10.0 ** np.linspace(-3, 3, 13))
