@@ -51,6 +51,7 @@ def curve_speed(scene, s, reach, a_lat, decel, n: int = 32):
 
 
 GOAL_SPEEDUP = 1.2  # the set speed may exceed the limit by this factor to reach a goal before its window closes
+GOAL_INSIDE = 2.0  # m: the timing aims this far inside the goal region's ends (at most a quarter of its length)
 CURVE_LAT_ACC = 0.8  # share of the comfortable lateral acceleration the set speed leaves for curves
 CURVE_DECEL = 2.0  # m/s^2: the set speed slows this gently before a curve or a dead end
 
@@ -62,11 +63,22 @@ def goal_region_ahead(goal_s, s_centre):
     return jnp.all(jnp.isfinite(goal_s)) & (goal_s[1] > s_centre)
 
 
+def goal_inside(goal_s):
+    """``(2,)`` the part of the goal region ``goal_s (2,)`` that planners aim for: its ends moved
+    ``GOAL_INSIDE`` metres in (at most a quarter of its length each), so that arriving on time
+    does not mean arriving on its edge."""
+    goal_s = jnp.asarray(goal_s)
+    m = jnp.minimum(GOAL_INSIDE, 0.25 * jnp.maximum(goal_s[1] - goal_s[0], 0.0))
+    m = jnp.where(jnp.isfinite(m), m, 0.0)
+    return jnp.stack([goal_s[0] + m, goal_s[1] - m])
+
+
 def goal_speed(v_set, s_centre, goal_s, goal_t, goal_v=None, reach=None):
     """The set speed ``()`` bent towards the goal's timing and speed: no faster than reaching
     the far end of the goal region when its time window opens, no slower than reaching its near
-    end when the window closes (at most ``GOAL_SPEEDUP`` times the limit); once the region is
-    within ``reach``, inside the goal's speed range (a tenth of the range in from either end).
+    end when the window closes (both ends moved in, ``goal_inside``; at most ``GOAL_SPEEDUP``
+    times the limit); once the region is within ``reach``, inside the goal's speed range (a
+    tenth of the range in from either end).
 
     Args:
         v_set: ``()`` the speed limit ahead; s_centre: ``()`` the car's box centre on the route.
@@ -75,8 +87,9 @@ def goal_speed(v_set, s_centre, goal_s, goal_t, goal_v=None, reach=None):
             ahead within which the goal's speed range holds (the plan's reach).
     """
     has = jnp.all(jnp.isfinite(goal_s))
-    d_far = jnp.where(has, goal_s[1] - s_centre, jnp.inf)
-    d_near = jnp.where(has, goal_s[0] - s_centre, 0.0)
+    aim = goal_inside(goal_s)
+    d_far = jnp.where(has, aim[1] - s_centre, jnp.inf)
+    d_near = jnp.where(has, aim[0] - s_centre, 0.0)
     v_hi = jnp.where(goal_t[0] > 0.1, jnp.maximum(d_far, 0.0) / jnp.maximum(goal_t[0], 0.1), jnp.inf)
     v_lo = jnp.where(
         jnp.isfinite(goal_t[1]) & (goal_t[1] > 0.1), jnp.maximum(d_near, 0.0) / jnp.maximum(goal_t[1], 0.1), 0.0
@@ -85,7 +98,7 @@ def goal_speed(v_set, s_centre, goal_s, goal_t, goal_v=None, reach=None):
     if goal_v is not None:
         lo, hi = goal_v[0], goal_v[1]
         span = jnp.where(jnp.isfinite(hi - lo), hi - lo, 0.0)
-        near = has & (d_near < reach) & (d_far > 0.0)
+        near = has & (goal_s[0] - s_centre < reach) & (goal_s[1] > s_centre)
         v_in = jnp.clip(
             v,
             jnp.where(jnp.isfinite(lo), lo + 0.1 * span, -jnp.inf),

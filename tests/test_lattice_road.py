@@ -405,6 +405,22 @@ def test_borrow_gain_is_validated():
     assert LatticeConfig.road(borrow_gain=float("inf")).validate().borrow_gain == float("inf")
 
 
+def test_goal_timing_aims_inside_the_region():
+    """Arriving when the window opens means arriving ``GOAL_INSIDE`` (2 m; a quarter of a short
+    region) before its far end, and by its close that far past its near end: the set speed is
+    (aim - s) / t, worked by hand here."""
+    from jaxplan.plan_context import goal_speed
+
+    inf = jnp.inf
+    early = goal_speed(25.0, 100.0, jnp.asarray([150.0, 160.0]), jnp.asarray([10.0, 10.1]))
+    short = goal_speed(25.0, 100.0, jnp.asarray([150.0, 154.0]), jnp.asarray([10.0, 10.1]))
+    late = goal_speed(5.0, 100.0, jnp.asarray([150.0, 160.0]), jnp.asarray([0.0, 8.0]))
+    assert float(early) == pytest.approx((158.0 - 100.0) / 10.0)
+    assert float(short) == pytest.approx((153.0 - 100.0) / 10.0)
+    assert float(late) == pytest.approx(min((152.0 - 100.0) / 8.0, 1.2 * 5.0))
+    assert float(goal_speed(25.0, 100.0, jnp.asarray([inf, inf]), jnp.asarray([10.0, 10.1]))) == 25.0
+
+
 def test_set_speed_follows_the_goal_range_and_the_curves():
     """``goal_speed`` aims inside the goal's speed range only once the goal is within reach;
     ``curve_speed`` is ``min sqrt(a_lat / kappa + 2 b d)`` (a straight, then an arc of radius 50 m)."""

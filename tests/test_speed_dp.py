@@ -348,6 +348,18 @@ def test_lane_and_curvature_speed_limits():
     assert np.any(s > 45.0)
 
 
+@pytest.mark.parametrize("v, t0", [(14.0, 3.0), (15.0, 4.0)])
+def test_short_goal_window_is_met_inside_the_region(v, t0):
+    """A window of 0.1 s asks as much as a long one: cruising at ``v`` would put the box centre
+    past the region's far end (40 m) when the window opens; the plan is inside it then."""
+    free = _moving([[250.0, 30.0, 1.0, 1.0, 0.0]], [0.0])
+    w = dataclasses.replace(W, v_cruise=jnp.float32(v))
+    p = _plan(free, v, w=w, road=_road(goal_s=(30.0, 40.0), goal_t=(t0, t0 + 0.1)))
+    s, _, _ = p.at(jnp.float32(t0))
+    assert v * t0 + CAR.center_offset > 40.0 + 3.0
+    assert 30.0 <= float(s) + CAR.center_offset <= 40.0
+
+
 def test_goal_window_is_met():
     """A goal region 60-70 m ahead (box centre), to be met by 6 s: the car arrives in time
     although its cruise speed alone would be too slow."""

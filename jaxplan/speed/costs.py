@@ -18,7 +18,8 @@
   footprint is alongside the zone ``[rear - blind_back, rear + blind_front]``; keep-clear
   ``w_keep_clear`` while inside a region slower than ``keep_clear_v``; the goal
   ``w_goal huber(dist(centre, goal stations))`` at check times in the last ``GOAL_TAIL``
-  seconds of the goal's time window;
+  seconds of the goal's time window (per second of that part; the stations moved in from the
+  region's ends, ``goal_inside``);
 * per knot: speed ``w_speed (v - v_target(s))^2`` with ``v_target = min(v_cruise,
   v_limit(s))``, and ``w_limit relu(v - v_limit(s))^2`` above the limit (the lane's speed
   limit and the continuous curvature limit ``sqrt(a_lat_max / |kappa(s)|)``, interpolated
@@ -42,6 +43,7 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 
+from jaxplan.plan_context import goal_inside
 from jaxplan.speed.problem import CostWeights, SpeedConfig, SpeedScene, band_offsets
 from jaxplan.speed.st_boundary import BIG
 
@@ -167,13 +169,18 @@ def _obstacle_tables(xs, x0, ds, scene: SpeedScene, config: SpeedConfig, w: Cost
 
 
 def _goal_table(xs, f_goal, scene: SpeedScene, w: CostWeights):
-    """``(F, X)`` goal cost rate: the box centre's distance to the goal's stations (Huber) at
-    the check times ``f_goal (F,)`` of the window's last part."""
+    """``(F, X)`` goal cost rate: the box centre's distance (Huber) to the part of the goal
+    region planners aim for (``goal_inside``) at the check times ``f_goal (F,)`` of the
+    window's last part, per second of that part (a short window asks as much as a long one)."""
     cx = xs + 0.5 * (scene.front + scene.rear)
-    gd = jnp.maximum(scene.goal_s[0] - cx, 0.0) + jnp.maximum(cx - scene.goal_s[1], 0.0)
+    aim = goal_inside(scene.goal_s)
+    gd = jnp.maximum(aim[0] - cx, 0.0) + jnp.maximum(cx - aim[1], 0.0)
     gd = jnp.where(jnp.isfinite(gd), gd, 0.0)
     hub = jnp.where(gd < GOAL_HUBER, gd * gd, GOAL_HUBER * (2.0 * gd - GOAL_HUBER))
-    return jnp.where(f_goal[:, None], w.w_goal * hub[None, :], 0.0)
+    t0, t1 = scene.goal_t[0], scene.goal_t[1]
+    tail = jnp.clip(t1 - jnp.maximum(t0, t1 - GOAL_TAIL), 0.1, GOAL_TAIL)
+    tail = jnp.where(jnp.isfinite(tail), tail, GOAL_TAIL)
+    return jnp.where(f_goal[:, None], (w.w_goal / tail) * hub[None, :], 0.0)
 
 
 COLLISION_V = 10.0  # m/s: a collision's cost grows by big per this much impact speed
