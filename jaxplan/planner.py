@@ -43,6 +43,9 @@ from jaxplan.types import Trajectory, VehicleParams, pytree_dataclass
 # The car every road planner and the simulator drive by default: CommonRoad's vehicle type 2 (a
 # BMW 320i), the car the CommonRoad benchmarks and the peer planners use.
 SIM_VEHICLE = VehicleParams(length=4.508, width=1.61, wheelbase=2.578, rear_overhang=0.8313, max_steer=0.55)
+# m/s^2: the hardest braking a road planner plans with in an emergency (one figure for every planner:
+# the lattice's emergency candidates, the speed planner's hardest braking)
+EMERGENCY_DECEL = 8.0
 
 
 @pytree_dataclass(data_fields=("x", "y", "heading", "v", "a", "kappa"))

@@ -29,6 +29,7 @@ from jax import lax
 from jaxplan.geometry.frenet import ReferenceLine, ref_state
 from jaxplan.geometry.lines import safe_sqrt
 from jaxplan.geometry.quintic import cartesian_to_frenet_state, quintic_coeffs, quintic_eval
+from jaxplan.planner import EMERGENCY_DECEL
 from jaxplan.types import Trajectory, VehicleParams, check_coordinates, check_finite, pytree_dataclass
 
 KMH = 1.0 / 3.6
@@ -149,7 +150,7 @@ class LatticeConfig:
     follow_time_gap: float = 1.0
     stop_gap: float = 2.0
     emergency: bool = False
-    emergency_a_min: float = -8.0
+    emergency_a_min: float = -EMERGENCY_DECEL
     emergency_a_max: float = 4.0
     emergency_jerk: float = 20.0
     fallback: bool = False

@@ -16,6 +16,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxplan.planner import EMERGENCY_DECEL
 from jaxplan.types import check_weights, pytree_dataclass
 
 
@@ -65,7 +66,7 @@ class SpeedConfig:
     pass_margin: float = 0.6
     big: float = 1e6
     qp_dt: float = 0.1
-    a_brake: float = -7.0
+    a_brake: float = -EMERGENCY_DECEL
     jerk_max: float = 20.0
 
     @property
