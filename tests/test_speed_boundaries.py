@@ -121,6 +121,48 @@ def test_curved_path_boundaries_are_conservative(rng):
     assert checked > 5
 
 
+@pytest.mark.parametrize("radius", [12.0, 20.0, 30.0])
+def test_tight_curve_band_widens_only_on_the_outside(rng, radius):
+    """On an arc of ``radius`` (left or right turn) with obstacles beside the path on both sides:
+    every obstacle some footprint on the path overlaps (shapely) is hit, its exact range inside
+    the boundary; and none is hit that every footprint clears by more than 0.1 m (the band is
+    widened for the body's swing on the outside of the curve only, where the body goes)."""
+    checked = {"hit": 0, "clear": 0}
+    for turn in (1.0, -1.0):
+        k = turn / radius
+        ang = np.linspace(-0.6, 2.4, 400) * 20.0 / radius
+        ref = ReferenceLine.from_polyline(np.stack([np.sin(ang) / abs(k), turn * (1 - np.cos(ang)) / abs(k)], -1))
+        prof = _profile(ref, 0.0, 300, 0.1)
+        xy, th, st = (np.asarray(a, float) for a in (prof.xy, prof.theta, prof.s))
+        cars = [_car_poly(xy[i], th[i]) for i in range(len(st))]
+        swept = shapely.union_all(cars)
+        K = 40
+        u = rng.uniform(8.0, 22.0, K)  # station of the obstacle's centre
+        side = rng.choice([-1.0, 1.0], K)
+        off = side * rng.uniform(1.0, 2.4, K)
+        L, W = rng.uniform(1.0, 4.5, K), rng.uniform(0.8, 2.0, K)
+        p_xy, p_th, _, _ = (np.asarray(a, float) for a in ref_state(ref, jnp.asarray(u, jnp.float32)))
+        nrm = np.stack([-np.sin(p_th), np.cos(p_th)], -1)
+        c = p_xy + off[:, None] * nrm
+        boxes = np.column_stack([c, L, W, p_th + rng.uniform(-0.2, 0.2, K)])[:, None].astype(np.float32)
+        obs = Obstacles(jnp.asarray(boxes), jnp.ones((K, 1), bool), jnp.zeros((1,), jnp.float32))
+        b = _blocking(_project(ref, obs), CAR, 0.0)
+        for kk in range(K):
+            poly = _np_box(boxes[kk, 0])
+            r = _shapely_range(cars, st, poly)
+            if r is not None:
+                checked["hit"] += 1
+                assert bool(b.hit[kk, 0])
+                # the ends of the range are approximate on a tight curve (the body's swing is taken
+                # at its front for the whole band): short by at most a few centimetres per 1/R
+                tol = 0.05 + 2.0 / radius
+                assert float(b.lower[kk, 0]) <= r[0] + tol and float(b.upper[kk, 0]) >= r[1] - tol
+            elif swept.distance(poly) > 0.1:
+                checked["clear"] += 1
+                assert not bool(b.hit[kk, 0]), (radius, turn, off[kk], swept.distance(poly))
+    assert checked["hit"] >= 10 and checked["clear"] >= 10
+
+
 def test_strip_extent_matches_shapely(rng):
     for _ in range(200):
         b = [rng.uniform(-5, 5), rng.uniform(-4, 4), rng.uniform(0.5, 6), rng.uniform(0.5, 3), rng.uniform(-4, 4)]

@@ -1,15 +1,15 @@
 """ST boundaries: where (in station s) an obstacle occupies a band along the path, per time.
 
 Every obstacle is projected to the path's Frenet frame **once per time** (its centre with
-the geometry core's ``frenet_points``, its corners rigidly about the centre at its heading
-relative to the path), not once per station. A band is a strip ``l_lo <= l <= l_hi`` of the
+the geometry core's ``frenet_points``, its corners about the centre at its heading relative to
+the path, onto the arc of the path's curvature there: ``arc_frame``), not once per station. A band is a strip ``l_lo <= l <= l_hi`` of the
 path frame; the station range of the obstacle inside the band is the exact extent of the
 convex quadrilateral clipped to the strip (its corners inside the strip and its edges'
 crossings of the strip's sides), so on a straight path it equals the range of car positions
 whose footprint overlaps the obstacle (the brute-force ``station_intervals`` with one car box
 per station, kept here as the reference). On a curved path the corners' offset from the
 tangent (``kappa u^2 / 2`` at ``u`` metres from the reference point) widens the car's band
-(``curvature_margin``).
+on the outside of the curve (``curvature_margin``).
 
 Conventions: a *blocking* boundary ``[lower, upper]`` is in the station of the car's
 reference point (the car at station x overlaps the obstacle iff ``lower <= x <= upper``);
@@ -66,6 +66,23 @@ class ObstaclesSL:
     valid: Any
 
 
+def arc_frame(a, y, kappa):
+    """Frenet coordinates ``(ds, l)`` (each ``(...)``) of points at ``(a, y)`` in the tangent frame
+    of a path point (``a`` along the tangent from that point, ``y`` to its left) when the path is
+    the arc of curvature ``kappa`` through it: ``ds = atan2(|k| a, 1 - k y) / |k|`` along the arc,
+    ``l = (2 y - k (y^2 + a^2)) / (1 + |k| rho)`` (``rho`` the distance to the arc's centre), the
+    point's exact offset from the arc in a cancellation-free form; ``(a, y)`` on a straight path."""
+    k = jnp.asarray(kappa, a.dtype)
+    ak = jnp.abs(k)
+    one = 1.0 - k * y
+    rho_k = jnp.sqrt((ak * a) ** 2 + one**2)
+    l = (2.0 * y - k * (y * y + a * a)) / (1.0 + rho_k)
+    x = ak * a
+    small = jnp.abs(x) < 1e-4
+    ds = jnp.where(small, a / one, jnp.arctan2(jnp.where(small, 1.0, x), one) / jnp.where(small, 1.0, ak))
+    return ds, l
+
+
 def project_obstacles(ref: ReferenceLine, obstacles: Obstacles, s_offset=None) -> ObstaclesSL:
     """Project obstacle boxes ``(K, T, 5)`` to the path frame (one projection per box,
     ``frenet_points``).
@@ -81,8 +98,13 @@ def project_obstacles(ref: ReferenceLine, obstacles: Obstacles, s_offset=None) -
     signs = jnp.asarray(((1.0, 1.0), (-1.0, 1.0), (-1.0, -1.0), (1.0, -1.0)), b.dtype)
     du = 0.5 * b[..., 2:3] * signs[:, 0]  # (K, T, 4) along the obstacle
     dw = 0.5 * b[..., 3:4] * signs[:, 1]
-    cs = s[..., None] + c[..., None] * du - sn[..., None] * dw
-    cl = l[..., None] + sn[..., None] * du + c[..., None] * dw
+    # the corners in the tangent frame at the centre's foot point, then onto the arc of the path's
+    # curvature there (``arc_frame``): a long box beside a curve bends towards the path on its inside
+    ca, cy = arc_frame(
+        c[..., None] * du - sn[..., None] * dw, l[..., None] + sn[..., None] * du + c[..., None] * dw, kap[..., None]
+    )
+    cs = s[..., None] + ca
+    cl = cy
     if s_offset is not None:  # before stacking: no elementwise pass over the stacked corners
         cs, s = cs - s_offset, s - s_offset
     return ObstaclesSL(jnp.stack([cs, cl], -1), jnp.stack([s, l], -1), kap, obstacles.valid)
@@ -132,29 +154,43 @@ def car_extent(vehicle: VehicleParams, dtype=jnp.float32):
 
 def curvature_margin(kappa, vehicle: VehicleParams):
     """Lateral widening ``(...)`` of the car's band on a path of curvature ``kappa``: the
-    farthest body point from the reference point leaves the tangent by ``|kappa| u^2 / 2``."""
+    farthest body point from the reference point leaves the tangent by ``|kappa| u^2 / 2``,
+    on the outside of the curve (the tangent lies outside the arc on both sides of the
+    reference point)."""
     front, rear = car_extent(vehicle, kappa.dtype)
     u = jnp.maximum(front, -rear)
     return 0.5 * jnp.abs(kappa) * u * u
 
 
-def _band_half(osl: ObstaclesSL, vehicle: VehicleParams, buffer):
-    """Half width ``(T,)`` of the car's band along the path: ``width / 2 + buffer`` plus
-    ``curvature_margin``."""
-    return 0.5 * jnp.asarray(vehicle.width, osl.corners.dtype) + buffer + curvature_margin(osl.kappa, vehicle)
+def _band(osl: ObstaclesSL, vehicle: VehicleParams, buffer) -> tuple:
+    """Offsets ``(l_lo, l_hi)`` ``(K, T)`` of the car's band along the path: ``width / 2 +
+    buffer`` on either side, and on the outside of the curve (the right side in a left turn,
+    ``kappa > 0``) ``curvature_margin`` and the bow of the obstacle's straight edges towards the
+    path there (``|kappa| (d / 2)^2 / 2`` for an edge spanning ``d`` stations; its corners are on
+    the arc's frame, ``arc_frame``, its edges are straight)."""
+    half = 0.5 * jnp.asarray(vehicle.width, osl.corners.dtype) + buffer
+    span = jnp.max(osl.corners[..., 0], -1) - jnp.min(osl.corners[..., 0], -1)
+    m = curvature_margin(osl.kappa, vehicle) + 0.125 * jnp.abs(osl.kappa) * span * span
+    return -half - jnp.where(osl.kappa > 0, m, 0.0), half + jnp.where(osl.kappa < 0, m, 0.0)
 
 
-def _side_strip(half, width, side: int) -> tuple:
-    """Offsets ``(l_lo, l_hi)`` ``(T,)`` of the strip of ``width`` beside the band of half width
-    ``half`` (``side`` +1 left, -1 right), from the band's edge outwards."""
-    return (half, half + width) if side > 0 else (-half - width, -half)
+def _side_strip(band: tuple, width, side: int) -> tuple:
+    """Offsets ``(l_lo, l_hi)`` of the strip of ``width`` beside the car's ``band`` (``side`` +1
+    left, -1 right), from the band's edge outwards."""
+    lo, hi = band
+    return (hi, hi + width) if side > 0 else (lo - width, lo)
 
 
 def _blocking(osl: ObstaclesSL, vehicle: VehicleParams, buffer, lo, hi, hit) -> STBoundary:
     """The obstacles' range ``(K, T)`` in the car's band as a blocking boundary: extended by the
-    car's front / rear and ``buffer`` (reference stations), valid steps only."""
-    front, rear = car_extent(vehicle, osl.corners.dtype)
-    return STBoundary(lo - front - buffer, hi - rear + buffer, hit & osl.valid)
+    car's front / rear (on a curve as far as its corners on the inside reach along the path,
+    ``1 / (1 - |kappa| half_width)`` times further) and ``buffer`` (reference stations), valid
+    steps only."""
+    f = osl.corners.dtype
+    front, rear = car_extent(vehicle, f)
+    half = 0.5 * jnp.asarray(vehicle.width, f) + buffer
+    stretch = 1.0 / jnp.maximum(1.0 - jnp.abs(osl.kappa) * half, 0.5)
+    return STBoundary(lo - front * stretch - buffer, hi - rear * stretch + buffer, hit & osl.valid)
 
 
 def strip_boundaries(osl: ObstaclesSL, vehicle: VehicleParams, side_width, buffer=0.0) -> tuple:
@@ -166,8 +202,8 @@ def strip_boundaries(osl: ObstaclesSL, vehicle: VehicleParams, side_width, buffe
     Returns:
         (blocking, left, right).
     """
-    half = _band_half(osl, vehicle, buffer)
-    bands = ((-half, half), _side_strip(half, side_width, 1), _side_strip(half, side_width, -1))
+    band = _band(osl, vehicle, buffer)
+    bands = (band, _side_strip(band, side_width, 1), _side_strip(band, side_width, -1))
     strips = tuple(jnp.stack(b) for b in zip(*bands))  # (l_lo, l_hi), each (3, T): blocking, left, right
     comps = jnp.stack([osl.corners[..., c, i] for i in range(2) for c in range(4)])  # (8, K, T) contiguous
     _, (lo, hi, hit) = jax.lax.scan(lambda _, b: (None, _strip_extent(comps[:4], comps[4:], b[0], b[1])), None, strips)
@@ -181,17 +217,17 @@ def strip_boundaries(osl: ObstaclesSL, vehicle: VehicleParams, side_width, buffe
 def blocking_boundaries(osl: ObstaclesSL, vehicle: VehicleParams, buffer=0.0) -> STBoundary:
     """ST boundaries ``(K, T)`` of obstacles against the car driving the path (reference stations).
 
-    The car's band is ``|l| <= width / 2 + buffer`` (plus ``curvature_margin``); the
-    obstacle's range in it is extended by the car's front / rear and ``buffer``.
+    The car's band is ``|l| <= width / 2 + buffer`` (plus ``curvature_margin`` on the outside of
+    the curve, ``_band``); the obstacle's range in it is extended by the car's front / rear and
+    ``buffer``.
     """
-    half = _band_half(osl, vehicle, buffer)
-    return _blocking(osl, vehicle, buffer, *strip_extent(osl.corners, -half, half))
+    return _blocking(osl, vehicle, buffer, *strip_extent(osl.corners, *_band(osl, vehicle, buffer)))
 
 
 def side_boundaries(osl: ObstaclesSL, vehicle: VehicleParams, width, side: int, buffer=0.0) -> STBoundary:
     """Road-station range ``(K, T)`` of each obstacle inside the strip of ``width`` beside the
     car's band (``side`` +1 left, -1 right), from the band's edge outwards."""
-    lo, hi, hit = strip_extent(osl.corners, *_side_strip(_band_half(osl, vehicle, buffer), width, side))
+    lo, hi, hit = strip_extent(osl.corners, *_side_strip(_band(osl, vehicle, buffer), width, side))
     return STBoundary(lo, hi, hit & osl.valid)
 
 
