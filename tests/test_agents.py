@@ -254,3 +254,23 @@ def test_one_idm_formula():
     s1, v1 = idm_step(0.0, v, v_des, q, 0.1, gap, v_lead)
     assert v1 == pytest.approx(v + 0.1 * b, rel=1e-6)
     assert float(tuning_accel(q, v, v_des, gap, v_lead, False)) == pytest.approx(q.a_max * (1 - (v / v_des) ** 4))
+
+
+def test_braking_profile_matches_small_step_integration(rng):
+    """``braking_profile`` against Euler integration at 1 ms (speed clipped at rest): distance,
+    speed and acceleration, for random speeds, decelerations and times, before and after the stop."""
+    from jaxplan.models import braking_profile
+
+    for _ in range(20):
+        v0, a = rng.uniform(0.0, 30.0), -rng.uniform(0.5, 9.0)
+        t = np.sort(rng.uniform(0.0, 2.0 * v0 / -a + 1.0, 8))
+        out = braking_profile(jnp.float32(v0), jnp.float32(a), jnp.asarray(t, jnp.float32))
+        s, v, acc = (np.asarray(x, np.float64) for x in out)
+        h = 1e-3
+        n = int(np.ceil(t[-1] / h)) + 1
+        vv = np.maximum(v0 + a * h * np.arange(n + 1), 0.0)
+        ss = np.concatenate([[0.0], np.cumsum(0.5 * (vv[1:] + vv[:-1]) * h)])
+        i = np.round(t / h).astype(int)
+        assert np.allclose(s, ss[i], atol=0.02 + 1e-3 * v0) and np.allclose(v, vv[i], atol=0.01 + 1e-3 * v0)
+        t_stop = v0 / -a
+        assert np.all(acc[t < t_stop - 1e-3] == np.float32(a)) and np.all(acc[t > t_stop + 1e-3] == 0.0)

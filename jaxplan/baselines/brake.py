@@ -12,7 +12,8 @@ from collections.abc import Mapping
 
 import jax.numpy as jnp
 
-from jaxplan.baselines.route_follow import braking_profile, follow_route
+from jaxplan.baselines.route_follow import follow_route
+from jaxplan.models.braking import braking_profile
 from jaxplan.planner import SIM_VEHICLE, EgoState, PlanOutput
 from jaxplan.types import VehicleParams
 

@@ -42,13 +42,3 @@ def follow_route(route, ego, ds, v, a, t) -> Trajectory:
     dist = jnp.concatenate([jnp.zeros((1,), f), jnp.cumsum(seg)])
     z = jnp.zeros_like(ds)
     return Trajectory(xy[:, 0], xy[:, 1], theta, kappa, v, a, t, dist, z + 1.0)
-
-
-def braking_profile(v0, a_brake, t):
-    """Distance, speed and acceleration ``(H,)`` of braking at ``a_brake < 0`` from ``v0`` to a stop."""
-    t_stop = v0 / jnp.maximum(-a_brake, 1e-6)
-    tc = jnp.minimum(t, t_stop)
-    s = v0 * tc + 0.5 * a_brake * tc**2
-    v = jnp.maximum(v0 + a_brake * t, 0.0)
-    a = jnp.where(t < t_stop, a_brake, 0.0)
-    return s, v, a

@@ -115,8 +115,9 @@ def _outcome(res, cfg):
 def braking_survives(state, ref, obs, cfg) -> bool:
     """In-lane braking at ``SURVIVAL_DECEL`` from ``t = 0`` (the ``brake`` planner's path: along the
     line at the car's offset) touches no obstacle over the horizon (geometry core's SAT)."""
-    from jaxplan.baselines.route_follow import braking_profile, follow_route
+    from jaxplan.baselines.route_follow import follow_route
     from jaxplan.lattice.risk import min_separation, trajectory_boxes
+    from jaxplan.models.braking import braking_profile
     from jaxplan.planner import EgoState
 
     t = jnp.arange(cfg.n_steps, dtype=jnp.float32) * cfg.dt

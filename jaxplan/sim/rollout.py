@@ -31,6 +31,7 @@ from jax import lax
 
 from jaxplan.compile_options import jit, options_key
 from jaxplan.geometry.frenet import to_frenet
+from jaxplan.models.braking import braking_profile
 from jaxplan.planner import EgoState, Planner, check_params, planner_compiler_options
 from jaxplan.sim.agents import AgentParams, agent_boxes, agent_paths, agents_step, init_agents
 from jaxplan.sim.metrics.goal import goal_reached
@@ -206,12 +207,10 @@ def driven_scene(log: DriveLog, scene):
 def _brake(ego: EgoState, n: int, dt: float, a: float) -> EgoState:
     """States ``(n,)`` braking at ``a`` along the current heading."""
     k = jnp.arange(1, n + 1, dtype=jnp.result_type(ego.x))
-    tc = jnp.minimum(k * dt, ego.v / -a)
-    d = ego.v * tc + 0.5 * a * tc**2
-    v = jnp.maximum(ego.v + a * k * dt, 0.0)
+    d, v, acc = braking_profile(ego.v, a, k * dt)
     c, s = jnp.cos(ego.heading), jnp.sin(ego.heading)
     z = jnp.zeros_like(k)
-    return EgoState(ego.x + c * d, ego.y + s * d, ego.heading + z, v, jnp.where(v > 0, a, 0.0), z)
+    return EgoState(ego.x + c * d, ego.y + s * d, ego.heading + z, v, acc, z)
 
 
 def _finite(tree) -> Any:

@@ -42,6 +42,7 @@ import jax.numpy as jnp
 
 from jaxplan.geometry.boxes import box_corners
 from jaxplan.geometry.polygons import has_overlap
+from jaxplan.models.braking import braking_profile
 from jaxplan.speed.path_profile import PathProfile
 from jaxplan.speed.st_boundary import BIG, ObstaclesSL, STBoundary, car_extent, car_probes, strip_boundaries
 from jaxplan.types import Obstacles, VehicleParams
@@ -107,12 +108,6 @@ def _first(hit):
     return jnp.argmax(hit, -1)
 
 
-def braking_station(v0, a_min, t):
-    """Stations ``(T,)`` of the car braking at ``a_min < 0`` from speed ``v0`` (then stopped)."""
-    tc = jnp.minimum(t, v0 / jnp.maximum(-a_min, 1e-6))
-    return v0 * tc + 0.5 * a_min * tc * tc
-
-
 def classify(
     osl: ObstaclesSL,
     obstacles: Obstacles,
@@ -150,7 +145,7 @@ def classify(
     # where the path has left the car's lane the car is the one moving over: its rear bumper, not
     # its reference point, must be ahead of the obstacle's centre
     moved = at(blk.upper) >= lane_s
-    limit = braking_station(jnp.asarray(v0, dtype), a_min, t[f]) - jnp.where(moved, 0.5 * vehicle.length, 0.0)
+    limit = braking_profile(jnp.asarray(v0, dtype), a_min, t[f])[0] - jnp.where(moved, 0.5 * vehicle.length, 0.0)
     behind = enters & (centre < limit) & (squarely | ~moved)
     is_blk = enters & ~behind
     rear = STBoundary(blk.lower, blk.upper, blk.hit & behind[:, None])
