@@ -411,3 +411,25 @@ def test_hard_suite_frame_is_solved_like_osqp():
     res = m.solve()
     assert res.info.status == "solved"
     assert np.max(np.abs(res.x[:N] - out["l"][r, f])) <= 1e-5
+
+
+def test_path_starts_at_the_cars_pose_heading_and_curvature():
+    """On a curved road, from cars off the lane's centre, heading away from it and turning: the
+    solved bounds path starts exactly at the car (its Frenet start state is the exact inverse of
+    the path's, ``geometry.quintic.cartesian_to_frenet_state``; a first-order start missed the
+    curvature by 2e-5)."""
+    from jaxplan.plan_context import road_context
+    from jaxplan.planner import SIM_VEHICLE, EgoState
+
+    _, sc = _scene("curve_stop", 3)
+    cfg = PathConfig(vehicle=SIM_VEHICLE)
+    plan = jax.jit(lambda sc, ctx: plan_path(sc, ctx, cfg))
+    e0 = EgoState.from_box_centre(sc.start, SIM_VEHICLE)
+    for l_off, dh, k in [(0.0, 0.0, 0.0), (-0.5, -0.1, 0.04), (0.3, 0.05, -0.02)]:
+        ego = EgoState(e0.x - l_off * jnp.sin(e0.heading), e0.y + l_off * jnp.cos(e0.heading), e0.heading + dh,
+                       e0.v, 0.0, jnp.float32(k))
+        pp = plan(sc, road_context(sc, ego, 0, 60, SIM_VEHICLE))
+        assert bool(pp.ok)
+        assert np.allclose(np.asarray(pp.xy[0]), [float(ego.x), float(ego.y)], atol=1e-5)
+        assert float(pp.theta[0]) == pytest.approx(float(ego.heading), abs=1e-5)
+        assert float(pp.kappa[0]) == pytest.approx(k, abs=1e-6)

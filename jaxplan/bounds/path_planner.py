@@ -54,6 +54,7 @@ from jaxplan.bounds.decision import NONE, car_reach, decide_corridor, obstacle_i
 from jaxplan.bounds.optimize import PathQPConfig, PathWeights, curvature_bounds, optimize_path
 from jaxplan.geometry.boxes import box_has_overlap, poses_to_boxes
 from jaxplan.geometry.frenet import frenet_to_cartesian_state, ref_state
+from jaxplan.geometry.quintic import cartesian_to_frenet_state
 from jaxplan.types import VehicleParams, pytree_dataclass
 
 RANGE_MARGIN = 0.01  # m: the car's reach at headings between the sampled ones of a heading range
@@ -231,15 +232,6 @@ def plan_path(scene, ctx, config: PathConfig = PathConfig()) -> PathPlan:
     return _plan(scene, ctx, config, ctx.ego)
 
 
-def _ego_frenet(ref, s0, l0, heading, kappa):
-    _, th_r, k_r, _ = ref_state(ref, s0)
-    dth = jnp.arctan2(jnp.sin(heading - th_r), jnp.cos(heading - th_r))
-    one = 1.0 - k_r * l0
-    dl0 = one * jnp.tan(dth)
-    ddl0 = kappa * one / jnp.cos(dth) ** 3 - k_r  # first order in k_r' and l
-    return dth, dl0, ddl0
-
-
 def speed_curvature_cap(v0, dist, a_lat_max, decel):
     """``(N,)`` curvature bound at distances ``dist (N,)`` along the path for a car at speed
     ``v0 ()`` that brakes at most at ``decel`` (m/s^2): ``a_lat_max / v(s)^2`` with ``v(s)^2 =
@@ -405,7 +397,9 @@ def _plan(scene, ctx, config, ego):
     ds = jnp.clip(v0 * config.time_horizon / (N - 1), config.ds_min, config.ds_max)
     st = s0 + ds * jnp.arange(N, dtype=f)
     _, th_r, k_r, _ = ref_state(ref, st)
-    _, dl0, ddl0 = _ego_frenet(ref, s0, l0, jnp.asarray(ego.heading, f), jnp.asarray(ego.kappa, f))
+    _, _, dl0, ddl0 = cartesian_to_frenet_state(
+        ref, None, jnp.asarray(ego.heading, f), jnp.asarray(ego.kappa, f), sl=(s0, l0)
+    )
     boxes, blocking = blocking_footprints(ctx.obstacles, config.static_speed, dt)
     left_e, right_e = corridor_edges(scene, config.opposite_lanes)
     front = veh.front_offset
