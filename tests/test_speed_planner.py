@@ -255,6 +255,23 @@ def test_route_path_joins_the_route_from_the_car():
     assert np.all(np.abs(np.asarray(path.l)[far]) < 1e-4)  # on the route's centre line
 
 
+def test_speed_limit_is_raised_only_to_a_higher_set_speed():
+    """``speed_road`` reads the lane's limit along the path; a set speed above it (a goal that the
+    limit cannot meet in time, ``set_speed``) raises it to that speed, one below leaves it."""
+    from jaxplan.speed.planner import speed_road
+
+    planner, batch, _, _ = _drives()
+    sc = jax.tree_util.tree_map(lambda x: x[2], batch)
+    ego = EgoState.from_box_centre(sc.start, planner.vehicle)
+    ctx, path = _path_at(sc, ego, planner)
+    lane = np.asarray(speed_road(sc, ctx, path, 30.0, planner.vehicle).limit_v)
+    assert np.all(lane > 0.0) and np.all(lane < 30.0)
+    hi = float(lane.max()) + 2.0
+    raised = np.asarray(speed_road(sc, ctx, path, 30.0, planner.vehicle, hi).limit_v)
+    low = np.asarray(speed_road(sc, ctx, path, 30.0, planner.vehicle, float(lane.min()) - 1.0).limit_v)
+    assert np.allclose(raised, hi) and np.allclose(low, lane)
+
+
 def test_route_path_join_from_a_turning_car_stays_between_the_car_and_the_route():
     """A car 0.8 m left of the route, heading 0.05 rad away from it and turning further away
     (curvature 0.02): the join starts with the car's offset, heading and curvature and comes back

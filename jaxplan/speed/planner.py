@@ -212,9 +212,10 @@ def path_reference(path) -> tuple[ReferenceLine, Any]:
     return ref, jnp.interp(jnp.zeros((), xy.dtype), path.s, s)
 
 
-def speed_road(scene, ctx: RoadContext, path, v_max: float, vehicle: VehicleParams) -> SpeedRoad:
+def speed_road(scene, ctx: RoadContext, path, v_max: float, vehicle: VehicleParams, v_set=0.0) -> SpeedRoad:
     """What the road asks of the speed on ``path``: the lane speed limit at each path point
-    (read at its route station), a stop before the path's blockage (the car's reference point
+    (read at its route station; raised to the set speed ``v_set`` where that is higher: a goal
+    that cannot be met at the limit, ``set_speed``), a stop before the path's blockage (the car's reference point
     before ``path.blocked_s``) and before the end of the mapped road (the car's front), the
     goal's stations (box centre, along the route), time window and speeds, where the path
     leaves the car's lane (``lane_leave_s``)."""
@@ -226,7 +227,7 @@ def speed_road(scene, ctx: RoadContext, path, v_max: float, vehicle: VehiclePara
     goal_s = ctx.goal_s - ctx.s
     return SpeedRoad(
         path.s,
-        jnp.minimum(lim, v_max),
+        jnp.minimum(jnp.maximum(lim, v_set), v_max),
         stop,
         goal_s.astype(f),
         ctx.goal_t.astype(f),
@@ -351,15 +352,14 @@ class PathSpeedPlanner:
         bp, rp, pp, use = self.plan_path(scene, ctx, ego)
         v0 = jnp.maximum(jnp.asarray(ego.v, f), 0.0)
         a0 = jnp.asarray(ego.a, f)
-        w = self.cost_weights(
-            params, set_speed(scene, ctx, ego, self.vehicle, self.horizon, self.speed.a_lat_max).astype(f)
-        )
+        v_set = set_speed(scene, ctx, ego, self.vehicle, self.horizon, self.speed.a_lat_max).astype(f)
+        w = self.cost_weights(params, v_set)
         obs = ctx.obstacles
         obs = Obstacles(obs.boxes, obs.valid, obs.t - obs.t[0], obs.static)
 
         def on(path):
             ref, s0 = path_reference(path)
-            road = speed_road(scene, ctx, path, self.speed.v_max, self.vehicle)
+            road = speed_road(scene, ctx, path, self.speed.v_max, self.vehicle, v_set)
             return path, ref, s0, plan_one(ref, obs, v0, a0, s0, None, road, self.vehicle, self.speed, w)
 
         # every path has one shape: one vmapped speed plan (the DP is traced once)
