@@ -596,3 +596,20 @@ def test_large_batches_run_in_chunks_with_the_same_plans(monkeypatch):
     for k in range(5):
         p1 = plan_speed(REF, scenes[k], SMALL, W, v0=float(v0[k]), s0=10.0, keep_clear=NO_KC, vehicle=CAR, road=_road())
         assert np.allclose(pb.s[k], p1.s) and np.allclose(pb.v[k], p1.v) and np.allclose(pb.cost[k], p1.cost)
+
+
+def test_a_stop_the_car_already_stands_past_does_not_hold_it():
+    """The path's stop 0.2 m inside the car's buffer (a blockage at the car itself): the DP
+    drives off (it charges entering a boundary, not staying inside one), and the smoothing QP
+    follows it instead of holding the car at the stop for ever; a stop 20 m ahead holds both."""
+    from jaxplan.speed.smooth import smooth_plan_jit
+
+    free = _moving([[250.0, 30.0, 1.0, 1.0, 0.0]], [0.0])
+    w = dataclasses.replace(W, v_cruise=jnp.float32(8.0))
+    past = _plan(free, 0.0, w=w, road=_road(stop=FRONT + CFG.buffer - 0.2))
+    prof = smooth_plan_jit(past, jnp.float32(0.0), jnp.float32(0.0), config=CFG)
+    assert float(past.s[-1]) > 10.0 and float(prof.s[-1]) > 10.0
+    ahead = _plan(free, 0.0, w=w, road=_road(stop=FRONT + 20.0))
+    prof = smooth_plan_jit(ahead, jnp.float32(0.0), jnp.float32(0.0), config=CFG)
+    assert float(ahead.s[-1]) <= 20.0 - CFG.buffer + 0.05
+    assert 10.0 < float(prof.s[-1]) <= 20.0 - CFG.buffer + 0.05

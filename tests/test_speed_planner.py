@@ -139,12 +139,10 @@ def _plans():
     return planner, stack(scenes), stack(egos), out, c, tr
 
 
-@pytest.mark.xfail(strict=True, reason="the route leads into the next lane, where a dense, faster platoon drives: "
-                   "pathspeed plans only on the route path and the bounds path, has no path that keeps the car's own lane "
-                   "to stop behind the stopped car, and merges (hit from the side at about 2 s: its fault)")
 def test_closed_loop_dense_next_lane_has_no_at_fault_collision():
-    """The bypass of the stopped car led into the platoon beside the car (hit at 0.5 s) until
-    the speed was planned on both paths and the route path taken when only it is safe."""
+    """The route leads into the next lane, where a dense, faster platoon drives: the car must not
+    move across in front of it (it was hit from the side at about 2 s, its fault, until the ST
+    boundaries followed the route's bend exactly instead of widening the car's band on both sides)."""
     _, _, _, m = _drives()
     assert not m["overlap.at_fault"][DENSE]
 

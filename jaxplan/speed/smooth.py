@@ -289,7 +289,8 @@ def corridor(plan: SpeedPlan, config: SpeedConfig, t):
     of each blocking boundary: the boundaries at the check times, conservatively
     interpolated (a QP time between two checks is covered by both), and per obstacle and
     time: ``upper <= lower_k`` where the DP stayed behind it (or could not avoid it),
-    ``lower >= upper_k`` where the DP had passed it."""
+    ``lower >= upper_k`` where the DP had passed it; none from the stop wall when the car is
+    already past it."""
     lo, hi, hit, _ = plan.scene.blocking()  # (K, F)
     hc = config.dt / config.n_sub
     F = lo.shape[-1]
@@ -299,7 +300,11 @@ def corridor(plan: SpeedPlan, config: SpeedConfig, t):
     big = 1e9
     low = jnp.minimum(jnp.where(ha, lo[:, fa], big), jnp.where(hb, lo[:, fb], big))
     up = jnp.maximum(jnp.where(ha, hi[:, fa], -big), jnp.where(hb, hi[:, fb], -big))
-    on = ha | hb
+    # the stop wall (the last row) where the car already stands past it (a blockage of the path at
+    # the car itself): the DP could not stay behind it and charges entering, not staying, so it is no
+    # bound of the corridor either (the obstacles themselves are rows of their own)
+    past = (jnp.arange(lo.shape[0]) == lo.shape[0] - 1) & hit[:, 0] & (lo[:, 0] <= 0.0)
+    on = (ha | hb) & ~past[:, None]
     s_dp, _, _ = profile_at(plan, t)
     passed = on & (s_dp >= 0.5 * (low + up))
     behind = on & ~passed
