@@ -79,7 +79,10 @@ def arc_frame(a, y, kappa):
     l = (2.0 * y - k * (y * y + a * a)) / (1.0 + rho_k)
     x = ak * a
     small = jnp.abs(x) < 1e-4
-    ds = jnp.where(small, a / one, jnp.arctan2(jnp.where(small, 1.0, x), one) / jnp.where(small, 1.0, ak))
+    # (a point beyond the arc's centre, one <= 0, has no Frenet coordinates; kept finite)
+    ds = jnp.where(
+        small, a / jnp.maximum(one, 1e-6), jnp.arctan2(jnp.where(small, 1.0, x), one) / jnp.where(small, 1.0, ak)
+    )
     return ds, l
 
 
