@@ -310,7 +310,7 @@ def _adjacent(ln: dict, key: str, where: str, path: str, same: bool = True) -> i
 def _size(o, where, path) -> tuple[float, float]:
     kind = o.get("type")
     if "length" not in o and isinstance(kind, str) and kind in DEFAULT_SIZE:
-        return DEFAULT_SIZE[o["type"]]  # the format gives no size for these
+        return DEFAULT_SIZE[kind]  # the format gives no size for these
     length, width = _number(o, "length", where, path), _number(o, "width", where, path)
     if length <= 0 or width <= 0:
         raise ScenarioError(f"{path}: field {where}.length/width must be positive")

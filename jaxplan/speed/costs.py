@@ -177,8 +177,7 @@ def _goal_table(xs, f_goal, scene: SpeedScene, w: CostWeights):
     gd = jnp.maximum(aim[0] - cx, 0.0) + jnp.maximum(cx - aim[1], 0.0)
     gd = jnp.where(jnp.isfinite(gd), gd, 0.0)
     hub = jnp.where(gd < GOAL_HUBER, gd * gd, GOAL_HUBER * (2.0 * gd - GOAL_HUBER))
-    t0, t1 = scene.goal_t[0], scene.goal_t[1]
-    tail = jnp.clip(t1 - jnp.maximum(t0, t1 - GOAL_TAIL), 0.1, GOAL_TAIL)
+    tail = jnp.clip(scene.goal_t[1] - goal_tail_start(scene.goal_t), 0.1, GOAL_TAIL)
     tail = jnp.where(jnp.isfinite(tail), tail, GOAL_TAIL)
     return jnp.where(f_goal[:, None], (w.w_goal / tail) * hub[None, :], 0.0)
 
@@ -204,10 +203,16 @@ def segment_cost(g, v, big):
     return jnp.sum(rate + jnp.where(enter, big * (1.0 + v[..., 1:] / COLLISION_V), 0.0), -1)
 
 
+def goal_tail_start(goal_t):
+    """``()`` the start of the part of the goal's window ``goal_t (2,)`` the goal is asked for
+    in: its last ``GOAL_TAIL`` seconds (the whole window when shorter)."""
+    return jnp.maximum(goal_t[0], goal_t[1] - GOAL_TAIL)
+
+
 def goal_times(goal_t, t):
     """``(T,)`` bool: times ``t`` in the last ``GOAL_TAIL`` seconds of the goal's window
     ``goal_t (2,)`` (the car must be in the goal region before the window closes)."""
-    return (t >= jnp.maximum(goal_t[0], goal_t[1] - GOAL_TAIL) - 1e-6) & (t <= goal_t[1] + 1e-6)
+    return (t >= goal_tail_start(goal_t) - 1e-6) & (t <= goal_t[1] + 1e-6)
 
 
 def accel_cost(a, w: CostWeights):

@@ -103,11 +103,10 @@ def project_obstacles(ref: ReferenceLine, obstacles: Obstacles, s_offset=None) -
     dw = 0.5 * b[..., 3:4] * signs[:, 1]
     # the corners in the tangent frame at the centre's foot point, then onto the arc of the path's
     # curvature there (``arc_frame``): a long box beside a curve bends towards the path on its inside
-    ca, cy = arc_frame(
+    ca, cl = arc_frame(
         c[..., None] * du - sn[..., None] * dw, l[..., None] + sn[..., None] * du + c[..., None] * dw, kap[..., None]
     )
     cs = s[..., None] + ca
-    cl = cy
     if s_offset is not None:  # before stacking: no elementwise pass over the stacked corners
         cs, s = cs - s_offset, s - s_offset
     return ObstaclesSL(jnp.stack([cs, cl], -1), jnp.stack([s, l], -1), kap, obstacles.valid)
