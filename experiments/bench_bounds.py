@@ -32,7 +32,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxplan.bounds.frenet_bounds import CASE_UNCONSTRUCTED, path_bounds
-from jaxplan.bounds.optimize import PathQPConfig, PathWeights, curvature_bounds, optimize_path, state_problem
+from jaxplan.bounds.optimize import optimize_path
+from jaxplan.bounds.path_qp import PathQPConfig, PathWeights, curvature_bounds, state_problem
 from jaxplan.eval.bounds_suite import CAR, LANE, make_scenarios
 from jaxplan.eval.timing import best_time, write_figures
 from jaxplan.geometry import reference_line

@@ -144,8 +144,9 @@ def qp_comparison(n_cases, rng, reps):
     import scipy.sparse as sps
 
     from jaxplan.eval.timing import best_time
+    from jaxplan.solvers import LadderSettings, admm_prefactored
     from jaxplan.speed import CostWeights, SpeedConfig, plan_one, profile_at
-    from jaxplan.speed.smooth import SmoothWeights, SolverConfig, admm, corridor, qp_matrices, qp_problem
+    from jaxplan.speed.smooth import SmoothWeights, corridor, qp_matrices, qp_problem
     from jaxplan.types import VehicleParams
 
     cfg, w, veh = SpeedConfig(), SmoothWeights(), VehicleParams()
@@ -185,8 +186,8 @@ def qp_comparison(n_cases, rng, reps):
            "osqp_solved_share": float(solved.mean()),
            "note": "errors in m/s^2 over the cases the solver and OSQP (1e-7, polished) both solved"}
     qj, lj, uj = (jnp.asarray(a, jnp.float32) for a in (q, l, u))
-    sc = SolverConfig()
-    own = jax.jit(jax.vmap(lambda a, b, c: admm(a, b, c, n, h, w)))
+    sc = LadderSettings()
+    own = jax.jit(jax.vmap(lambda a, b, c: admm_prefactored(m["fixed"], a, b, c, sc)))
     x, rp, rd = (np.asarray(a) for a in own(qj, lj, uj))
     t = best_time(lambda: jax.block_until_ready(own(qj, lj, uj)), reps)
     out["admm"] = {"ms_per_qp": 1e3 * t / n_cases, **errors(x, (rp < sc.eps_prim) & (rd < sc.eps_dual))}

@@ -9,7 +9,8 @@ from jaxplan.bounds import (CASE_DEEPEST, CASE_NO_CORNER, CASE_NONE, CASE_OFF_ED
 from jaxplan.bounds.corners import contour_construction_jit as construct
 from jaxplan.bounds.distance import exact_avoid_distance_jit as exact_jit
 from jaxplan.bounds.frenet_bounds import path_bounds_jit
-from jaxplan.bounds.optimize import PathQPConfig, PathWeights, optimize_path_jit, state_problem
+from jaxplan.bounds.optimize import optimize_path_jit
+from jaxplan.bounds.path_qp import PathQPConfig, PathWeights, state_problem
 from jaxplan.geometry import ReferenceLine, box_corners, has_overlap, to_cartesian
 from jaxplan.types import VehicleParams
 
@@ -319,7 +320,7 @@ def test_path_qp_against_scipy_and_flags():
 
 
 def test_jerk_map_matches_equality_constraints():
-    from jaxplan.bounds.optimize import jerk_map
+    from jaxplan.bounds.path_qp import jerk_map
 
     M, H = jerk_map(T, 0.7)
     x0 = np.array([0.3, -0.1, 0.05])

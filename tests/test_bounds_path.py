@@ -9,7 +9,8 @@ import pytest
 
 from jaxplan.bounds.decision import LEFT, NONE, RIGHT, decide_corridor, obstacle_intervals
 from jaxplan.bounds.distance import box_overlap_interval, overlap_interval
-from jaxplan.bounds.optimize import PathQPConfig, PathWeights, curvature_bounds, optimize_path, state_problem
+from jaxplan.bounds.optimize import optimize_path
+from jaxplan.bounds.path_qp import PathQPConfig, PathWeights, curvature_bounds, state_problem
 from jaxplan.bounds.path_planner import PathConfig, plan_path
 from jaxplan.geometry import box_corners, has_overlap
 from jaxplan.types import VehicleParams
@@ -310,7 +311,7 @@ def test_blockage_cuts_the_path():
 
 def test_spd_inverse_against_numpy_batched():
     """The LAPACK-free Cholesky + triangular inverse (jaxlib's batched LAPACK kernels can hang on CPU)."""
-    from jaxplan.bounds.optimize import spd_inverse
+    from jaxplan.solvers import spd_inverse
 
     rng = np.random.default_rng(3)
     for n in (1, 7, 32, 45):

@@ -16,7 +16,7 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
 # The public subpackages whose ``__init__`` lists its names.
 SUBPACKAGES = ("baselines", "bounds", "eval", "geometry", "lattice", "models", "parking", "replan", "scenarios",
-               "sim", "sim.metrics", "speed", "tuning")
+               "sim", "sim.metrics", "solvers", "speed", "tuning")
 
 
 def _python(code: str, timeout: float = 300) -> dict:
@@ -160,7 +160,7 @@ def test_builtin_scenes():
 # The layers, lowest first: a package imports (at module level or inside a function) only from its
 # own layer or the ones below. ``jaxplan`` itself (the lazy public surface) and ``__main__`` are the top.
 LAYERS = (
-    ("types", "geometry", "models", "compile_options", "weights", "planner"),
+    ("types", "geometry", "solvers", "models", "compile_options", "weights", "planner"),
     ("scenarios", "plan_context"),
     ("lattice", "bounds", "speed", "baselines", "parking", "replan"),
     ("sim",),

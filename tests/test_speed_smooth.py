@@ -7,8 +7,9 @@ import osqp
 import pytest
 import scipy.sparse as sps
 
+from jaxplan.solvers import admm_prefactored
 from jaxplan.speed import SpeedConfig
-from jaxplan.speed.smooth import SmoothWeights, _maps, admm, hardest_braking, leavable_a0, qp_matrices, qp_problem
+from jaxplan.speed.smooth import SmoothWeights, _maps, hardest_braking, leavable_a0, qp_matrices, qp_problem
 
 CFG = SpeedConfig()
 W = SmoothWeights()
@@ -18,7 +19,7 @@ N, H = int(round(CFG.horizon / CFG.qp_dt)), CFG.qp_dt
 @jax.jit
 def _solve(s_ref, v_ref, lower, upper, v_lim, a0, v0):
     q, l, u, slack = qp_problem(s_ref, v_ref, lower, upper, v_lim, a0, v0, CFG, W)
-    x, rp, rd = admm(q, l, u, N, H, W)
+    x, rp, rd = admm_prefactored(qp_matrices(N, H, W)["fixed"], q, l, u)
     return q, l, u, x, rp, rd, slack
 
 

@@ -51,7 +51,8 @@ import jax
 import jax.numpy as jnp
 
 from jaxplan.bounds.decision import NONE, car_reach, decide_corridor, obstacle_intervals
-from jaxplan.bounds.optimize import PathQPConfig, PathWeights, curvature_bounds, optimize_path
+from jaxplan.bounds.optimize import optimize_path
+from jaxplan.bounds.path_qp import PathQPConfig, PathWeights, curvature_bounds
 from jaxplan.geometry.boxes import box_has_overlap, poses_to_boxes
 from jaxplan.geometry.frenet import frenet_to_cartesian_state, ref_state
 from jaxplan.geometry.quintic import cartesian_to_frenet_state

@@ -31,8 +31,9 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxplan.bounds.frenet_bounds import path_bounds
-from jaxplan.bounds.optimize import PathQPConfig, curvature_bounds, optimize_path
+from jaxplan.bounds.optimize import optimize_path
 from jaxplan.bounds.path_planner import PathConfig, solve_path
+from jaxplan.bounds.path_qp import PathQPConfig, curvature_bounds
 from jaxplan.eval.registry import SuiteArgs, register
 from jaxplan.geometry import (
     ReferenceLine,
@@ -175,7 +176,7 @@ def _osqp_verdicts(p, corridor_ok, max_iter=20000):
         import scipy.sparse as sp
     except ImportError:
         return None
-    from jaxplan.bounds.optimize import PathWeights, state_problem
+    from jaxplan.bounds.path_qp import PathWeights, state_problem
 
     qi = p["qp_input"].reshape((-1,) + p["qp_input"].shape[-2:])
     init, ds, cok = p["init"].reshape(-1, 3), p["ds"].reshape(-1), corridor_ok.reshape(-1)

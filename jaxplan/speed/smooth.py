@@ -22,12 +22,12 @@ is left there, and ``slack`` (how far the corridor had to be widened) says so. T
 references are clipped into the corridor, so the QP tracks the boundary, not the DP's
 profile through an obstacle.
 
-The solver is ADMM (OSQP's iteration) on the fixed matrices of this QP: the Hessian and the
-constraint matrix depend only on the weights and the grid, so they are equilibrated
-(Ruiz) and the KKT matrix is inverted once on the host for a ladder of step sizes ``rho``;
-each iteration is a few dense matrix-vector products, and ``rho`` adapts (OSQP's rule,
-snapped to the ladder) between phases of iterations, until the primal and dual residuals
-are small (``ok``) or a phase budget is spent.
+The solver is ``jaxplan.solvers.admm_prefactored`` (OSQP's ADMM on constant matrices): the
+Hessian and the constraint matrix depend only on the weights and the grid, so they are
+equilibrated and the KKT matrix is inverted once on the host for a ladder of step sizes
+``rho`` (``RHO_LADDER``); each iteration is a few dense matrix-vector products, and ``rho``
+moves along the ladder between phases of iterations, until the primal and dual residuals are
+small (``ok``) or a phase budget is spent.
 """
 
 from __future__ import annotations
@@ -40,11 +40,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxplan.solvers.qp import INF, LadderSettings, admm_prefactored, prefactor
 from jaxplan.speed.problem import SpeedConfig, SpeedPlan, profile_at
 
-INF = 1e20
 RHO_LADDER = tuple(float(r) for r in 10.0 ** np.linspace(-3, 3, 13))
-SIGMA = 1e-6  # proximal term of the x-update
 LIMIT_DECEL = 3.0  # m/s^2: the speed limit of the QP is relaxed to what braking at this meets
 V_TOL = 0.01  # m/s: speeds down to -V_TOL are feasible in the QP (the output is held at 0)
 
@@ -57,21 +56,6 @@ class SmoothWeights:
     w_vref: float = 1.0
     w_acc: float = 1.0
     w_jerk: float = 0.3
-
-
-@dataclasses.dataclass(frozen=True)
-class SolverConfig:
-    """ADMM settings: at least ``min_phases`` and at most ``phases`` phases of ``iters``
-    iterations (it stops once the residuals are below ``eps_prim`` / ``eps_dual``; under
-    ``vmap`` when every scene is), relaxation ``alpha``, the first step size ``rho0``."""
-
-    phases: int = 16
-    min_phases: int = 4
-    iters: int = 25
-    alpha: float = 1.6
-    rho0: float = 0.1
-    eps_prim: float = 1e-2
-    eps_dual: float = 5e-3
 
 
 @jax.tree_util.register_dataclass
@@ -128,8 +112,8 @@ def _maps(n: int, h: float):
 @functools.cache
 def qp_matrices(n: int, h: float, w: SmoothWeights):
     """The constant QP data (float64 numpy): ``P (n, n)``, the constraint matrix ``A (4n, n)``
-    with its row blocks [a, jerk, v, s], the affine parts (``Va, Vy, Sa, Sy, Ja, Jy``), the
-    Ruiz scalings ``D, E, c`` and the KKT inverses for ``RHO_LADDER``."""
+    with its row blocks [a, jerk, v, s], the affine parts (``Va, Vy, Sa, Sy, Ja, Jy``) and
+    ``fixed``, the ``jaxplan.solvers.Prefactored`` problem for ``RHO_LADDER``."""
     Va, Vy, Sa, Sy = _maps(n, h)
     I = np.eye(n)
     Ja = (I - np.eye(n, k=-1)) / h  # j_k = (a_{k+1} - a_k) / h, a_0 in Jy
@@ -137,19 +121,8 @@ def qp_matrices(n: int, h: float, w: SmoothWeights):
     Jy[0, 0] = -1.0 / h
     A = np.concatenate([I, Ja, Va, Sa])
     P = 2.0 * h * (w.w_ref * Sa.T @ Sa + w.w_vref * Va.T @ Va + w.w_acc * I + w.w_jerk * Ja.T @ Ja)
-    # Ruiz equilibration of the KKT matrix [[P, A^T], [A, 0]]
-    D, E = np.ones(n), np.ones(A.shape[0])
-    Ps, As = P.copy(), A.copy()
-    for _ in range(25):
-        d = 1.0 / np.sqrt(np.maximum(np.maximum(np.abs(Ps).max(0), np.abs(As).max(0)), 1e-4))
-        ee = 1.0 / np.sqrt(np.maximum(np.abs(As).max(1), 1e-4))
-        Ps = d[:, None] * Ps * d[None, :]
-        As = ee[:, None] * As * d[None, :]
-        D, E = D * d, E * ee
-    c = 1.0 / max(np.abs(Ps).max(1).mean(), 1e-4)
-    Ps = c * Ps
-    inv = np.stack([np.linalg.inv(Ps + SIGMA * np.eye(n) + r * As.T @ As) for r in RHO_LADDER])
-    return dict(Va=Va, Vy=Vy, Sa=Sa, Sy=Sy, Ja=Ja, Jy=Jy, A=A, P=P, D=D, E=E, c=c, Ps=Ps, As=As, inv=inv)
+    fixed = prefactor(P, A, RHO_LADDER)
+    return dict(Va=Va, Vy=Vy, Sa=Sa, Sy=Sy, Ja=Ja, Jy=Jy, A=A, P=P, fixed=fixed)
 
 
 def hardest_braking(a0, v0, n: int, h: float, config: SpeedConfig):
@@ -220,70 +193,6 @@ def qp_problem(s_ref, v_ref, lower, upper, v_lim, a0, v0, config: SpeedConfig, w
     return q, l, u, slack
 
 
-def admm(q, l, u, n: int, h: float, w: SmoothWeights, x0=None, solver: SolverConfig = SolverConfig()):
-    """OSQP-style ADMM for ``min 1/2 x'Px + q'x, l <= Ax <= u`` with the constant ``P, A`` of
-    ``qp_matrices(n, h, w)``. Returns (x ``(n,)``, primal residual, dual residual)."""
-    m = qp_matrices(n, h, w)
-    f = q.dtype
-    Ps, As = jnp.asarray(m["Ps"], f), jnp.asarray(m["As"], f)
-    D, E, c = jnp.asarray(m["D"], f), jnp.asarray(m["E"], f), m["c"]
-    inv = jnp.asarray(m["inv"], f)
-    ladder = jnp.asarray(RHO_LADDER, f)
-    qs = c * D * q
-    ls = jnp.where(l <= -INF / 2, -INF, E * l)
-    us = jnp.where(u >= INF / 2, INF, E * u)
-    x = jnp.zeros_like(qs) if x0 is None else x0 / D
-    z = jnp.clip(As @ x, ls, us)
-    y = jnp.zeros_like(z)
-    k0 = int(np.argmin(np.abs(np.log(np.asarray(RHO_LADDER)) - np.log(solver.rho0))))
-    sig, alpha = SIGMA, solver.alpha
-
-    def phase(carry, _):
-        x, z, y, k = carry
-        K = inv[k]
-        rho = ladder[k]
-
-        def it(c2, _):
-            x, z, y = c2
-            xt = K @ (sig * x - qs + As.T @ (rho * z - y))
-            zt = As @ xt
-            x = alpha * xt + (1 - alpha) * x
-            zr = alpha * zt + (1 - alpha) * z
-            zn = jnp.clip(zr + y / rho, ls, us)
-            y = y + rho * (zr - zn)
-            return (x, zn, y), None
-
-        (x, z, y), _ = jax.lax.scan(it, (x, z, y), None, length=solver.iters)
-        ax = As @ x
-        px = Ps @ x
-        aty = As.T @ y
-        rp = jnp.max(jnp.abs(ax - z))
-        rd = jnp.max(jnp.abs(px + qs + aty))
-        np_ = rp / jnp.maximum(jnp.maximum(jnp.max(jnp.abs(ax)), jnp.max(jnp.abs(z))), 1e-8)
-        nd = rd / jnp.maximum(
-            jnp.maximum(jnp.max(jnp.abs(px)), jnp.maximum(jnp.max(jnp.abs(aty)), jnp.max(jnp.abs(qs)))), 1e-8
-        )
-        want = rho * jnp.sqrt(np_ / jnp.maximum(nd, 1e-12))
-        k_new = jnp.argmin(jnp.abs(jnp.log(ladder) - jnp.log(jnp.maximum(want, 1e-12)))).astype(jnp.int32)
-        return x, z, y, k_new
-
-    def residuals(x, z, y):
-        return jnp.max(jnp.abs((As @ x - z) / E)), jnp.max(jnp.abs((Ps @ x + qs + As.T @ y) / (c * D)))
-
-    def more(carry):
-        x, z, y, k, i = carry
-        rp, rd = residuals(x, z, y)
-        return (i < solver.min_phases) | ((i < solver.phases) & ((rp >= solver.eps_prim) | (rd >= solver.eps_dual)))
-
-    def body(carry):
-        x, z, y, k, i = carry
-        return (*phase((x, z, y, k), None), i + 1)
-
-    x, z, y, _, _ = jax.lax.while_loop(more, body, (x, z, y, jnp.int32(k0), jnp.int32(0)))
-    r_prim, r_dual = residuals(x, z, y)
-    return D * x, r_prim, r_dual
-
-
 def corridor(plan: SpeedPlan, config: SpeedConfig, t):
     """Station bounds ``(lower (n,), upper (n,))`` at QP times ``t (n,)`` from the DP's side
     of each blocking boundary: the boundaries at the check times, conservatively
@@ -319,7 +228,7 @@ def smooth_plan(
     a0,
     config: SpeedConfig,
     w: SmoothWeights = SmoothWeights(),
-    solver: SolverConfig = SolverConfig(),
+    solver: LadderSettings = LadderSettings(),
 ) -> SpeedProfile:
     """The executed profile of one scene's DP plan (``SpeedProfile`` at ``k qp_dt``)."""
     h = config.qp_dt
@@ -335,8 +244,8 @@ def smooth_plan(
     k = jnp.clip(jnp.floor(qi).astype(jnp.int32), 0, vl.shape[0] - 2)
     v_lim = vl[k] + (qi - k) * (vl[k + 1] - vl[k])
     q, l, u, slack = qp_problem(s_ref, v_ref, lower, upper, v_lim, a0, v0, config, w)
-    x, rp, rd = admm(q, l, u, n, h, w, a_ref, solver)
     m = qp_matrices(n, h, w)
+    x, rp, rd = admm_prefactored(m["fixed"], q, l, u, solver, a_ref)
     acc = jnp.clip(x, config.a_brake, config.a_max)
     y = jnp.stack([a0, v0])
     v = jnp.asarray(m["Va"], f) @ acc + jnp.asarray(m["Vy"], f) @ y
