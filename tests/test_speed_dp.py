@@ -23,7 +23,7 @@ from jaxplan.speed import (
     stage_costs,
 )
 from jaxplan.speed.costs import REAR_CONTACT, table_origin, table_size, unreach
-from jaxplan.speed.problem import band_widths
+from jaxplan.speed.problem import band_widths, profile_at
 from jaxplan.types import Obstacles, VehicleParams
 
 SMALL = SpeedConfig(dt=1.0, n_t=4, ds=0.5, v_max=6.0, a_min=-2.0, a_max=1.0, n_sub=2, qp_dt=0.5)
@@ -115,7 +115,8 @@ def test_band_covers_every_reachable_state(rng):
     offs = CFG.accel_offsets
     for v0 in rng.uniform(0, CFG.v_max, 6):
         ilo, jlo = (np.asarray(a) for a in band_offsets(jnp.float32(v0), CFG))
-        j1 = [j for j in range(CFG.n_v) if CFG.a_min - 1e-4 <= (j * CFG.dv - v0) / CFG.dt <= CFG.a_max + 1e-4]
+        a_lo, a_hi = CFG.first_accel_range
+        j1 = [j for j in range(CFG.n_v) if a_lo - 1e-4 <= (j * CFG.dv - v0) / CFG.dt <= a_hi + 1e-4]
         states = {(j, j) for j in j1}
         for k in range(CFG.n_t):
             S, V = bw[k]
@@ -218,7 +219,9 @@ def _kinematics_ok(p, v0):
     assert v[0] == pytest.approx(min(v0, CFG.v_max), abs=1e-5)
     assert np.allclose(np.diff(s), 0.5 * (v[1:] + v[:-1]) * CFG.dt, atol=1e-4)  # exact constant-acceleration segments
     assert np.allclose(a, np.diff(v) / CFG.dt, atol=1e-5)
-    assert np.all(a >= CFG.a_min - 1e-4) and np.all(a <= CFG.a_max + 1e-4)  # the first segment too
+    assert np.all(a[1:] >= CFG.a_min - 1e-4) and np.all(a[1:] <= CFG.a_max + 1e-4)
+    a_lo, a_hi = CFG.first_accel_range  # the first segment: the grid speed nearest to the limits'
+    assert a_lo - 1e-4 <= a[0] <= a_hi + 1e-4
     assert np.all(v >= 0) and np.all(v <= CFG.v_max + 1e-5)
 
 
@@ -563,7 +566,7 @@ def test_dp_matches_dense_reference_at_every_start_speed(rng):
     for trial, v0 in enumerate((0.0, 0.7, 10.0, 10.0, 12.0, 12.0, 13.9, 16.0)):
         vj = np.arange(V) * CFG.dv
         a1 = (vj - v0) / CFG.dt
-        ok = (a1 >= CFG.a_min - 1e-4) & (a1 <= CFG.a_max + 1e-4)
+        ok = (a1 >= CFG.first_accel_range[0] - 1e-4) & (a1 <= CFG.first_accel_range[1] + 1e-4)
         table = rng.uniform(0, 5, (2, F, X))
         table[rng.uniform(size=table.shape) < 0.03] = CFG.big
         tilt = (1 if trial % 2 else -1) * rng.uniform(3.0, 6.0) * np.arange(X)[:, None]
@@ -613,3 +616,38 @@ def test_a_stop_the_car_already_stands_past_does_not_hold_it():
     prof = smooth_plan_jit(ahead, jnp.float32(0.0), jnp.float32(0.0), config=CFG)
     assert float(ahead.s[-1]) <= 20.0 - CFG.buffer + 0.05
     assert 10.0 < float(prof.s[-1]) <= 20.0 - CFG.buffer + 0.05
+
+
+def test_a_vehicle_closing_in_from_behind_is_escaped_at_the_limits():
+    """The car at 13.5 m/s on an empty road, a car 11 m behind it at 21 m/s (recorded traffic:
+    it will not brake). The DP's first second accelerates at the limit (its first knot speed is
+    the grid speed nearest to what ``a_max`` reaches, 18 m/s, not 16 m/s only because 18 is a
+    little beyond), the smoothing QP's corridor has that car as its lower side wherever the DP
+    stays ahead of it, and the executed profile keeps it as far as the limits allow."""
+    from jaxplan.speed.smooth import LOWER_MARGIN, corridor, hardest_acceleration, smooth_plan
+
+    cfg = SpeedConfig()
+    obs = _moving([[-11.0, 0.0, 4.5, 1.8, 0.0]], [21.0])
+    p = plan_speed(REF, obs, cfg, W, v0=13.5, a0=0.0, s0=10.0, keep_clear=NO_KC, vehicle=CAR, road=_road())
+    assert float(p.a[0]) >= 4.0, np.asarray(p.a)
+    h = cfg.qp_dt
+    t = jnp.arange(1, int(round(cfg.horizon / h)) + 1, dtype=jnp.float32) * h
+    rear = p.scene.classified.rear
+    assert bool(jnp.any(rear.hit)), "the car behind is not classified as behind"
+    lower, _ = corridor(p, cfg, t)
+    s_dp = np.asarray(profile_at(p, t)[0])
+    # the car behind at the checks on both sides of each QP time (the farther counts)
+    fc = np.asarray(t) / (cfg.dt / cfg.n_sub)
+    hit, up = np.asarray(rear.hit), np.asarray(rear.upper)
+    r_up = np.maximum(*(np.where(hit[:, f], up[:, f], -np.inf).max(0)
+                        for f in (np.floor(fc + 1e-6).astype(int), np.ceil(fc - 1e-6).astype(int))))
+    ahead = s_dp >= r_up
+    assert ahead.sum() > 10
+    assert np.all(np.asarray(lower)[ahead] >= r_up[ahead] - 1e-4)
+    # the executed profile keeps that side as far as the limits allow (at a_max here: the car
+    # behind is escaped only just)
+    prof = smooth_plan(p, 13.5, 0.0, cfg)
+    s_qp = np.asarray(prof.s)[1:]
+    s_a = np.asarray(hardest_acceleration(0.0, 13.5, jnp.full(t.shape, cfg.v_max), t.shape[0], h, cfg))
+    keep = np.minimum(r_up, s_a - LOWER_MARGIN)
+    assert np.all(s_qp[ahead] >= keep[ahead] - 0.05), (s_qp - keep)[ahead].min()

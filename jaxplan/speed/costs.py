@@ -261,7 +261,8 @@ def stage_costs(scene: SpeedScene, config: SpeedConfig, w: CostWeights, v0, a0) 
     goal_k = goal_times(scene.goal_t, jnp.arange(1, c.n_t + 1, dtype=dtype) * c.dt)
     offs = jnp.asarray(c.accel_offsets, dtype)
     accel = accel_cost(offs * c.da, w) * c.dt
-    # first segment: from (0, v0) to speed j with the exact acceleration (v_j - v0) / dt
+    # first segment: from (0, v0) to speed j with the exact acceleration (v_j - v0) / dt, within
+    # the limits widened by half a step (the grid speed nearest to what the limits reach)
     a1 = (vj - v0) / c.dt
     tq = jnp.arange(0, ns + 1, dtype=dtype) * h
     xq = v0 * tq[None] + 0.5 * a1[:, None] * tq[None] ** 2  # (V, ns + 1)
@@ -270,7 +271,8 @@ def stage_costs(scene: SpeedScene, config: SpeedConfig, w: CostWeights, v0, a0) 
     slow = (vq < c.keep_clear_v).astype(jnp.int32)
     obst1 = segment_cost(table[slow, jnp.arange(0, ns + 1)[None], uq], vq, c.big)
     first = accel_cost(a1, w) * c.dt + w.w_jerk * ((a1 - a0) / c.dt) ** 2 * c.dt + obst1
-    ok1 = (a1 >= c.a_min - 1e-4) & (a1 <= c.a_max + 1e-4)
+    a_lo, a_hi = c.first_accel_range
+    ok1 = (a1 >= a_lo - 1e-4) & (a1 <= a_hi + 1e-4)
     first = jnp.where(ok1, first, unreach(c))
     terminal = _terminal(xs, x0, vj, lo[:, -1], hit[:, -1], vob[:, -1], kc, scene, c, w)
     ilo, jlo = band_offsets(v0, c)

@@ -7,14 +7,15 @@ consecutive stations fix the speed: ``s_{k+1} - s_k = (v_k + v_{k+1}) dt / 2``, 
 transition ``(i, j) -> (i + j + j', j')`` moves ``j + j'`` stations with acceleration
 ``(j' - j) dv / dt``. The first segment starts exactly at the car's speed ``v0`` (the
 station offset ``c0`` makes every later station a grid point) with the exact
-acceleration ``(v_1 - v0) / dt``, and its jerk is taken from the car's acceleration ``a0``.
-So the profile the DP returns *is* a kinematically exact piecewise-constant-acceleration
-profile: its accelerations (not differences of segment averages) lie in
-``[a_min, a_max]`` and its speeds in ``[0, v_max]``. The executed trajectory is the
+acceleration ``(v_1 - v0) / dt`` within ``SpeedConfig.first_accel_range`` (the limits
+widened by half a step: the grid speed nearest to what they reach), and its jerk is taken
+from the car's acceleration ``a0``. So the profile the DP returns *is* a kinematically exact
+piecewise-constant-acceleration profile: its accelerations (not differences of segment
+averages) lie in ``[a_min, a_max]`` after the first segment and its speeds in ``[0, v_max]``. The executed trajectory is the
 smoothing QP's (``smooth.py``), which runs after the DP.
 
 **Reachable band.** At ``t_k`` only the stations and speeds reachable from ``(0, v0)``
-with accelerations in ``[a_min, a_max]`` are states. Station and speed have the same
+with accelerations in the first segment's range are states. Station and speed have the same
 parity (``i_1 = j_1`` and every step adds ``j + j'``), so the DP indexes a state by
 ``h = (i - j) / 2 = j_1 + ... + j_{k-1}`` and ``j``: every speed, and a run of ``h`` of
 static width (``dp_band``, the widest over every ``v0``) from an offset fixed by the
@@ -74,7 +75,8 @@ def dp_band(config: SpeedConfig) -> tuple:
     first-knot speeds above the least; ``cap[k-1]``: the largest offset (the band never
     reaches past the largest reachable ``h``)."""
     c = config
-    D = int(math.floor((c.a_max - c.a_min + 2e-4) * c.dt / c.dv + 1e-9))
+    a_lo, a_hi = c.first_accel_range
+    D = int(math.floor((a_hi - a_lo + 2e-4) * c.dt / c.dv + 1e-9))
     jlo = np.arange(c.n_v)
     H, cap, lo_prev = [], [], None
     for k in range(1, c.n_t + 1):

@@ -70,6 +70,16 @@ class SpeedConfig:
     jerk_max: float = 20.0
 
     @property
+    def first_accel_range(self) -> tuple:
+        """``(lo, hi)`` m/s^2: the accelerations of the DP's first segment, ``[a_min, a_max]``
+        widened by half an acceleration step ``da``, so that the first knot's speed can be the
+        grid speed nearest to what ``a_min`` / ``a_max`` reach from the car's speed, not only
+        the ones inside (from 13.5 m/s with ``a_max`` 4 and speeds every 2 m/s, 16 m/s, 2.5
+        m/s^2, would be the hardest acceleration of the first second). The smoothing QP keeps
+        the executed profile within ``[a_brake, a_max]``."""
+        return self.a_min - 0.5 * self.da, self.a_max + 0.5 * self.da
+
+    @property
     def dv(self):
         return 2.0 * self.ds / self.dt
 
@@ -137,17 +147,20 @@ def band_widths(config: SpeedConfig) -> tuple:
         ilo = np.floor((lo - c0) / c.ds) - 1
         ihi = np.ceil((hi - c0) / c.ds) + 1
         S = int(min(c.n_s, np.max(ihi - ilo) + 1))
-        V = int(min(c.n_v, math.floor((c.a_max - c.a_min) * t / c.dv + 1e-9) + 3))
+        a_lo, a_hi = c.first_accel_range
+        V = int(min(c.n_v, math.floor((a_hi - a_lo) * t / c.dv + 1e-9) + 3))
         out.append((S, V))
     return tuple(out)
 
 
 def _station_range(v0, t, c: SpeedConfig, xp):
-    """Least and most distance ``(...)`` reachable in ``t`` from speed ``v0``."""
-    tb = xp.minimum(t, v0 / -c.a_min)
-    lo = v0 * tb + 0.5 * c.a_min * tb * tb
-    ta = xp.clip((c.v_max - v0) / c.a_max, 0.0, t)
-    hi = v0 * ta + 0.5 * c.a_max * ta * ta + (t - ta) * xp.maximum(v0 + c.a_max * ta, 0.0)
+    """Least and most distance ``(...)`` reachable in ``t`` from speed ``v0`` (at the first
+    segment's limits throughout: a band that holds every profile)."""
+    a_lo, a_hi = c.first_accel_range
+    tb = xp.minimum(t, v0 / -a_lo)
+    lo = v0 * tb + 0.5 * a_lo * tb * tb
+    ta = xp.clip((c.v_max - v0) / a_hi, 0.0, t)
+    hi = v0 * ta + 0.5 * a_hi * ta * ta + (t - ta) * xp.maximum(v0 + a_hi * ta, 0.0)
     return lo, hi
 
 
@@ -162,7 +175,7 @@ def band_offsets(v0, config: SpeedConfig):
     lo, _ = _station_range(v0, t, c, jnp)
     c0 = v0 * c.dt / 2
     ilo = jnp.clip(jnp.floor((lo - c0) / c.ds) - 1, 0, c.n_s - S).astype(jnp.int32)
-    jlo = jnp.clip(jnp.floor((v0 + c.a_min * t) / c.dv) - 1, 0, c.n_v - V).astype(jnp.int32)
+    jlo = jnp.clip(jnp.floor((v0 + c.first_accel_range[0] * t) / c.dv) - 1, 0, c.n_v - V).astype(jnp.int32)
     return ilo, jlo
 
 

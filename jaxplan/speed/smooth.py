@@ -14,13 +14,15 @@ subject to ``a_brake <= a_k <= a_max``, ``|j_k| <= jerk_max``, ``0 <= v_k <= v_l
 ``lower_k <= s_k <= upper_k``: the station corridor the DP chose, per obstacle and time
 (behind every blocking boundary the DP stayed behind, ahead of every one it passed).
 
-The QP is always feasible: the corridor and the speed limit are relaxed to what the
+Each side of the corridor is one the limits can keep: the upper side is widened to what the
 hardest braking the limits allow reaches (``hardest_braking``: the jerk-limited stop at
-``a_brake``): ``upper_k >= s_brake_k``, ``lower_k <= s_brake_k``, and the limit to what braking
-at ``LIMIT_DECEL`` reaches. Where the DP could not avoid a boundary, only the hardest braking
-is left there, and ``slack`` (how far the corridor had to be widened) says so. The
-references are clipped into the corridor, so the QP tracks the boundary, not the DP's
-profile through an obstacle.
+``a_brake``, ``upper_k >= s_brake_k``), the lower side narrowed to the most they reach
+(``hardest_acceleration``, less ``LOWER_MARGIN``) and below the upper side, and the speed limit
+relaxed to what braking at ``LIMIT_DECEL`` reaches. Where the DP could not avoid a boundary,
+only the hardest braking is left there, and ``slack`` (how far the corridor had to be widened)
+says so. The references are clipped into the corridor, so the QP tracks the boundary, not the
+DP's profile through an obstacle. (Where both sides bind at once a corridor the limits cannot
+keep is left, the solver stops unconverged and ``ok`` says so.)
 
 The solver is ``jaxplan.solvers.admm_prefactored`` (OSQP's ADMM on constant matrices): the
 Hessian and the constraint matrix depend only on the weights and the grid, so they are
@@ -46,6 +48,7 @@ from jaxplan.speed.problem import SpeedConfig, SpeedPlan, profile_at
 RHO_LADDER = tuple(float(r) for r in 10.0 ** np.linspace(-3, 3, 13))
 LIMIT_DECEL = 3.0  # m/s^2: the speed limit of the QP is relaxed to what braking at this meets
 V_TOL = 0.01  # m/s: speeds down to -V_TOL are feasible in the QP (the output is held at 0)
+LOWER_MARGIN = 0.1  # m: the corridor's lower side stays this far below the most the limits reach
 
 
 @dataclasses.dataclass(frozen=True)
@@ -151,6 +154,25 @@ def hardest_braking(a0, v0, n: int, h: float, config: SpeedConfig):
     return out
 
 
+def hardest_acceleration(a0, v0, v_lim, n: int, h: float, config: SpeedConfig):
+    """The most station ``(n,)`` at ``k h`` (k = 1..n) the QP's limits reach from ``(a0, v0)``:
+    the acceleration rising at ``jerk_max`` to ``a_max``, the speed held at the limit ``v_lim
+    (n,)`` where it would pass it (trapezoidal stations: within a few centimetres of the QP's
+    own integration)."""
+    J = config.jerk_max
+
+    def step(c, vl):
+        a, v, s = c
+        a1 = jnp.minimum(a + J * h, config.a_max)
+        v1 = jnp.minimum(v + 0.5 * h * (a + a1), jnp.maximum(vl, v))
+        s1 = s + 0.5 * h * (v + v1)
+        return (a1, v1, s1), s1
+
+    f = v_lim.dtype
+    _, s = jax.lax.scan(step, (jnp.asarray(a0, f), jnp.asarray(v0, f), jnp.zeros((), f)), v_lim)
+    return s
+
+
 def leavable_a0(a0, v0, config: SpeedConfig):
     """The car's acceleration as the QP starts from it: within ``[a_brake, a_max]``, and no
     harder braking than the jerk limit can still end at rest without reversing
@@ -169,12 +191,14 @@ def qp_problem(s_ref, v_ref, lower, upper, v_lim, a0, v0, config: SpeedConfig, w
     f = s_ref.dtype
     tk = h * jnp.arange(1, n + 1, dtype=f)
     s_b, v_b, _ = hardest_braking(a0, v0, n, h, config)
-    # always feasible: the corridor widened to the hardest braking, the limit to braking at
+    # always feasible: the corridor's upper side widened to the hardest braking, its lower side
+    # narrowed to the most the limits reach (and below the upper side), the limit to braking at
     # LIMIT_DECEL (and never below the hardest braking)
     slack = jnp.max(jnp.maximum(s_b - upper, 0.0))
     upper = jnp.maximum(upper, s_b + 0.02)
-    lower = jnp.minimum(lower, jnp.minimum(s_b, upper) - 0.02)
     v_lim = jnp.maximum(v_lim, jnp.maximum(jnp.asarray(v0, f) - LIMIT_DECEL * tk, v_b) + 0.02)
+    s_a = hardest_acceleration(a0, v0, v_lim, n, h, config)
+    lower = jnp.minimum(lower, jnp.minimum(s_a - LOWER_MARGIN, upper - 0.02))
     # references inside the corridor: where the DP's profile leaves it, track the boundary
     over = s_ref > upper
     du = jnp.diff(jnp.concatenate([upper[:1], upper])) / h
@@ -199,7 +223,8 @@ def corridor(plan: SpeedPlan, config: SpeedConfig, t):
     interpolated (a QP time between two checks is covered by both), and per obstacle and
     time: ``upper <= lower_k`` where the DP stayed behind it (or could not avoid it),
     ``lower >= upper_k`` where the DP had passed it; none from the stop wall when the car is
-    already past it."""
+    already past it. Vehicles behind the car (``Classified.rear``): ``lower >= upper_k``
+    where the DP stays ahead of one."""
     lo, hi, hit, _ = plan.scene.blocking()  # (K, F)
     hc = config.dt / config.n_sub
     F = lo.shape[-1]
@@ -219,6 +244,12 @@ def corridor(plan: SpeedPlan, config: SpeedConfig, t):
     behind = on & ~passed
     upper = jnp.min(jnp.where(behind, low, INF), 0)
     lower = jnp.max(jnp.where(passed, up, -INF), 0)
+    # the vehicles behind the DP stays ahead of (a vehicle closing in from behind that will not brake)
+    rear = plan.scene.classified.rear
+    ra, rb = rear.hit[:, fa], rear.hit[:, fb]
+    r_up = jnp.maximum(jnp.where(ra, rear.upper[:, fa], -big), jnp.where(rb, rear.upper[:, fb], -big))
+    ahead = (ra | rb) & (s_dp >= r_up)
+    lower = jnp.maximum(lower, jnp.max(jnp.where(ahead, r_up, -INF), 0, initial=-INF))
     return lower, upper
 
 
