@@ -347,6 +347,31 @@ def test_fast_car_changes_lane_within_the_lateral_acceleration():
     assert np.asarray(fast["l"])[-1] == pytest.approx(-3.5, abs=0.2)  # the lane is still reached
 
 
+
+def test_fast_car_in_a_bend_follows_the_road():
+    """A car at 15 m/s entering a bend of radius 30 m (the curvature the speed bound allows at
+    that speed is 3 / 15^2 = 0.013 1/m, the road's 0.033): the path still follows the lane
+    centre (the speed plan is the one to slow); a path bounded below the road's curvature would
+    leave it."""
+    from jaxplan.bounds.path_planner import solve_path
+    from jaxplan.geometry.frenet import ReferenceLine
+
+    N, ds, R = 41, 1.0, 30.0
+    a = np.linspace(0.0, 1.8, 200)
+    xy = np.concatenate([np.stack([np.linspace(-20.0, -0.5, 40), np.zeros(40)], -1),
+                         np.stack([R * np.sin(a), R * (1 - np.cos(a))], -1)])
+    ref = ReferenceLine.from_polyline(xy.astype(np.float32))
+    st = jnp.asarray(15.0 + ds * np.arange(N), jnp.float32)
+    edge = jnp.full((N,), 1.75, jnp.float32)
+    far = jnp.zeros((1, 5), jnp.float32) + jnp.asarray([-500.0, 0, 1, 1, 0])
+    args = (ref, st, jnp.float32(ds), far, jnp.zeros((1,), bool), edge, -edge, jnp.zeros((N,), jnp.float32),
+            jnp.zeros(3, jnp.float32), PathConfig(vehicle=CAR))
+    out = jax.jit(lambda v: solve_path(*args, v0=v))(jnp.float32(15.0))
+    assert bool(out["qp"].ok)
+    assert np.abs(np.asarray(out["l"])).max() < 0.3, np.asarray(out["l"])
+    k = np.abs(np.asarray(out["kappa"]))
+    assert k[-10:].min() > 0.9 / R  # it turns with the road
+
 @functools.lru_cache(maxsize=None)
 def _suite_paths():
     """The planner's paths on the seed-000 suite's frames of radius 12 m and 80 m (``bounds_suite``,

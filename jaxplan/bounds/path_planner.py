@@ -25,7 +25,8 @@
 5. **Path QP** (``jaxplan.bounds.optimize``): piecewise jerk inside the corridor, the
    curvature bound from the steering limit and from the lateral acceleration at the car's
    speed (``speed_curvature_cap``: ``a_lat_max / v(s)^2`` with the speed falling at most at
-   ``lat_decel`` along the path, so a fast car changes lane over a long path), a heading
+   ``lat_decel`` along the path, so a fast car changes lane over a long path; never below the
+   route's own curvature, which the speed plan slows for), a heading
    bound (``heading_max`` about the route), a jerk bound, from the car's ``(l, l', l'')``.
 6. **Recompute at the optimised heading**: the intervals depend on the car's heading at
    each station; they are recomputed at the optimised path's heading (decisions kept) and
@@ -274,7 +275,9 @@ def solve_path(ref, st, ds, boxes, blocking, edge_left, edge_right, l_pref, init
     dist = st - st[0]
     if v0 is not None:
         cap = speed_curvature_cap(jnp.asarray(v0, f), dist, config.a_lat_max, config.lat_decel)
-        k_max = jnp.minimum(config.curvature_margin * k_max, cap)
+        # never tighter than the route's own curvature: following the road is always allowed (the
+        # speed plan slows for the curvature), only curving more than it is bounded by the speed
+        k_max = jnp.minimum(config.curvature_margin * k_max, jnp.maximum(cap, jnp.abs(k_r)))
         ddl_lo, ddl_hi = -k_max - k_r, k_max - k_r
     else:
         ddl_lo, ddl_hi = curvature_bounds(k_r, k_max, config.curvature_margin)
