@@ -9,7 +9,7 @@ stages:
   curvature and velocity constraints; jaxplan: the feasibility filter's curvature,
   lateral / longitudinal acceleration, jerk and reverse checks) and the cost terms
   (longitudinal and lateral jerk, distance to the reference path, velocity offset to the
-  set speed; jaxplan computes all of its features, the seed's and the road terms);
+  set speed; jaxplan computes all of its features, the base features and the road terms);
 - **full pipeline with K moving obstacles** (default 20): the above plus the
   distance-to-obstacles cost and real collision checking of every trajectory against
   every obstacle at every step: jaxplan's exact SAT box check (with the safety buffers,

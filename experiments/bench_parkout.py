@@ -3,8 +3,8 @@ rendering the grids.
 
 The scenes are the same mix as before this planner had a search (slots with front and rear gaps
 U(0.5, 2.5) m, heading noise 1.5 deg, grid edge noise 3 cm, false positives): most leave with the
-seed's curves, a few need the search, and hopeless ones stop early. Planning starts from the
-occupancy grids (``plan_grids``: cell tables, seed loop with lane refill, search for the failures);
+two reference curves, a few need the search, and hopeless ones stop early. Planning starts from the
+occupancy grids (``plan_grids``: cell tables, two-curve loop with lane refill, search for the failures);
 rendering (``render_scenes``) is timed on its own. Compile time is reported apart. ``--families``
 adds the planning rate of each scene family at the largest batch. Prints figures and writes JSON
 (``--out``), ``plans_per_s`` keyed by batch size.

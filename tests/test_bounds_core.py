@@ -28,9 +28,9 @@ def _one(obs, u):
     return jax.tree_util.tree_map(lambda x: np.asarray(x)[0], out)
 
 
-# Seed figure: car corner inside the obstacle, Pi' on the obstacle's edge.
+# Single-corner case: car corner inside the obstacle, Pi' on the obstacle's edge.
 OBS_TILTED = [(-3.0, 1.3), (4.0, 0.6), (4.3, 3.6), (-2.7, 4.3)]
-# Seed figure: obstacle corner inside the car.
+# Single-corner case: obstacle corner inside the car.
 OBS_DIAMOND = [(0.5, 0.7), (1.5, 1.7), (0.5, 2.7), (-0.5, 1.7)]
 OBS_DIAMOND_FRONT = [(1.8, 0.9), (2.3, 1.4), (1.8, 1.9), (1.3, 1.4)]
 
@@ -178,10 +178,10 @@ def test_contour_distance_random_cases():
     hit = np.asarray(has_overlap(A, B))
     assert np.all(d[~hit] == 0) and np.all(case[~hit] == CASE_NONE)  # never reported without overlap
     assert np.all(d[hit] > 0)
-    seed = (case == CASE_ON_EDGE) | (case == CASE_OFF_EDGE)
-    assert seed.sum() > 200 and (case == CASE_OFF_EDGE).sum() > 10
-    # In the seed's situation (one corner inside, both neighbours on one edge) the construction is exact.
-    np.testing.assert_allclose(d[seed], ex[seed], atol=1e-4)
+    single = (case == CASE_ON_EDGE) | (case == CASE_OFF_EDGE)
+    assert single.sum() > 200 and (case == CASE_OFF_EDGE).sum() > 10
+    # In the single-corner case (one corner inside, both neighbours on one edge) the construction is exact.
+    np.testing.assert_allclose(d[single], ex[single], atol=1e-4)
     # Several corners: the deepest corner's exit can only under-estimate the exact distance.
     deep = case == CASE_DEEPEST
     assert np.all(d[deep] <= ex[deep] + 1e-4)
@@ -266,10 +266,10 @@ def test_path_bounds_contour_vs_exact_and_centerline_runs():
     ce = path_bounds_jit(REF, S, l, car, obs, method="centerline", lane_lower=-4.0, lane_upper=4.0)
     ov = np.asarray(co.overlap)
     assert ov.sum() > 5
-    seed = np.isin(np.asarray(co.case), [CASE_ON_EDGE, CASE_OFF_EDGE])
-    # Along the Frenet normal the seed construction is exact, so the bounds agree there.
+    single = np.isin(np.asarray(co.case), [CASE_ON_EDGE, CASE_OFF_EDGE])
+    # Along the Frenet normal the contour-corner construction is exact, so the bounds agree there.
     for a, b_ in ((co.obstacle_upper, ex.obstacle_upper), (co.obstacle_lower, ex.obstacle_lower)):
-        a, b_ = np.asarray(a)[seed], np.asarray(b_)[seed]
+        a, b_ = np.asarray(a)[single], np.asarray(b_)[single]
         fin = np.isfinite(b_)
         np.testing.assert_allclose(a[fin], b_[fin], atol=1e-3)
     assert np.all(np.asarray(ce.upper) <= 4.0) and np.all(np.asarray(ce.lower) >= -4.0)

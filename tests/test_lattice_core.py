@@ -324,11 +324,11 @@ def test_select_escalation_finds_free_candidate():
     assert i == int(np.argmin(np.where(~col & (lvl == 1), _lam(res), np.inf)))
 
 
-def test_select_all_collide_seed_rule_uses_risk():
-    # a wall across the road 12 m ahead: no candidate can stop in time; the seed's literal rule
+def test_select_all_collide_risk_rule_uses_risk():
+    # a wall across the road 12 m ahead: no candidate can stop in time; the risk rule
     import dataclasses
     res = plan(PlanState.make(0.0, 0.0, 0.0, 20.0), straight_ref(),
-               obstacles([moving(12 + 3.85 + 0.5, 0, 0, 0, 1.0, 20.0)]), dataclasses.replace(CFG, all_collide="seed"))
+               obstacles([moving(12 + 3.85 + 0.5, 0, 0, 0, 1.0, 20.0)]), dataclasses.replace(CFG, all_collide="risk"))
     assert np.asarray(res.collided).all() and int(res.mode) == RISK
     ttc = np.asarray(res.ttc)
     want = _lam(res) + float(CostWeights().gamma) / np.maximum(ttc, CFG.ttc_min)
@@ -351,7 +351,7 @@ def test_crossroad_virtual_stop():
 def test_soft_select_tends_to_exact(rng):
     import dataclasses
     ref = straight_ref()
-    cfg = dataclasses.replace(CFG, all_collide="seed")  # the smooth form scores the seed's rule
+    cfg = dataclasses.replace(CFG, all_collide="risk")  # the smooth form scores the risk rule
     w = CostWeights()
     for obs in ([moving(35, 0, 12, 0)], [moving(60, 0, 0, 0)], [moving(12 + 4.35, 0, 0, 0, 1.0, 20.0)]):
         res = plan(PlanState.make(0.0, 0.0, 0.0, 15.0), ref, obstacles(obs), cfg)

@@ -251,7 +251,7 @@ def test_park_out_loop():
     assert success[1] and not success[0]  # 2.5 m spare: several moves; 0.5 m spare: a clear failure
     fin = np.asarray(res.final_pose)
     assert np.all(fin[success, 1] >= D) and np.all(np.abs(fin[success, 2]) < CFG.out_tol)
-    # the executed moves chain: each starts where the previous ended, gears alternate on the seed's path
+    # the executed moves chain: each starts where the previous ended, gears alternate on the two-curve path
     p, v = np.asarray(res.poses), np.asarray(res.valid)
     for b in np.nonzero(success)[0]:
         ends = [p[b, m, v[b, m]][-1] for m in range(moves[b])]
@@ -259,10 +259,10 @@ def test_park_out_loop():
         assert np.allclose(starts[0], np.asarray(scene.start[b]), atol=1e-6)
         assert all(np.allclose(s, e, atol=1e-5) for s, e in zip(starts[1:], ends[:-1]))
     # equal shapes do not recompile
-    from jaxplan.parking.driver import _run_seed
-    n = _run_seed._cache_size()
+    from jaxplan.parking.driver import _run_two_curve
+    n = _run_two_curve._cache_size()
     again = pk.park_out(scene, 1, CFG, CAR)
-    assert _run_seed._cache_size() == n and bool(np.all(again.success[1:]))
+    assert _run_two_curve._cache_size() == n and bool(np.all(again.success[1:]))
 
 
 def test_plan_parkout_api():

@@ -2,7 +2,7 @@
 cars (the search), the batch driver, the renderer, the speed profile, scene files and ``jaxplan parkout``.
 
 Results are judged by shapely (``parking_oracle``), not by the planner's own grid check. All
-``park_out`` calls use batches of at most 8 scenes, so they share one compiled seed loop and search.
+``park_out`` calls use batches of at most 8 scenes, so they share one compiled two-curve loop and search.
 """
 import copy
 import json
@@ -18,7 +18,7 @@ import jaxplan.parking as pk
 from jaxplan.cli import main
 from jaxplan.parking.families import family_scenes, scene_dicts
 from jaxplan.parking.profile import speed_profile_jit
-from jaxplan.parking.scene_file import problem_from_dict, result_states, stack_scenes
+from jaxplan.parking.scene_file import problem_from_dict, result_states, stack_parking_scenes
 from jaxplan.types import VehicleParams
 from parking_oracle import collisions, world_collision
 
@@ -49,7 +49,7 @@ def heldout():
         for d in scene_dicts(sc, info, CAR, rng):
             dicts.append(d)
             probs.append(problem_from_dict(d))
-    scene = stack_scenes([p.scene for p in probs])
+    scene = stack_parking_scenes([p.scene for p in probs])
     res = pk.park_out(scene, 0, CFG, CAR)
     return dicts, probs, scene, res
 
@@ -74,7 +74,7 @@ def test_heldout_families_world_frame(heldout):
         axle = lambda s: s[:2] - back * np.array([np.cos(s[2]), np.sin(s[2])])  # noqa: E731
         assert (axle(states[-1]) - axle(np.array([*car0, d["start"]["heading"]]))) @ normal >= D - 1e-3
         assert abs(np.sin(states[-1, 2] - d["road_heading"])) < np.sin(CFG.out_tol)
-    assert np.asarray(res.searched).any()  # walls and stopped cars need more than the seed's two curves
+    assert np.asarray(res.searched).any()  # walls and stopped cars need more than the two reference curves
     # no driven footprint comes within margin + one cell of the grid's edge: the edge never cut a move
     q = np.asarray(res.poses)[np.asarray(res.valid)]
     corners = np.asarray(pk.boxes_to_polygons(pk.footprint_boxes(jnp.asarray(q), CAR)))
@@ -106,7 +106,7 @@ def test_road_on_the_right_mirrors_the_left():
 
 
 def test_refill_lanes_match_one_scene_per_call(heldout):
-    """8 scenes through the driver's lanes (4 seed lanes and 4 search lanes, refilled from the queue)
+    """8 scenes through the driver's lanes (4 two-curve lanes and 4 search lanes, refilled from the queue)
     plan exactly what each scene gets alone, searched ones too."""
     _, _, scene, res = heldout
     grids = pk.render_scenes(scene, 0, CFG, CAR)
@@ -116,9 +116,9 @@ def test_refill_lanes_match_one_scene_per_call(heldout):
         alone = pk.plan_grids(scene.start[i:i + 1], pk.Grid(grids.cells[i:i + 1], grids.pose[i:i + 1]), CFG, CAR)
         for a, b in zip(jax.tree_util.tree_leaves(alone), jax.tree_util.tree_leaves(res)):
             assert np.array_equal(np.asarray(a)[0], np.asarray(b)[i])
-    from jaxplan.parking.driver import _run_search, _run_seed
+    from jaxplan.parking.driver import _run_search, _run_two_curve
 
-    assert _run_seed._cache_size() == 1 and _run_search._cache_size() == 1  # one compile each for all of it
+    assert _run_two_curve._cache_size() == 1 and _run_search._cache_size() == 1  # one compile each for all of it
 
 
 def test_speed_profile(heldout):

@@ -297,17 +297,17 @@ def test_replan_decision_truth_table():
 
 
 def test_bad_input_gets_a_clear_error():
-    from jaxplan.replan import SimConfig, simulate
+    from jaxplan.replan import ManeuverSimConfig, simulate
 
     with pytest.raises(ValueError, match="dt"):
         SupervisorConfig(dt=0.0)
     with pytest.raises(ValueError, match="queue_size"):
         SupervisorConfig(queue_size=0)
     with pytest.raises(ValueError, match="strategy"):
-        simulate(None, 3, SimConfig())
+        simulate(None, 3, ManeuverSimConfig())
     with pytest.raises(ValueError, match="limits"):
         from jaxplan.replan import ApproachPlanner, MotionLimits
-        SimConfig(planner=ApproachPlanner(limits=MotionLimits(v_fwd=5.0)))
+        ManeuverSimConfig(planner=ApproachPlanner(limits=MotionLimits(v_fwd=5.0)))
     with pytest.raises(ValueError, match="radius_factor"):
         from jaxplan.replan import ApproachPlanner
         ApproachPlanner(radius_factor=0.9)

@@ -14,7 +14,7 @@ pytestmark = pytest.mark.skipif(not os.environ.get("JAXPLAN_SLOW"), reason="slow
 
 def test_parkout_through_lazy_supervisor():
     from jaxplan.parking import is_out, stop_line
-    from jaxplan.replan import LAZY, OBSTACLE, SimConfig, SupervisorConfig, simulate_host
+    from jaxplan.replan import LAZY, OBSTACLE, ManeuverSimConfig, SupervisorConfig, simulate_host
     from jaxplan.replan.parkout_adapter import ParkoutPlanner, parkout_scenarios
     from jaxplan.replan.trajectory import sub_trajectories
 
@@ -22,7 +22,7 @@ def test_parkout_through_lazy_supervisor():
     sc, nominal = parkout_scenarios(0, 2, pp)
     lo, hi, dirs, count = jax.vmap(sub_trajectories)(nominal.traj.gear, nominal.valid)
     assert np.all(np.asarray(count) >= 2)  # a multi-move park-out: gear shifts between moves
-    cfg = SimConfig(planner=pp, supervisor=SupervisorConfig(limits=pp.limits), sensor_range=30.0, lat_sigma=0.0,
+    cfg = ManeuverSimConfig(planner=pp, supervisor=SupervisorConfig(limits=pp.limits), sensor_range=30.0, lat_sigma=0.0,
                     steps=300)
     d = stop_line(pp.vehicle, pp.config.c)
     for i in range(2):

@@ -9,12 +9,12 @@ import numpy as np
 import pytest
 import shapely
 
-from jaxplan.replan import (GOAL, IMMEDIATE, LAZY, OBSTACLE, PERIOD, PERIODIC, SimConfig, run_summary,
+from jaxplan.replan import (GOAL, IMMEDIATE, LAZY, OBSTACLE, PERIOD, PERIODIC, ManeuverSimConfig, run_summary,
                             sample_scenarios, simulate, simulate_host)
 from jaxplan.replan import simulator as S
 from jaxplan.compile_options import FULL_OPTIMISATION, jit
 
-CFG = SimConfig(steps=300)
+CFG = ManeuverSimConfig(steps=300)
 BUSY = 4  # per kind, with many obstacles; then 2 per kind with none and no noise
 
 

@@ -1,4 +1,4 @@
-"""Contour-corner collision-avoiding distance (the seed's construction).
+"""Contour-corner collision-avoiding distance (the primary / auxiliary corner construction).
 
 Built on ``overlap_polygon_tagged`` (car = A, obstacle = B). For one car contour,
 one obstacle contour and the direction ``u`` in which the car is to move:
@@ -10,7 +10,7 @@ one obstacle contour and the direction ``u`` in which the car is to move:
   moves relative to the car by ``-u``). Ties go to the first in the polygon's
   order.
 * **Auxiliary overlap corners Po1, Po2**: Ph's two neighbours on the overlap
-  polygon. In the seed's situation both are edge crossings on one edge of the
+  polygon. In the single-corner case (see below) both are edge crossings on one edge of the
   other contour; that edge is the contour edge, on line l2 = Po1 Po2, with
   ends Pl1, Pl2 (the obstacle's corners when Ph is a car corner, the car's
   corners when Ph is an obstacle corner).
@@ -23,17 +23,19 @@ one obstacle contour and the direction ``u`` in which the car is to move:
   the target contour corner is the Pl with the larger projection on ``w``;
   l5 through it parallel to l4; ``Pi = l5 x l3``; distance ``|Pi - Ph|``.
   If Pi' lies *behind* Ph (moving along ``w`` takes Ph away from l2, so l3
-  leaves the other contour through another edge) the seed's l2 is not the
-  way out and the rule below for non-seed cases is used.
+  leaves the other contour through another edge) l2 = Po1 Po2 is not the
+  way out and the rule below for the other cases is used.
 
-Cases outside the seed, with the rule used (see ``CASE_*``):
+The construction above covers the single-corner case: Ph is the only corner inside
+the other contour and its neighbours are on one edge of it (``CASE_ON_EDGE``,
+``CASE_OFF_EDGE``). Cases outside it, with the rule used (see ``CASE_*``):
 
 * several corners inside, Ph's neighbours not on one edge of the other
   contour, or Pi' behind Ph: Ph is still the deepest corner; l2 is the other contour's edge
   where l3 leaves it, so Pi' is always on the edge and the distance is Ph's
   exit distance along l3 (the small-curvature formula).
-* no corner inside (edges only cross) or a degenerate construction: the seed
-  has nothing to offer; the exact distance (``exact_avoid_distance``) is used.
+* no corner inside (edges only cross) or a degenerate construction: the
+  construction has nothing to offer; the exact distance (``exact_avoid_distance``) is used.
 """
 
 from __future__ import annotations
@@ -56,8 +58,8 @@ from jaxplan.geometry.polygons import (
 from jaxplan.types import check_polygons, check_trailing, is_concrete
 
 CASE_NONE = 0  # no overlap: distance 0
-CASE_ON_EDGE = 1  # seed, Pi' on the contour edge (small curvature)
-CASE_OFF_EDGE = 2  # seed, Pi' off the edge: l4 / l5 construction (large curvature)
+CASE_ON_EDGE = 1  # single corner, Pi' on the contour edge (small curvature)
+CASE_OFF_EDGE = 2  # single corner, Pi' off the edge: l4 / l5 construction (large curvature)
 CASE_DEEPEST = 3  # several corners / neighbours on different edges: exit of the deepest corner along l3
 CASE_NO_CORNER = 4  # edges cross, no corner inside: exact distance
 CASE_DEGENERATE = 5  # parallel lines or a construction behind Ph: exact distance
@@ -145,7 +147,7 @@ def _single(car, obs, obs_valid, u, with_exact=True):
     prv, nxt = (r - 1) % count, (r + 1) % count
     po1, po2 = op.vertices[prv], op.vertices[nxt]
     other_edge = jnp.where(car_primary, op.index_b, op.index_a)  # edge of the other contour
-    seed = (
+    single = (
         (op.source[prv] == EDGE_CROSSING)
         & (op.source[nxt] == EDGE_CROSSING)
         & (other_edge[prv] == other_edge[nxt])
@@ -161,15 +163,15 @@ def _single(car, obs, obs_valid, u, with_exact=True):
     obs_pv = jnp.concatenate([obs_valid, jnp.zeros((max(4 - M, 0),), bool)])
     other = jnp.where(car_primary, obs_p, car_p)
     other_valid = jnp.where(car_primary, obs_pv, car_pv)
-    j_seed = jnp.maximum(other_edge[nxt], 0)
+    j_single = jnp.maximum(other_edge[nxt], 0)
     j_exit = jnp.where(car_primary, ja[r], jb[r])
-    j = jnp.where(seed, j_seed, j_exit)
+    j = jnp.where(single, j_single, j_exit)
     nx = _next_index(other_valid)
     pl1, pl2 = other[j], other[nx[j]]
 
     # l2 x l3: Pi'.
-    l2_dir = jnp.where(seed, po2 - po1, pl2 - pl1)
-    l2_pt = jnp.where(seed, po1, pl1)
+    l2_dir = jnp.where(single, po2 - po1, pl2 - pl1)
+    l2_pt = jnp.where(single, po1, pl1)
     pi1, t1, s2, ok1 = line_intersection(ph, w, l2_pt, l2_dir)
     # On the contour edge: Pi' between Pl1 and Pl2, and ahead of Ph.
     s_edge = dot2(pi1 - pl1, pl2 - pl1) / jnp.maximum(dot2(pl2 - pl1, pl2 - pl1), 1e-30)
@@ -187,20 +189,24 @@ def _single(car, obs, obs_valid, u, with_exact=True):
     pi2, t2, _, ok2 = line_intersection(ph, w, pl_t, po_t - ph)
     off_ok = ok2 & (t2 >= -tol)
 
-    # Pi' behind Ph (l3 leaves through another edge) is outside the seed: deepest-exit rule.
+    # Pi' behind Ph (l3 leaves through another edge) is outside the single-corner case: deepest-exit rule.
     ahead = ok1 & (t1 >= -tol)
-    case_seed = jnp.where(on_edge, CASE_ON_EDGE, jnp.where(off_ok, CASE_OFF_EDGE, CASE_DEGENERATE))
+    case_single = jnp.where(on_edge, CASE_ON_EDGE, jnp.where(off_ok, CASE_OFF_EDGE, CASE_DEGENERATE))
     case = jnp.where(
-        ~overlap, CASE_NONE, jnp.where(~has_corner, CASE_NO_CORNER, jnp.where(seed & ahead, case_seed, CASE_DEEPEST))
+        ~overlap,
+        CASE_NONE,
+        jnp.where(~has_corner, CASE_NO_CORNER, jnp.where(single & ahead, case_single, CASE_DEEPEST)),
     )
-    dist_seed = jnp.where(on_edge, jnp.maximum(t1, 0.0), jnp.maximum(t2, 0.0))
+    dist_single = jnp.where(on_edge, jnp.maximum(t1, 0.0), jnp.maximum(t2, 0.0))
     un = jnp.linalg.norm(u)
     exact = exact_avoid_distance(car, obs, u, car_valid, obs_valid) if with_exact else jnp.nan
     dist = jnp.where(
         case == CASE_NONE,
         0.0,
         jnp.where(
-            (case == CASE_ON_EDGE) | (case == CASE_OFF_EDGE), dist_seed, jnp.where(case == CASE_DEEPEST, exit_t, exact)
+            (case == CASE_ON_EDGE) | (case == CASE_OFF_EDGE),
+            dist_single,
+            jnp.where(case == CASE_DEEPEST, exit_t, exact),
         ),
     )
     pi_second = jnp.where(case == CASE_OFF_EDGE, pi2, pi1)
@@ -223,7 +229,7 @@ def _single(car, obs, obs_valid, u, with_exact=True):
 
 
 def contour_construction(vehicle_corners, obstacle_corners, normal, obstacle_valid=None, with_exact: bool = True):
-    """The seed's construction with all its points, batched over leading dims.
+    """The contour-corner construction with all its points, batched over leading dims.
 
     Args:
         vehicle_corners: ``(..., 4, 2)`` car contour, counter-clockwise.
@@ -231,7 +237,7 @@ def contour_construction(vehicle_corners, obstacle_corners, normal, obstacle_val
         normal: ``(..., 2)`` unit direction in which the car moves (along the trajectory
             normal l1, away from the obstacle).
         obstacle_valid: ``(..., K)`` prefix mask or None.
-        with_exact: compute the exact distance for the cases outside the seed (static);
+        with_exact: compute the exact distance for the cases outside the single-corner case (static);
             False leaves NaN there (for callers that have the exact distance already).
 
     Returns:
@@ -259,7 +265,7 @@ def contour_construction(vehicle_corners, obstacle_corners, normal, obstacle_val
 
 
 def contour_avoid_distance(vehicle_corners, obstacle_corners, normal, obstacle_valid=None):
-    """The seed's collision-avoiding distance of a car contour from an obstacle contour.
+    """The contour-corner collision-avoiding distance of a car contour from an obstacle contour.
 
     Args:
         vehicle_corners: ``(..., 4, 2)`` car contour, counter-clockwise.

@@ -9,19 +9,19 @@ side and one bound:
 * side: **left** when the obstacle's centre (mean of its vertices) lies left of
   ``traj(i)`` along the reference normal at the point (its offset from the point
   along that normal; the obstacles that give a bound there are near the point).
-  This is the per-frame rule of the seed; the planner's side decision against the
+  This is the per-frame side rule; the planner's side decision against the
   free corridor is ``jaxplan.bounds.decision``.
-* ``method="contour"`` (the seed): where the car at ``traj(i)`` overlaps the
-  obstacle in the seed's case (one corner inside, its neighbours on one edge:
+* ``method="contour"`` (``jaxplan.bounds.corners``): where the car at ``traj(i)`` overlaps the
+  obstacle in the single-corner case (one corner inside, its neighbours on one edge:
   ``CASE_ON_EDGE`` / ``CASE_OFF_EDGE``), the contour-corner distance ``d``; with
   ``normal="frenet"`` (default) it is measured along the reference normal, the
   direction of the Frenet bound, so it is the bound's distance itself; with
   ``normal="trajectory"`` along the trajectory normal l1 and mapped back to Frenet
   (``|l(p + d u) - traj(i).l|``, which under-estimates where l1 and the reference
   normal differ). Left: ``upper = traj(i).l - d'``; right: ``lower = traj(i).l + d'``.
-  Overlaps outside the seed's case (``CASE_EXACT``), beyond the broad phase's budget
-  (``CASE_UNCONSTRUCTED``) and non-overlapping pairs get the exact bound: the seed
-  defines nothing there. Broad phase: the construction runs only for the
+  Overlaps outside the single-corner case (``CASE_EXACT``), beyond the broad phase's budget
+  (``CASE_UNCONSTRUCTED``) and non-overlapping pairs get the exact bound: the
+  construction defines nothing there. Broad phase: the construction runs only for the
   ``n_construct`` deepest overlapping pairs of a frame; the exact interval of every
   pair costs about 60 flops (``box_overlap_interval``, for rectangles).
 * ``method="exact"``: the ground truth. Moving the reference point along the
@@ -59,7 +59,7 @@ from jaxplan.geometry.lines import normalize, perpendicular
 from jaxplan.types import Obstacles, VehicleParams, check_finite, check_polygons, is_concrete
 
 METHODS = ("contour", "exact", "centerline", "slbox")
-CASE_EXACT = 6  # an overlap outside the seed's case: the exact distance
+CASE_EXACT = 6  # an overlap outside the single-corner case: the exact distance
 CASE_UNCONSTRUCTED = 7  # an overlap beyond the broad phase's budget: the exact distance
 
 
@@ -172,7 +172,7 @@ def _frame(
         nvec = n_ref if normal == "frenet" else n_trj
         u = jnp.where(sel_left[:, None], -nvec[ti], nvec[ti])  # (J, 2)
         con = contour_construction(car[ti], obs[ti, ki], u, vmask[ti, ki], with_exact=False)
-        seed = sel_ov & ((con.case == CASE_ON_EDGE) | (con.case == CASE_OFF_EDGE))
+        single = sel_ov & ((con.case == CASE_ON_EDGE) | (con.case == CASE_OFF_EDGE))
         lc_sel = l[ti]
         if normal == "frenet":
             adj = con.distance
@@ -180,10 +180,10 @@ def _frame(
             moved = xy[ti] + con.distance[:, None] * u
             _, l_m = to_frenet(ref, moved)
             adj = jnp.abs(l_m - lc_sel)
-        upper_k = ex_upper.at[ti, ki].set(jnp.where(seed, lc_sel - adj, ex_upper[ti, ki]))
-        lower_k = ex_lower.at[ti, ki].set(jnp.where(seed, lc_sel + adj, ex_lower[ti, ki]))
+        upper_k = ex_upper.at[ti, ki].set(jnp.where(single, lc_sel - adj, ex_upper[ti, ki]))
+        lower_k = ex_lower.at[ti, ki].set(jnp.where(single, lc_sel + adj, ex_lower[ti, ki]))
         case = jnp.where(overlap, CASE_UNCONSTRUCTED, CASE_NONE).astype(jnp.int32)
-        case = case.at[ti, ki].set(jnp.where(sel_ov, jnp.where(seed, con.case, CASE_EXACT), case[ti, ki]))
+        case = case.at[ti, ki].set(jnp.where(sel_ov, jnp.where(single, con.case, CASE_EXACT), case[ti, ki]))
         block = hit
     elif method == "slbox":
         # Apollo-style: the obstacle's SL bounding box (its corners projected on the line)
@@ -265,8 +265,8 @@ def path_bounds(
         lane_lower, lane_upper: scalars or ``(..., T)`` lane limits on ``l``.
         method: ``"contour"``, ``"exact"`` or ``"centerline"`` (static).
         normal: ``"frenet"`` (default: the reference line's normal, the direction of the
-            Frenet bound, along which the seed's distance is the bound itself) or
-            ``"trajectory"`` (the seed's l1; the distance along it is mapped back to Frenet,
+            Frenet bound, along which the contour-corner distance is the bound itself) or
+            ``"trajectory"`` (the trajectory normal l1; the distance along it is mapped back to Frenet,
             which under-estimates where l1 and the reference normal differ). Contour only.
         buffer: lateral buffer of the centre-line and SL-box baselines (m).
         n_construct: contour method: the construction runs for at most this many

@@ -11,7 +11,7 @@ futures stand in for predictions).
 
 Figures: share of scenes whose chosen trajectory is collision-free over the
 horizon; share where speed variation found a collision-free candidate and the
-fixed-speed candidates (end speed = current speed) had none (the seed's claim);
+fixed-speed candidates (end speed = current speed) had none (what speed variation adds);
 candidates per scene; time per plan. Plots: the candidate fan coloured by cost
 with the obstacles over time, and the chosen trajectory.
 """

@@ -28,7 +28,7 @@ from jaxplan.parking import (
 )
 from jaxplan.parking.families import FAMILIES, family_scenes, scene_dicts
 from jaxplan.parking.profile import speed_profile_jit
-from jaxplan.parking.scene_file import problem_from_dict, stack_scenes
+from jaxplan.parking.scene_file import problem_from_dict, stack_parking_scenes
 from jaxplan.parking.scenes import ParkingScene
 from jaxplan.types import VehicleParams
 
@@ -111,7 +111,7 @@ def side_sweep(n_per_gap: int, gaps, seed: int, config: ParkoutConfig, vehicle: 
     for side in ("left", "right"):
         info["side"] = np.full(len(g), side)
         probs = [problem_from_dict(d) for d in scene_dicts(scene, info, vehicle, np.random.default_rng(seed))]
-        sc = stack_scenes([p.scene for p in probs])
+        sc = stack_parking_scenes([p.scene for p in probs])
         res = park_out(sc, seed, config, vehicle)
         coll, _ = _judge(res, sc, vehicle)
         out[side] = dict(success=np.asarray(res.success) & ~coll, collided=coll, moves=np.asarray(res.moves))
@@ -200,7 +200,7 @@ def parkout_suite(args: SuiteArgs) -> dict:
         fs, finfo = family_scenes(fam, rng, nf, car)
         if fam in ("right", "wall", "stopped", "angled"):  # through the scene-file loader, mirrored where right
             probs = [problem_from_dict(d) for d in scene_dicts(fs, finfo, car, rng)]
-            fs = stack_scenes([p.scene for p in probs])
+            fs = stack_parking_scenes([p.scene for p in probs])
         t0 = time.perf_counter()
         res = park_out(fs, args.seed + i, cfg, car)
         dt = time.perf_counter() - t0

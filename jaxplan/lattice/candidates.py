@@ -1,10 +1,10 @@
 """The candidate lattice: longitudinal profiles x lanes x lateral offsets x lateral times, at dt.
 
 Layout: candidates are indexed ``(profile, lane, offset, lateral time)`` flattened in that
-order (``N = G * P``). The profiles (``jaxplan.lattice.longitudinal``) start with the seed's
+order (``N = G * P``). The profiles (``jaxplan.lattice.longitudinal``) start with the cruise
 ``(level, speed)`` grid: level ``e`` uses the speed deltas scaled by ``escalation[e]``; then
 the following, stopping and goal modes (level 0), the emergency and fallback levels. With
-the default config this is the seed's ``(level, speed, lane, offset)`` order.
+the default config this is the ``(level, speed, lane, offset)`` order.
 
 Each speed profile gives the distance ``s(t)`` along the reference line; the lateral
 path ``l(s)`` is a quintic reaching its offset after ``S = max(s(t_lat), s_min)``, where
@@ -70,7 +70,7 @@ class LatticeConfig:
             the distance to the crossroad is below ``d_threshold`` a stopped box of
             ``stop_length x stop_width`` starts ``d_margin`` beyond it on the reference line.
 
-    Longitudinal modes (``jaxplan.lattice.longitudinal``; all off by default, the seed's lattice):
+    Longitudinal modes (``jaxplan.lattice.longitudinal``; all off by default, cruise profiles only):
         modes: a subset of ``("follow", "stop", "goal")``, each over ``end_times`` (s).
         follow_gap, follow_time_gap: the following mode's end state is
             ``follow_gap + follow_time_gap * v_lead`` behind the leader's rear (m, s).
@@ -100,7 +100,7 @@ class LatticeConfig:
             decelerating at ``terminal_decel`` (m/s^2) with ``terminal_gap`` (m) left, the
             obstacle braking as hard.
         all_collide: ``"harm"`` (default: least impact speed at first contact, then the latest
-            contact) or ``"seed"`` (the seed's ``lambda + gamma / TTC``).
+            contact) or ``"risk"`` (least ``lambda + gamma / TTC``).
         lane_change_gain: metres of progress over the horizon by which another lane must beat
             the current and the route lane before the lattice takes it as its target lane.
         borrow_gain: metres more by which a lane running the other way must beat them
@@ -185,12 +185,12 @@ class LatticeConfig:
 
     @property
     def grid(self) -> tuple:
-        """``(levels, speeds, lanes, offsets)`` of the seed's part of the lattice."""
+        """``(levels, speeds, lanes, offsets)`` of the cruise part of the lattice."""
         return (len(self.escalation), len(self.speed_deltas_kmh), len(self.lanes), self.n_offsets)
 
     @property
     def n_profiles(self) -> int:
-        """``G``: longitudinal profiles (the seed's levels x speeds, then the modes)."""
+        """``G``: longitudinal profiles (the cruise levels x speeds, then the modes)."""
         from jaxplan.lattice.longitudinal import n_profiles
 
         return n_profiles(self)
@@ -276,8 +276,8 @@ class LatticeConfig:
             raise ValueError(f"LatticeConfig.borrow_gain must be >= 0 m (inf: never borrow), got {self.borrow_gain}")
         if not (self.select_temperature >= 0 and self.select_temperature < float("inf")):
             raise ValueError(f"LatticeConfig.select_temperature must be finite and >= 0, got {self.select_temperature}")
-        if self.all_collide not in ("harm", "seed"):
-            raise ValueError(f"LatticeConfig.all_collide must be 'harm' or 'seed', got {self.all_collide!r}")
+        if self.all_collide not in ("harm", "risk"):
+            raise ValueError(f"LatticeConfig.all_collide must be 'harm' or 'risk', got {self.all_collide!r}")
         if not (
             self.emergency_a_min < 0 < self.emergency_a_max and self.fallback_decel > 0 and self.emergency_jerk > 0
         ):
@@ -370,7 +370,7 @@ class Candidates:
         axis: ``(..., N, T, 2)`` heading unit vectors ``(cos theta, sin theta)``.
         s, l, dl: ``(..., N, T)`` Frenet arc length (absolute), offset and dl/ds.
         v_end, offset: ``(..., N)`` target end speed (m/s) and lateral offset (m).
-        level, speed_index, lane: ``(..., N)`` int: selection level, the seed's speed index
+        level, speed_index, lane: ``(..., N)`` int: selection level, the cruise speed index
             (-1 for the other modes), lane id (``config.lanes`` value, ``HOLD_LANE`` / ``GOAL_LANE``).
         l_target: ``(...)`` the local reference path's offset (the route lane's centre).
         kind: ``(..., N)`` longitudinal mode (``longitudinal.CRUISE`` ... ``FALLBACK``).
@@ -619,11 +619,12 @@ def _chunk(G: int, points: int) -> int:
     The loop writes the samples out chunk by chunk, while they are in the cache. Without a loop
     (one chunk of every profile) XLA fuses the generator into every per-candidate reduction that
     reads it and recomputes it there; a remainder chunk (``lax.map``'s, outside the loop) is fused
-    the same way. The default ``LatticeConfig`` (15 profiles of 255 samples) was one chunk under
-    the former rule (``CHUNK_POINTS // points`` profiles, up to all of them): its plan went from
-    1.26 to 0.56 and from 0.93 to 0.49 ms (two runs, best of 50 rounds each, both rules in one
-    process; per-round median ratios 0.63 and 0.53), with the same choice. Wherever the former rule already gave one profile per chunk (the benchmark's N = 994,
-    1748, 4992, the road planner) this is the same rule."""
+    the same way. The default ``LatticeConfig`` (15 profiles of 255 samples) would be one chunk
+    under the alternative rule of ``CHUNK_POINTS // points`` profiles per chunk (up to all of
+    them): with this rule its plan takes 0.56 ms instead of 1.26 and 0.49 instead of 0.93 (two
+    runs, best of 50 rounds each, both rules in one process; per-round median ratios 0.63 and
+    0.53), with the same choice. Where that rule also gives one profile per chunk (the
+    benchmark's N = 994, 1748, 4992, the road planner) the two rules agree."""
     fits = [d for d in range(1, G) if G % d == 0 and d * points <= CHUNK_POINTS]
     return max(fits, default=1)
 
@@ -694,9 +695,9 @@ def generate(
     """All candidates of the lattice for one state (any leading batch dims via vmap).
 
     Layout: ``N = G * P``, the longitudinal profile ``g`` major (``jaxplan.lattice.longitudinal``:
-    the seed's ``levels x speeds`` first), then the lateral target ``(lane, offset)`` and the
+    the cruise ``levels x speeds`` first), then the lateral target ``(lane, offset)`` and the
     lateral time (``P = lanes' * offsets * lateral times``). With the defaults this is the
-    seed's ``(level, speed, lane, offset)`` order.
+    ``(level, speed, lane, offset)`` order.
 
     Args:
         state: ``PlanState`` with scalar fields.

@@ -5,15 +5,15 @@ Features ``(..., N, F)`` in the order of ``FEATURES``:
 - ``d_lrp``: mean over the horizon of ``|l - l_target|`` (m), the distance to the
   local reference path (the target lane's centre).
 - ``rho_max``: maximum ``|kappa|`` over the horizon (1/m).
-- ``risk``: ``1 / max(TTC, ttc_min)`` (1/s), 0 without collision. The seed writes
-  ``gamma * TTC``; a larger TTC is safer, so the risk decreases with TTC.
+- ``risk``: ``1 / max(TTC, ttc_min)`` (1/s), 0 without collision: a larger TTC
+  is safer, so the risk decreases with TTC (``gamma`` weighs ``1 / TTC``, not ``TTC``).
 - ``speed``: ``|v_end - v_set|`` (m/s).
 - ``collision``: ``sigmoid(-min_sep / sep_eps)``, the smooth collision indicator from
   the signed separation (``min_sep`` = minimum over steps and obstacles).
 - ``level_free``: escalation level times ``(1 - collision)``.
 
 The road lattice adds (``road_features``, all linear in their weights, so ``jax.grad`` and
-optax tune them like the seed's):
+optax tune them like the base features):
 
 - ``jerk_lon``: mean squared ``da/dt`` (m^2/s^6); ``jerk_lat``: mean squared ``d(v^2 kappa)/dt``;
 - ``obstacle``: mean over the horizon of ``exp(-max(min_sep, 0) / obstacle_scale)``, the
@@ -29,7 +29,7 @@ optax tune them like the seed's):
   terminal condition fails (both as 0/1, with large weights, so that the smooth form ranks
   like the exact rule).
 
-The exact rule (the seed's flow): if some level-0 candidate is collision-free,
+The exact rule (selection with escalation): if some level-0 candidate is collision-free,
 take the free one of least ``lambda = alpha d_lrp + beta rho_max + delta speed``;
 else the lowest escalation level with a free candidate, likewise; if every
 candidate collides, the least ``lambda + gamma risk`` over all of them.
@@ -64,7 +64,7 @@ FEATURES = (
     "infeasible",
     "unsafe_end",
 )
-SEED_FEATURES = 6  # the first six are the seed's
+BASE_FEATURES = 6  # the first six are the base risk / comfort features (``base_features``)
 # The exact selection's modes: FREE / ESCALATED (a comfortable level, every check passed),
 # RISK (every candidate collides), EMERGENCY (the emergency or fallback level, every check
 # passed), CONSTRAINED (collision-free, but inside a safety buffer or failing the terminal condition),
@@ -90,7 +90,7 @@ WEIGHT_FIELDS = (
     "infeasible",
     "unsafe_end",
 )
-EXTRA_WEIGHTS = ("jerk_lon", "jerk_lat", "obstacle", "v_offset", "goal")  # enter lambda beside the seed's
+EXTRA_WEIGHTS = ("jerk_lon", "jerk_lat", "obstacle", "v_offset", "goal")  # enter lambda beside the base terms
 
 
 @pytree_dataclass(data_fields=WEIGHT_FIELDS)
@@ -142,10 +142,10 @@ def cost_features(l, kappa, l_target, ttc, v_end, v_set, min_sep, level, ttc_min
     """
     d_lrp = jnp.mean(jnp.abs(l - jnp.asarray(l_target)[..., None, None]), axis=-1)
     rho = jnp.max(jnp.abs(kappa), axis=-1)
-    return seed_features(d_lrp, rho, ttc, v_end, v_set, jnp.min(min_sep, axis=-1), level, ttc_min, sep_eps)
+    return base_features(d_lrp, rho, ttc, v_end, v_set, jnp.min(min_sep, axis=-1), level, ttc_min, sep_eps)
 
 
-def seed_features(d_lrp, rho, ttc, v_end, v_set, sep_min, level, ttc_min=0.1, sep_eps=0.05):
+def base_features(d_lrp, rho, ttc, v_end, v_set, sep_min, level, ttc_min=0.1, sep_eps=0.05):
     """``cost_features`` from per-candidate reductions ``(..., N)``: ``d_lrp`` (mean ``|l -
     l_target|``), ``rho`` (max ``|kappa|``) and ``sep_min`` (least separation over the horizon)."""
     risk = jnp.where(jnp.isfinite(ttc), 1.0 / jnp.maximum(ttc, ttc_min), 0.0)
@@ -161,13 +161,13 @@ def costs(weights: CostWeights, features):
 
 
 def lam(weights: CostWeights, features, speed: bool = True):
-    """The seed's ``lambda = alpha D_toLRP + beta rho_max (+ delta speed)``, ``(..., N)``, plus the
+    """The comfort cost ``lambda = alpha D_toLRP + beta rho_max (+ delta speed)``, ``(..., N)``, plus the
     road terms (``EXTRA_WEIGHTS``) where ``features`` has them (weights without those
     attributes count them 0). ``speed=False`` drops both speed terms (``delta``, ``v_offset``)."""
     out = weights.alpha * features[..., 0] + weights.beta * features[..., 1]
     if speed:
         out = out + weights.delta * features[..., 3]
-    if features.shape[-1] > SEED_FEATURES:
+    if features.shape[-1] > BASE_FEATURES:
         for name in EXTRA_WEIGHTS:
             if name == "v_offset" and not speed:
                 continue
@@ -251,7 +251,7 @@ def soft_choice(selection_cost, chosen, temperature: float):
 
 
 def road_features(base, traj, dt, min_sep, v_set, goal_err, feasible, terminal_ok, collided):
-    """The seed's features ``base (..., N, 6)`` followed by the road terms (module docstring).
+    """The base features ``base (..., N, 6)`` (``base_features``) followed by the road terms (module docstring).
 
     Args:
         traj: ``Trajectory`` ``(..., N, T)``; dt: step (s); min_sep: ``(..., N, T)``.
@@ -403,7 +403,7 @@ def choose(
     In the first non-empty group: the lowest level that has one, then the least ``lambda``. If
     every candidate collides: ``rule="harm"`` takes the least impact speed at first contact,
     then the latest first contact, then the least ``lambda`` without the speed terms;
-    ``rule="seed"`` the least ``lambda + gamma * risk`` (``risk_cost``).
+    ``rule="risk"`` the least ``lambda + gamma * risk`` (``risk_cost``).
 
     Args:
         features: ``(..., N, F)``; level: ``(..., N)`` int; available, feasible, free_margin,
@@ -439,7 +439,7 @@ def choose(
         tier = jnp.where(take, i, tier)
         found = found | take
     sel_free = jnp.where(chosen_set, lam_c, jnp.inf)
-    if rule == "seed":
+    if rule == "risk":
         rc = lam_c + (0.0 if risk_cost is None else risk_cost)
         sel_risk = jnp.where(pool, rc, jnp.inf)
     else:

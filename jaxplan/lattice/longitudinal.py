@@ -3,7 +3,7 @@
 Each profile runs in ``ds/dt`` along the reference line from the car's ``(sdot0, sddot0)``.
 The set, in this order (``LatticeConfig`` switches the parts on):
 
-- **cruise** (the seed's profiles): constant-jerk (or constant-acceleration) ramps to end
+- **cruise** (the base profiles): constant-jerk (or constant-acceleration) ramps to end
   speeds ``v0 + scale * delta`` for each escalation level ``scale`` (levels ``0 .. E-1``);
 - **follow** a leader: a quintic ``s(t)`` that ends, at each end time ``T``, a time gap
   ``follow_gap + follow_time_gap * v_lead(T)`` behind the leader's predicted rear at the
@@ -128,7 +128,7 @@ def longitudinal_set(
         goal_s: ``()`` distance to the goal point of the reference point (inf: no goal region).
         goal_t: ``(2,)`` the goal's time window from now; goal_v: ``(2,)`` its speed range.
         v_grid: ``()`` the speed the cruise end speeds are offsets of (default ``sdot0``; the
-            lattice passes the car's speed, as the seed does).
+            lattice passes the car's speed).
 
     Returns:
         ``Longitudinal`` with ``G = n_profiles(config)``.

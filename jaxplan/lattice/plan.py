@@ -24,13 +24,13 @@ from jaxplan.lattice.candidates import (
 from jaxplan.lattice.cost import (
     INVALID,
     CostWeights,
+    base_features,
     choose,
     costs,
     goal_error,
     motion_terms,
     obstacle_term,
     road_features_from,
-    seed_features,
     soft_choice,
 )
 from jaxplan.lattice.crossroad import with_stop_target
@@ -286,7 +286,7 @@ def _plan(
     else:
         terminal_ok = jnp.ones(risk.collided.shape, bool)
     route = jnp.asarray(targets.route_lane)
-    base = seed_features(
+    base = base_features(
         kin["d_lane"][:, route],
         kin["rho"],
         risk.ttc,
@@ -596,7 +596,7 @@ def plan(
         config: static settings (hashable).
         weights: ``CostWeights`` (default weights if None).
         targets: ``RoadTargets`` (lanes, stop point, goal, the obstacles' Frenet coordinates);
-            None: the seed's lanes from ``config`` and nothing else.
+            None: the lanes of ``config`` and nothing else.
         keep_candidates: False: the result holds every candidate's figures (features, costs,
             flags, metadata) and the chosen ``trajectory``, but not every candidate's trajectory
             (``candidates.traj``, ``axis``, ``s``, ``l``, ``dl``, ``s_rel`` and ``min_sep`` are None),

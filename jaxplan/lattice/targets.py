@@ -1,7 +1,7 @@
 """What the lattice aims at besides end speeds: lanes, a stop point, a goal (``RoadTargets``).
 
-``RoadTargets`` is optional input of ``plan``: without it the lattice is the seed's (lanes
-``config.lanes * config.lane_width``, no goal, stop points only from the crossroad target
+``RoadTargets`` is optional input of ``plan``: without it the lattice has only the config's lanes
+(``config.lanes * config.lane_width``, no goal, stop points only from the crossroad target
 and stopped obstacles). The road planner (``jaxplan.lattice.planner``) fills it from the
 ``Scene`` each cycle: the lanes beside the route and which exist, the end of the mapped
 route, the goal's route ranges and time window, and the obstacles' Frenet coordinates
@@ -74,7 +74,7 @@ class RoadTargets:
 
     @classmethod
     def from_config(cls, config, dtype=None) -> RoadTargets:
-        """The seed's lanes (``config.lanes * config.lane_width``), nothing else."""
+        """The config's lanes (``config.lanes * config.lane_width``), nothing else."""
         f = dtype or jnp.result_type(float)
         lanes = jnp.asarray(config.lanes, f) * config.lane_width
         inf = jnp.asarray(jnp.inf, f)

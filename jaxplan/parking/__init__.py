@@ -1,4 +1,4 @@
-"""Parallel park-out on an occupancy grid: frames, grids, reference circles, pure pursuit, the seed's
+"""Parallel park-out on an occupancy grid: frames, grids, reference circles, pure pursuit, the two-curve
 maneuver loop, the search fallback, the batch driver, scene files and the ``jaxplan parkout`` command."""
 
 from jaxplan.parking.circles import (
@@ -35,16 +35,16 @@ from jaxplan.parking.grid import (
 from jaxplan.parking.heuristic import CostToGo, cost_to_go
 from jaxplan.parking.parkout import (
     GridModel,
+    ParkoutPlan,
     ParkoutResult,
-    Plan,
     PointModel,
     grid_model,
     hits_fn,
     is_out,
     park_out_grid,
     plan_parkout,
-    seed_loop,
     select_forward,
+    two_curve_loop,
 )
 from jaxplan.parking.pursuit import Rollout, bicycle_step, pursuit_steer, rollout
 from jaxplan.parking.render import Layers, render_grid, render_grids, render_layers, sensor_poses
@@ -61,7 +61,7 @@ __all__ = [
     "ParkingScene",
     "ParkoutConfig",
     "ParkoutResult",
-    "Plan",
+    "ParkoutPlan",
     "PointModel",
     "Rollout",
     "arc_poses",
@@ -105,12 +105,12 @@ __all__ = [
     "render_scenes",
     "rollout",
     "search_parkout",
-    "seed_loop",
     "select_forward",
     "sensor_poses",
     "stop_line",
     "to_frame",
     "turning_radius",
     "two_corner_points",
+    "two_curve_loop",
     "world_to_cell",
 ]

@@ -25,8 +25,8 @@ class ParkoutConfig:
         outside_occupied: cells beyond the grid count as occupied (default), so a
             plan never leaves the space the grid has seen.
         c: stop line at ``y = d = vehicle.width + c`` in the slot frame.
-        dl: step length of every rollout; ``steps`` points per forward seed move,
-            ``back_steps`` per backward seed move.
+        dl: step length of every rollout; ``steps`` points per forward-curve move,
+            ``back_steps`` per backward-curve move.
         look_ahead: pure-pursuit look-ahead distance along the reference curve.
         steer_rate: largest change of the front steering angle per step [rad].
         steer_in_place: the wheels may be turned at standstill before the first
@@ -48,9 +48,9 @@ class ParkoutConfig:
             diagonal plus the sensor's edge noise).
         scan_rows: grid rows scanned per pose in the footprint check; must cover
             the inflated footprint's diagonal (``hypot(L + 2m, W + 2m) / cell + 3``).
-        max_moves: moves of a whole park-out (seed loop and search alike).
+        max_moves: moves of a whole park-out (two-curve loop and search alike).
         min_progress: a chosen move shorter than this counts as stuck.
-        search: when the seed's two curves fail (stuck, out of moves or no
+        search: when the two reference curves fail (stuck, out of moves or no
             progress), search over moves at several steering levels (a beam
             search, ``jaxplan.parking.search``).
         steer_levels: steering levels of the search's arcs, as fractions of

@@ -1,10 +1,10 @@
 """Batch park-out planning that stops paying for finished scenes.
 
-``plan_grids`` plans whole park-outs for a batch of grids: the seed loop runs in
+``plan_grids`` plans whole park-outs for a batch of grids: the two-curve loop runs in
 ``slots`` parallel lanes inside one jitted ``lax.while_loop``; each time a scene
 finishes (out, stuck, out of moves or no progress) its lane takes the next
 scene from the queue, so a slow scene holds one lane, not the batch. Scenes the
-seed's two curves fail go to the search (``search``), which runs the same way:
+two-curve loop fails go to the search (``search``), which runs the same way:
 ``SEARCH_SLOTS`` lanes, one depth per iteration, refilled as searches finish. Each grid's cell
 table is computed once and shared by all lanes (looked up by offset, never copied).
 
@@ -25,7 +25,15 @@ from jax import lax
 from jaxplan.parking.config import ParkoutConfig
 from jaxplan.parking.grid import Grid, cell_table
 from jaxplan.parking.heuristic import cost_to_go
-from jaxplan.parking.parkout import GridModel, ParkoutResult, PointModel, hits_fn, loop_init, loop_result, seed_step
+from jaxplan.parking.parkout import (
+    GridModel,
+    ParkoutResult,
+    PointModel,
+    hits_fn,
+    loop_init,
+    loop_result,
+    two_curve_step,
+)
 from jaxplan.parking.render import render_grids
 from jaxplan.parking.scenes import ParkingScene
 from jaxplan.parking.search import search_steps
@@ -52,8 +60,8 @@ def _slot_model(models, idx, config: ParkoutConfig):
 
 
 @functools.partial(jax.jit, static_argnames=("config", "slots"))
-def _run_seed(starts, models, n_real, config, vehicle, slots):
-    """Seed loops of ``C`` scenes through ``slots`` lanes; returns a ``ParkoutResult`` with leading ``C``."""
+def _run_two_curve(starts, models, n_real, config, vehicle, slots):
+    """Two-curve loops of ``C`` scenes through ``slots`` lanes; returns a ``ParkoutResult`` with leading ``C``."""
     C = starts.shape[0]
     W = slots
     dtype = starts.dtype
@@ -66,7 +74,7 @@ def _run_seed(starts, models, n_real, config, vehicle, slots):
 
     def step_one(st, idx):
         m = _slot_model(models, jnp.maximum(idx, 0), config)
-        return seed_step(st, hits_fn(m, vehicle, config), vehicle, config)
+        return two_curve_step(st, hits_fn(m, vehicle, config), vehicle, config)
 
     def cond(c):
         return jnp.any(c[1] >= 0)
@@ -153,11 +161,11 @@ def _tables(cells):
 
 
 def _plan_models(starts, models, config: ParkoutConfig, vehicle, slots=None) -> ParkoutResult:
-    """Seed loops, then the search for the failures, of ``n`` scenes (host loop over chunks).
+    """Two-curve loops, then the search for the failures, of ``n`` scenes (host loop over chunks).
 
     Chunks go round-robin to the local devices (e.g. ``XLA_FLAGS=--xla_force_host_platform_device_count=2``
     on a 2-core CPU) and run there concurrently: every kernel is dispatched before any result is read,
-    and a chunk's search starts as soon as its own seed loops are done.
+    and a chunk's search starts as soon as its own two-curve loops are done.
     """
     n = starts.shape[0]
     table = cost_to_go(vehicle, config) if config.search else None
@@ -177,7 +185,7 @@ def _plan_models(starts, models, config: ParkoutConfig, vehicle, slots=None) -> 
         else:
             m = PointModel(put(models.points), put(models.ok))
         W = max(1, min(C // 2, 64)) if slots is None else min(int(slots), C)
-        jobs.append((lo, hi, st, m, _run_seed(st, m, jnp.asarray(hi - lo, jnp.int32), config, vehicle, W)))
+        jobs.append((lo, hi, st, m, _run_two_curve(st, m, jnp.asarray(hi - lo, jnp.int32), config, vehicle, W)))
     searches = []
     for lo, hi, st, m, res in jobs:
         failed = np.nonzero(~np.asarray(res.success)[: hi - lo])[0] if config.search else np.zeros(0, int)
@@ -201,7 +209,7 @@ def _plan_models(starts, models, config: ParkoutConfig, vehicle, slots=None) -> 
         res = jax.tree_util.tree_map(lambda a: np.array(a)[: hi - lo], res)
         if sr is not None:
             keep = np.asarray(sr.success)[: len(failed)]
-            # a failed search keeps the seed's attempt (it drove something; the search drives nothing)
+            # a failed search keeps the two-curve attempt (it drove something; the search drives nothing)
             for a, b in zip(res, sr):
                 a[failed[keep]] = np.asarray(b)[: len(failed)][keep]
         parts.append(res)
@@ -220,7 +228,7 @@ def plan_grids(
     Args:
         starts: ``(n, 3)`` rear-axle start poses in the slot frame.
         grids: ``Grid`` with ``cells (n, rows, cols)`` and frame poses ``(n, 3)``.
-        slots: parallel lanes of the seed loop (default half the chunk, at most 64).
+        slots: parallel lanes of the two-curve loop (default half the chunk, at most 64).
 
     Returns:
         ``ParkoutResult`` of numpy arrays with leading ``n``.

@@ -5,7 +5,7 @@ split at random) and a random world placement (origin, road heading, and the
 side the road is on), so a scene file exercises the mirror for a road on the
 right. Families:
 
-* ``standard``: the seed's slots (aligned neighbours, empty road), road on the left.
+* ``standard``: plain slots (aligned neighbours, empty road), road on the left.
 * ``right``: the same slots with the road on the right.
 * ``wall``: a narrow road, a wall along its far side with its near face 4.6 to
   6.0 m from the start rear axle.

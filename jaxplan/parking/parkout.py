@@ -1,4 +1,4 @@
-"""Park-out: the seed's selection rules, the full park-out condition and the drive / re-plan loop.
+"""Park-out: the two-curve selection rules, the full park-out condition and the drive / re-plan loop.
 
 Everything here is one scene's kernel (``jax.vmap`` for batches) in the slot
 frame. The obstacle information is a *collision model*: a ``GridModel`` (the
@@ -74,7 +74,7 @@ def select_forward(fwd: Rollout, bwd: Rollout, d, config: ParkoutConfig):
     return is_out(fwd.end_pose, d, config) | (bwd.length < fwd.length)
 
 
-class Plan(NamedTuple):
+class ParkoutPlan(NamedTuple):
     """One planning cycle: the chosen move and both candidates.
 
     Attributes:
@@ -119,7 +119,7 @@ def _pad(r: Rollout, T: int) -> Rollout:
     )
 
 
-def _plan(pose, check, vehicle, config: ParkoutConfig) -> Plan:
+def _plan(pose, check, vehicle, config: ParkoutConfig) -> ParkoutPlan:
     """One planning cycle; ``check(poses, margin=...) -> bool`` is the collision model."""
     margin = usable_margin(check, pose, config)
     hits = functools.partial(check, margin=margin)
@@ -179,8 +179,8 @@ def _check_inputs(pose, grid: Grid, config: ParkoutConfig, vehicle):
 
 def plan_parkout(
     pose, grid: Grid, config: ParkoutConfig = ParkoutConfig(), vehicle: VehicleParams = VehicleParams()
-) -> Plan:
-    """Plan one park-out move with the seed's two curves on an occupancy grid (jitted).
+) -> ParkoutPlan:
+    """Plan one park-out move with the two reference curves (forward, backward) on an occupancy grid (jitted).
 
     Args:
         pose: ``(..., 3)`` current rear-axle pose in the slot frame.
@@ -188,7 +188,7 @@ def plan_parkout(
         config: static sizes and thresholds; vehicle: car geometry.
 
     Returns:
-        ``Plan``; ``plan.trajectory`` holds ``poses (..., T, 3)``, ``gear (..., T)``
+        ``ParkoutPlan``; ``plan.trajectory`` holds ``poses (..., T, 3)``, ``gear (..., T)``
         and ``valid (..., T)``.
     """
     if is_concrete(pose, grid, vehicle):
@@ -212,7 +212,7 @@ class ParkoutResult(NamedTuple):
         moves: ``(...)`` number of moves driven (each ends at a standstill).
         path_length: ``(...)`` total length driven.
         final_pose: ``(..., 3)``.
-        searched: ``(...)`` the plan comes from the search (the seed's two curves failed).
+        searched: ``(...)`` the plan comes from the search (the two-curve loop failed).
     """
 
     poses: jnp.ndarray
@@ -228,7 +228,7 @@ class ParkoutResult(NamedTuple):
 
 
 class LoopState(NamedTuple):
-    """The seed loop's state for one scene (see ``seed_step``)."""
+    """The two-curve loop's state for one scene (see ``two_curve_step``)."""
 
     k: jnp.ndarray
     pose: jnp.ndarray
@@ -268,19 +268,19 @@ def loop_init(start, config: ParkoutConfig) -> LoopState:
 PROGRESS_EPS = 0.01  # m of lateral offset or rad of heading that count as progress
 
 
-def seed_step(st: LoopState, check, vehicle, config: ParkoutConfig) -> LoopState:
-    """Plan one move with the seed's rules and drive it (a no-op once ``st.done``).
+def two_curve_step(st: LoopState, check, vehicle, config: ParkoutConfig) -> LoopState:
+    """Plan one move with the two-curve rules and drive it (a no-op once ``st.done``).
 
     The loop stops when the car is out (``success``), when no move of at least
     ``min_progress`` is left (``stuck``), after ``max_moves`` moves, or when two
-    moves in a row gained neither lateral offset nor heading (the seed's moves
-    only make progress by turning the nose out).
+    moves in a row gained neither lateral offset nor heading (the two curves'
+    moves only make progress by turning the nose out).
     """
     return apply_plan(st, _plan(st.pose, check, vehicle, config), config)
 
 
-def apply_plan(st: LoopState, plan: Plan, config: ParkoutConfig) -> LoopState:
-    """Drive the chosen move of ``plan`` from ``st`` (the second half of ``seed_step``)."""
+def apply_plan(st: LoopState, plan: ParkoutPlan, config: ParkoutConfig) -> LoopState:
+    """Drive the chosen move of ``plan`` from ``st`` (the second half of ``two_curve_step``)."""
     tr = plan.trajectory
     go = ~st.done & (tr.length >= config.min_progress)
     now_stuck = ~st.done & ~go
@@ -308,12 +308,12 @@ def apply_plan(st: LoopState, plan: Plan, config: ParkoutConfig) -> LoopState:
     )
 
 
-def choose(f: Rollout, b: Rollout, margin, vehicle, config: ParkoutConfig) -> Plan:
-    """The seed's ``Plan`` from its two candidates (``b`` padded to ``config.steps``)."""
+def choose(f: Rollout, b: Rollout, margin, vehicle, config: ParkoutConfig) -> ParkoutPlan:
+    """The two-curve ``ParkoutPlan`` from its two candidates (``b`` padded to ``config.steps``)."""
     d = stop_line(vehicle, config.c)
     use = select_forward(f, b, d, config)
     chosen = jax.tree_util.tree_map(lambda x, y: jnp.where(use, x, y), f, b)
-    return Plan(chosen, f, b, use, is_out(chosen.end_pose, d, config), margin)
+    return ParkoutPlan(chosen, f, b, use, is_out(chosen.end_pose, d, config), margin)
 
 
 def loop_result(st: LoopState, searched=False) -> ParkoutResult:
@@ -336,35 +336,37 @@ def loop_result(st: LoopState, searched=False) -> ParkoutResult:
     )
 
 
-def seed_loop(start, model, config: ParkoutConfig, vehicle) -> ParkoutResult:
-    """The seed's drive / re-plan loop for one scene (``lax.while_loop``; jittable, vmappable).
+def two_curve_loop(start, model, config: ParkoutConfig, vehicle) -> ParkoutResult:
+    """The two-curve drive / re-plan loop for one scene (``lax.while_loop``; jittable, vmappable).
 
     Args:
         start: ``(3,)`` rear-axle start pose in the slot frame.
         model: ``GridModel`` or ``PointModel`` of this scene.
     """
     check = hits_fn(model, vehicle, config)
-    st = lax.while_loop(lambda s: ~s.done, lambda s: seed_step(s, check, vehicle, config), loop_init(start, config))
+    st = lax.while_loop(
+        lambda s: ~s.done, lambda s: two_curve_step(s, check, vehicle, config), loop_init(start, config)
+    )
     return loop_result(st)
 
 
 @functools.partial(jax.jit, static_argnames=("config",))
-def _seed_loop_jit(start, model, config, vehicle):
+def _two_curve_loop_jit(start, model, config, vehicle):
     lead = start.shape[:-1]
     if not lead:
-        return seed_loop(start, model, config, vehicle)
+        return two_curve_loop(start, model, config, vehicle)
     n = math.prod(lead)
     flat = jax.tree_util.tree_map(lambda x: x.reshape((n,) + x.shape[len(lead) :]), (start, model))
-    out = jax.vmap(lambda s, m: seed_loop(s, m, config, vehicle))(*flat)
+    out = jax.vmap(lambda s, m: two_curve_loop(s, m, config, vehicle))(*flat)
     return jax.tree_util.tree_map(lambda x: x.reshape(lead + x.shape[1:]), out)
 
 
 def park_out_grid(
     start, grid: Grid, config: ParkoutConfig = ParkoutConfig(), vehicle: VehicleParams = VehicleParams()
 ) -> ParkoutResult:
-    """The seed loop on given grids, in one jitted call (no search; see ``plan_grids`` for the fast
+    """The two-curve loop on given grids, in one jitted call (no search; see ``plan_grids`` for the fast
     batch driver with the search). ``start (..., 3)``, ``grid.cells (..., rows, cols)``."""
     if is_concrete(start, grid, vehicle):
         _check_inputs(start, grid, config, vehicle)
     start = jnp.asarray(start, jnp.result_type(float))
-    return _seed_loop_jit(start, grid_model(grid), config, vehicle)
+    return _two_curve_loop_jit(start, grid_model(grid), config, vehicle)

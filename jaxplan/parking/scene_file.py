@@ -211,7 +211,7 @@ def slot_scene(polygons, start, **sensor) -> ParkingScene:
     return ParkingScene.make(arr, valid, start, **sensor)
 
 
-def stack_scenes(scenes) -> ParkingScene:
+def stack_parking_scenes(scenes) -> ParkingScene:
     """One batch ``(n,)`` of single scenes with different obstacle and vertex counts (padded: extra
     vertices repeat the last one, extra obstacles are invalid copies)."""
     n = max(np.shape(s.polygons)[-2] for s in scenes)

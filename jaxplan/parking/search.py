@@ -1,4 +1,4 @@
-"""Search over moves at several steering levels: the fallback when the seed's two curves fail.
+"""Search over moves at several steering levels: the fallback when the two reference curves fail.
 
 A beam search, one depth per move. Every node (a pose reached after some
 moves) is expanded by constant-steering arcs at ``config.steer_levels`` (as

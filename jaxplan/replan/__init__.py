@@ -1,7 +1,14 @@
-"""Lazy replanning: plan points and gear-shift split, tracking point search, the
-collision-point queue and brake-stop point, time-aware obstacle prediction, a drivable
-Dubins planner, the supervisor (one safety layer; lazy, periodic and immediate
-strategies) and a closed-loop simulator with a planner callback."""
+"""Lazy replanning of low-speed manoeuvres (park-out and approach paths with gear shifts): plan
+points and gear-shift split, tracking point search, the collision-point queue and brake-stop
+point, time-aware obstacle prediction, a drivable Dubins planner, the supervisor (one safety
+layer; lazy, periodic and immediate strategies) and the manoeuvre simulator
+(``ManeuverSimConfig``, ``ManeuverScenario``: a plan callback, not a road ``Planner``).
+
+This is a layer of its own: road planners drive through ``jaxplan.sim`` (whose
+``SimConfig(replan="lazy")`` re-plans only when the installed plan is abnormal, short or in
+conflict with a prediction); the manoeuvre
+simulator here runs the park-out planner's multi-segment plans, which the road simulator does
+not model (reversing, gear shifts, a destination to stand at)."""
 
 from jaxplan.replan.dubins import DubinsPath
 from jaxplan.replan.longitudinal import MotionLimits, advance, arrival_times, profile_speed, profile_times, speed_step
@@ -28,8 +35,8 @@ from jaxplan.replan.queue import (
 )
 from jaxplan.replan.scenarios import sample_scenarios
 from jaxplan.replan.simulator import (
-    Scenario,
-    SimConfig,
+    ManeuverScenario,
+    ManeuverSimConfig,
     StepLog,
     WorldState,
     init_state,
@@ -114,8 +121,8 @@ __all__ = [
     "Perception",
     "Plan",
     "PlanRequest",
-    "Scenario",
-    "SimConfig",
+    "ManeuverScenario",
+    "ManeuverSimConfig",
     "StepLog",
     "SupervisorConfig",
     "SupervisorState",

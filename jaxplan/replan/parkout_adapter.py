@@ -88,12 +88,12 @@ def parkout_scenarios(seed: int, n: int, planner: ParkoutPlanner = ParkoutPlanne
     simulator's success then means "ended where the undisturbed park-out ends").
 
     Returns:
-        (``Scenario`` batch, nominal ``Plan`` batch).
+        (``ManeuverScenario`` batch, nominal ``Plan`` batch).
     """
     import numpy as np
 
     from jaxplan.parking.scenes import make_scenes
-    from jaxplan.replan.simulator import Scenario
+    from jaxplan.replan.simulator import ManeuverScenario
 
     rng = np.random.default_rng(seed)
     kw: dict[str, Any] = dict(front_gap=rng.uniform(0.7, 1.2, n), rear_gap=rng.uniform(0.7, 1.2, n))
@@ -133,7 +133,7 @@ def parkout_scenarios(seed: int, n: int, planner: ParkoutPlanner = ParkoutPlanne
         -1,
     )[:, None]
     keys = jax.random.split(jax.random.PRNGKey(seed), n)
-    sc = Scenario(
+    sc = ManeuverScenario(
         start=z3,
         goal=goal,
         park=jnp.zeros(n, bool),

@@ -17,7 +17,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxplan.replan.path_planner import ApproachPlanner, nominal_forward_path
-from jaxplan.replan.simulator import Scenario
+from jaxplan.replan.simulator import ManeuverScenario
 
 R, P, D = 1, 2, 1
 
@@ -33,7 +33,7 @@ def sample_scenarios(
     p_dyn: float = 0.35,
     goal_sigma: float = 0.15,
     yaw_sigma: float = 0.02,
-) -> Scenario:
+) -> ManeuverScenario:
     """``n`` scenarios of ``kind`` ``"park"`` or ``"drive"``, stacked on a leading axis.
 
     Goal noise: ``goal_sigma`` m (drives: at most 0.1) and ``yaw_sigma`` rad per observation;
@@ -77,7 +77,7 @@ def sample_scenarios(
         sgn = rng.choice([-1.0, 1.0])
         dyn_dir = sgn * np.array([[-np.sin(h), np.cos(h)]])
         out.append(
-            Scenario(
+            ManeuverScenario(
                 start=start,
                 goal=goal,
                 park=np.array(park),

@@ -56,7 +56,7 @@ from jaxplan.replan.trajectory import interpolate_pose, last_valid_index
 from jaxplan.types import is_concrete
 
 
-class Scenario(NamedTuple):
+class ManeuverScenario(NamedTuple):
     """One closed-loop run (add a leading axis to batch).
 
     start, goal: ``(3,)`` car start and *true* goal pose; park: ``()`` bool;
@@ -93,7 +93,7 @@ class Scenario(NamedTuple):
 
 
 @dataclasses.dataclass(frozen=True)
-class SimConfig:
+class ManeuverSimConfig:
     """Simulator settings (static, hashable). The car's longitudinal limits are the
     supervisor's ``limits``; the planner must plan with the same ones."""
 
@@ -113,9 +113,9 @@ class SimConfig:
     def __post_init__(self):
         lim = getattr(self.planner, "limits", None)
         if lim is not None and lim != self.supervisor.limits:
-            raise ValueError("SimConfig: planner.limits must equal supervisor.limits (one longitudinal model)")
+            raise ValueError("ManeuverSimConfig: planner.limits must equal supervisor.limits (one longitudinal model)")
         if self.steps < 1 or self.plan_chunk < 1:
-            raise ValueError("SimConfig.steps and plan_chunk must be >= 1")
+            raise ValueError("ManeuverSimConfig.steps and plan_chunk must be >= 1")
 
     @property
     def vehicle(self):
@@ -172,7 +172,7 @@ class _Pre(NamedTuple):
 # ---------------------------------------------------------------- perception / truth
 
 
-def _dyn_boxes(sc: Scenario, cfg: SimConfig, t, dyn_t0):
+def _dyn_boxes(sc: ManeuverScenario, cfg: ManeuverSimConfig, t, dyn_t0):
     """Pedestrian boxes ``(D, 5)``, velocities ``(D, 2)`` and active mask ``(D,)`` at time ``t``."""
     walked = sc.dyn_speed * jnp.maximum(t - dyn_t0, 0.0)
     active = sc.dyn_valid & (t >= dyn_t0) & (walked <= 2 * cfg.dyn_lead)
@@ -182,7 +182,7 @@ def _dyn_boxes(sc: Scenario, cfg: SimConfig, t, dyn_t0):
     return boxes, sc.dyn_dir * sc.dyn_speed[:, None], active
 
 
-def _true_obstacles(sc: Scenario, cfg: SimConfig, t, dyn_t0):
+def _true_obstacles(sc: ManeuverScenario, cfg: ManeuverSimConfig, t, dyn_t0):
     db, dv, da = _dyn_boxes(sc, cfg, t, dyn_t0)
     return (
         jnp.concatenate([sc.real, db]),
@@ -191,7 +191,7 @@ def _true_obstacles(sc: Scenario, cfg: SimConfig, t, dyn_t0):
     )
 
 
-def _perceive(sc: Scenario, cfg: SimConfig, t, pose, ph_seen, dyn_t0) -> Perception:
+def _perceive(sc: ManeuverScenario, cfg: ManeuverSimConfig, t, pose, ph_seen, dyn_t0) -> Perception:
     db, dv, da = _dyn_boxes(sc, cfg, t, dyn_t0)
     ph_on = sc.phantom_valid & (t >= ph_seen) & (t - ph_seen <= sc.phantom_dur)
     boxes = jnp.concatenate([sc.real, sc.phantom, db])
@@ -201,14 +201,14 @@ def _perceive(sc: Scenario, cfg: SimConfig, t, pose, ph_seen, dyn_t0) -> Percept
     return Perception(boxes, vel, valid & near)
 
 
-def _observe_goal(sc: Scenario, cfg: SimConfig, pose, key):
+def _observe_goal(sc: ManeuverScenario, cfg: ManeuverSimConfig, pose, key):
     dist = jnp.linalg.norm(pose[:2] - sc.goal[:2])
     bias = sc.goal_bias * jnp.minimum(1.0, dist / cfg.bias_range) ** 2
     n = jax.random.normal(key, (3,)) * jnp.stack([sc.goal_sigma, sc.goal_sigma, sc.yaw_sigma])
     return sc.goal + bias + n
 
 
-def _trigger(sc: Scenario, pose, t, ph_seen, dyn_t0):
+def _trigger(sc: ManeuverScenario, pose, t, ph_seen, dyn_t0):
     ph_near = jnp.linalg.norm(sc.phantom[:, :2] - pose[:2], axis=-1) <= sc.phantom_range
     ph_seen = jnp.where(jnp.isinf(ph_seen) & ph_near & sc.phantom_valid, t, ph_seen)
     dyn_near = jnp.linalg.norm(sc.dyn_point - pose[:2], axis=-1) <= sc.dyn_range
@@ -216,7 +216,7 @@ def _trigger(sc: Scenario, pose, t, ph_seen, dyn_t0):
     return ph_seen, dyn_t0
 
 
-def _plan_shape(cfg: SimConfig, n_obs: int):
+def _plan_shape(cfg: ManeuverSimConfig, n_obs: int):
     """Shapes of the planner's plan (``jax.eval_shape``)."""
     z3 = jnp.zeros((3,))
     req = PlanRequest(
@@ -235,7 +235,7 @@ def _plan_shape(cfg: SimConfig, n_obs: int):
     return jax.eval_shape(cfg.planner, req)
 
 
-def init_state(sc: Scenario, cfg: SimConfig) -> WorldState:
+def init_state(sc: ManeuverScenario, cfg: ManeuverSimConfig) -> WorldState:
     """State at ``t = 0``: the car stands at the start and the first tick asks for the first plan
     (not counted as a re-plan)."""
     key, k1 = jax.random.split(sc.key)
@@ -266,7 +266,7 @@ def init_state(sc: Scenario, cfg: SimConfig) -> WorldState:
 # ---------------------------------------------------------------- one step, in two halves
 
 
-def step_pre(w: WorldState, sc: Scenario, strategy, cfg: SimConfig) -> _Pre:
+def step_pre(w: WorldState, sc: ManeuverScenario, strategy, cfg: ManeuverSimConfig) -> _Pre:
     """Perception and the supervisor's tick."""
     sup_cfg = cfg.supervisor
     t = w.t + sup_cfg.dt
@@ -296,7 +296,7 @@ def step_pre(w: WorldState, sc: Scenario, strategy, cfg: SimConfig) -> _Pre:
     return _Pre(world, dec, necessary)
 
 
-def step_post(pre: _Pre, new_plan: Plan, sc: Scenario, cfg: SimConfig):
+def step_post(pre: _Pre, new_plan: Plan, sc: ManeuverScenario, cfg: ManeuverSimConfig):
     """Hand the new plan (when one was asked) to the supervisor, move the car, check the truth.
 
     Returns:
@@ -381,7 +381,7 @@ def _plan_for(planner, requests: PlanRequest, ask, fallback: Plan, chunk: int) -
     return jax.lax.fori_loop(0, n_chunks, body, fallback)
 
 
-def _run_batch(sc: Scenario, strategy, cfg: SimConfig):
+def _run_batch(sc: ManeuverScenario, strategy, cfg: ManeuverSimConfig):
     pre_b = jax.vmap(step_pre, in_axes=(0, 0, 0, None))
     post_b = jax.vmap(step_post, in_axes=(0, 0, 0, None))
 
@@ -398,7 +398,7 @@ def _run_batch(sc: Scenario, strategy, cfg: SimConfig):
 _simulate = jax.jit(_run_batch, static_argnums=2)
 
 
-def simulate(scenarios: Scenario, strategy, cfg: SimConfig = SimConfig()):
+def simulate(scenarios: ManeuverScenario, strategy, cfg: ManeuverSimConfig = ManeuverSimConfig()):
     """Batched closed loop over the leading axis of ``scenarios``: ``lax.scan`` over time of
     ``vmap``-ed steps, the planner run only for the runs that ask.
 
@@ -431,7 +431,9 @@ _pre_jit = jax.jit(step_pre, static_argnums=3)
 _post_jit = jax.jit(step_post, static_argnums=3)
 
 
-def simulate_host(sc: Scenario, strategy, cfg: SimConfig = SimConfig(), planner: Callable | None = None):
+def simulate_host(
+    sc: ManeuverScenario, strategy, cfg: ManeuverSimConfig = ManeuverSimConfig(), planner: Callable | None = None
+):
     """The same loop for one scenario in Python, calling ``planner`` (any callable
     ``PlanRequest -> Plan`` with the plan size of ``cfg.planner``) only on re-plans.
 

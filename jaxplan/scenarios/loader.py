@@ -83,7 +83,7 @@ class Lane:
 
 
 @dataclasses.dataclass(frozen=True)
-class EgoState:
+class EgoRecord:
     x: float
     y: float
     heading: float
@@ -159,7 +159,7 @@ class Scenario:
     obstacles: Obstacles
     obstacle_ids: np.ndarray
     obstacle_types: tuple
-    ego: EgoState
+    ego: EgoRecord
     goal: dict
     origin: np.ndarray
     skipped: tuple = ()
@@ -543,7 +543,7 @@ def parse_scenario(
     v0 = _number(init, "velocity", w, path)
     if v0 < 0:
         raise ScenarioError(f"{path}: field {w}.velocity must be >= 0 (the car drives forward), got {v0:g}")
-    ego = EgoState(0.0, 0.0, _angle(init, "orientation", w, path), v0, a0, 0.0)
+    ego = EgoRecord(0.0, 0.0, _angle(init, "orientation", w, path), v0, a0, 0.0)
     lights = _traffic_lights(d, dt, t0, origin, path)
     light_ids = {tl.id for tl in lights}
 
