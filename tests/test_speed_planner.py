@@ -24,6 +24,7 @@ from jaxplan.speed import SpeedConfig
 from jaxplan.speed.planner import PathSpeedPlanner, route_path
 
 KINDS = ("stopped_car", "slow_leader", "cut_in", "dense_next_lane")
+SQUEEZE_L = 0.5 * 1.61 + 0.5 * 1.8 + 0.15  # the oncoming car's offset: 0.15 m between the boxes
 STEPS = 120  # 12 s
 TT = np.arange(251) * 0.1
 START = builtin.START_S  # the car's station on the synthetic roads
@@ -35,14 +36,18 @@ def _synthetic():
     car, and a car at 20 m/s in the next lane 15 m behind (moving over in front of it would make it
     brake harder than 3 m/s^2); BEHIND: one lane, the car at 10 m/s between a car 20 m ahead at 10 m/s
     and a car 10 m behind at 11.5 m/s (keeping the follow distance gets the car rear-ended within 4 s;
-    closing up to the car ahead leaves room until the goal's time)."""
+    closing up to the car ahead leaves room until the goal's time); SQUEEZE: one lane, the car at 10
+    m/s, an oncoming car passing 0.15 m clear of it (inside the speed plan's 0.3 m buffer, outside
+    the car) and a car 14 m behind at 12 m/s (stopping for the oncoming car gets the car hit)."""
     lane0 = np.zeros(251)
     slow = (START + 25.0 + 4.0 * TT, lane0)
     roads = {"SLOW": _road_dict(obstacles=[slow]),
              "STOPPED": _road_dict(obstacles=[(START + 40.0 + 0.0 * TT, lane0)]),
              "FASTER": _road_dict(obstacles=[slow, (START - 15.0 + 20.0 * TT, np.full(251, builtin.LANE))]),
              "BEHIND": _road_dict(obstacles=[(START + 20.0 + 10.0 * TT, lane0), (START - 10.0 + 11.5 * TT, lane0)],
-                                  n_lanes=1, v0=10.0, goal_t=(0.0, 8.0))}
+                                  n_lanes=1, v0=10.0, goal_t=(0.0, 8.0)),
+             "SQUEEZE": _road_dict(obstacles=[(START + 70.0 - 10.0 * TT, np.full(251, SQUEEZE_L)),
+                                              (START - 14.0 + 12.0 * TT, lane0)], n_lanes=1, v0=10.0, goal_t=(0.0, 8.0))}
     return {k: dataclasses.replace(_record(d), name=k) for k, d in roads.items()}
 
 
@@ -366,3 +371,13 @@ def test_leaves_room_to_a_car_closing_in_from_behind():
     log, m, _ = _synthetic_drive("BEHIND")
     assert not m["overlap.collided"] and not m["offroad.offroad"]
     assert log.v[5] >= log.v[0]  # it does not brake in front of it
+
+
+def test_passes_an_oncoming_car_inside_the_buffer_rather_than_be_hit_from_behind():
+    """SQUEEZE: the speed plan with the 0.3 m buffer stops for the oncoming car that passes 0.15 m
+    clear, and the car behind would hit it; the plan without the buffer (``tight``) is taken and
+    the car drives on."""
+    log, m, _ = _synthetic_drive("SQUEEZE")
+    assert not m["overlap.collided"] and not m["offroad.offroad"]
+    assert np.asarray(log.info["tight"]).any()
+    assert log.v[: int(m["goal.step"]) + 1].min() > 5.0

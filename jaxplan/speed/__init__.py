@@ -44,7 +44,7 @@ from jaxplan.speed.st_boundary import (
     strip_boundaries,
     strip_extent,
 )
-from jaxplan.speed.st_graph import build_scene, make_scene, speed_envelope
+from jaxplan.speed.st_graph import build_speed_scene, make_scene, speed_envelope
 
 __all__ = [
     "Classified",
@@ -67,7 +67,7 @@ __all__ = [
     "band_offsets",
     "band_widths",
     "blocking_boundaries",
-    "build_scene",
+    "build_speed_scene",
     "car_probes",
     "classify",
     "compose",

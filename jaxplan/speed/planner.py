@@ -18,7 +18,10 @@ Each cycle (one scene, jittable; the simulator batches it with ``jax.vmap``):
    takes it when its speed plan is collision-free and cheaper than the lane's by the lane
    change's cost (the speed plan sees that lane's traffic over the whole horizon: a gap that
    closes, or a car from behind that would have to brake, makes it collide or cost more),
-   and stays in it while that holds (``info["lane_change"]``);
+   and stays in it while that holds (``info["lane_change"]``). With ``tight`` the first path
+   is planned once more without the clearance buffer around obstacles, a way past that only
+   the exact overlap leaves open, taken when the buffered plan collides or is hit from behind
+   (``info["tight"]``);
 3. the **speed**: the ST boundaries of the predictions on that path (blocking,
    non-blocking with decisions, a wall before the path's blockage and the end of the
    map), the DP over the reachable band (``dp.py``, its costs ``costs.py``) towards the set speed
@@ -49,6 +52,7 @@ from jaxplan.geometry.quintic import cartesian_to_frenet_state, quintic_coeffs, 
 from jaxplan.plan_context import RoadContext, road_context, route_sample, set_speed
 from jaxplan.planner import SIM_VEHICLE, EgoState, PlanOutput
 from jaxplan.speed.compose import compose_profile
+from jaxplan.speed.costs import REAR_CONTACT
 from jaxplan.speed.dp import plan_one
 from jaxplan.speed.problem import CostWeights, SpeedConfig, SpeedRoad
 from jaxplan.speed.smooth import SmoothWeights, smooth_plan
@@ -243,6 +247,9 @@ LANE_GAIN = 5.0  # m: and further along than the lane's own plan, or
 LANE_DECISIVE = 2.0  # cheaper by this many lane changes' costs
 LANE_MOVING = 0.01  # the car's lateral slope (dl/ds) above which it is moving over
 LANE_HOLD = 1.0  # lane changes' cost share of turning back a move under way
+# the plan without the clearance buffer is taken when the buffered one costs more by at least
+# this many seconds of contact with a vehicle behind (REAR_CONTACT), or collides
+TIGHT_GAIN_S = 0.1
 
 
 def lane_leave_s(path) -> Any:
@@ -269,6 +276,11 @@ class PathSpeedPlanner:
         lane_change: also plan the speed on a path into the neighbour lane (``neighbour_lane``)
             and take it when it is collision-free and cheaper by the lane change's cost
             (``CostWeights.w_lane_change``).
+        tight: also plan the speed on the first path with no clearance buffer around the
+            obstacles (``speed.buffer`` 0: only the exact overlap blocks), and take that plan
+            when the buffered one collides, or costs more by ``TIGHT_GAIN_S`` seconds of contact
+            with a vehicle behind (stopping for an oncoming car that passes 0.1 m clear, and
+            being hit from behind); ``info["tight"]``.
     """
 
     vehicle: VehicleParams = SIM_VEHICLE
@@ -281,6 +293,7 @@ class PathSpeedPlanner:
     path_points: int = 96
     ext_points: int = 24
     lane_change: bool = True
+    tight: bool = True
 
     def __post_init__(self):
         self.speed.validate()
@@ -344,6 +357,9 @@ class PathSpeedPlanner:
         """One cycle up to the speed profile, as a dict: ``ctx`` (the ``RoadContext``),
         ``path`` (the ``RoutePath`` the speed is planned on), ``bounds`` (the bounds
         ``PathPlan`` or None), ``use_bounds`` (``()`` bool, ``path`` is the bounds path),
+        ``tight`` (``()`` bool, the plan without the clearance buffer was taken), ``path_plans``
+        (every path's ``SpeedPlan``, stacked: the bounds path if any, the route path, the
+        neighbour lane's with ``lane_change``, the first path's without the buffer with ``tight``),
         ``ref``, ``s0`` (the path as a reference line, the car's station on it), ``plan`` (the
         DP's ``SpeedPlan``) and ``profile`` (the executed ``SpeedProfile``)."""
         H = self.horizon_steps
@@ -357,10 +373,10 @@ class PathSpeedPlanner:
         obs = ctx.obstacles
         obs = Obstacles(obs.boxes, obs.valid, obs.t - obs.t[0], obs.static)
 
-        def on(path):
+        def on(path, buffer):
             ref, s0 = path_reference(path)
             road = speed_road(scene, ctx, path, self.speed.v_max, self.vehicle, v_set)
-            return path, ref, s0, plan_one(ref, obs, v0, a0, s0, None, road, self.vehicle, self.speed, w)
+            return path, ref, s0, plan_one(ref, obs, v0, a0, s0, None, road, self.vehicle, self.speed, w, buffer)
 
         # every path has one shape: one vmapped speed plan (the DP is traced once)
         paths = [rp] if bp is None else [bp, rp]
@@ -368,7 +384,12 @@ class PathSpeedPlanner:
             ahead_lane = jnp.maximum(v0, ctx.v_set) * self.horizon + 20.0
             l_nb, runs, goal_ok = neighbour_lane(scene, ctx, ahead_lane)
             paths.append(route_path(scene, ctx, ego, rp.s.shape[0], 20.0, self.path_ahead, target_l=l_nb))
-        every = jax.vmap(on)(jax.tree_util.tree_map(lambda *a: jnp.stack(a), *paths))
+        buffers = [self.speed.buffer] * len(paths)
+        if self.tight:  # the first path again, without the clearance buffer
+            paths.append(paths[0])
+            buffers.append(0.0)
+        stacked = jax.tree_util.tree_map(lambda *a: jnp.stack(a), *paths)
+        every = jax.vmap(on)(stacked, jnp.asarray(buffers, f))
         plans = every[3]
         if bp is None:
             keep = jnp.asarray(0)
@@ -413,6 +434,14 @@ class PathSpeedPlanner:
             costs = jnp.stack([c_keep, jnp.where(ok_nb, c_nb, jnp.inf)]).astype(f)
             use = use & ~change
             keep = jnp.where(change, nb, keep)
+        tight = jnp.asarray(False)
+        if self.tight:
+            # the plan without the buffer where the first path's buffered plan collides or is hit
+            # from behind for longer than TIGHT_GAIN_S, and the plain overlap leaves a way
+            it = len(paths) - 1
+            gain = REAR_CONTACT * self.speed.big * TIGHT_GAIN_S
+            tight = (keep == 0) & plans.feasible[it] & (plans.cost[it] < plans.cost[0] - gain)
+            keep = jnp.where(tight, it, keep)
         path, ref, s0, plan = jax.tree_util.tree_map(lambda x: x[keep], every)
         prof = smooth_plan(plan, v0, a0, self.speed, self.smooth)
         return dict(
@@ -421,7 +450,9 @@ class PathSpeedPlanner:
             bounds=pp,
             use_bounds=use,
             lane_change=change,
+            tight=tight,
             lane_costs=costs,
+            path_plans=plans,
             ref=ref,
             s0=s0,
             plan=plan,
@@ -454,6 +485,8 @@ class PathSpeedPlanner:
             # the path: the bounds path used, or the route path as the fallback and why
             "path_bounds": c["use_bounds"],
             "lane_change": c["lane_change"],
+            # the plan without the clearance buffer was taken (``tight``)
+            "tight": c["tight"],
             # the lane's plan and the neighbour lane's as compared (inf: not an option)
             "lane_cost_keep": c["lane_costs"][0],
             "lane_cost_change": c["lane_costs"][1],

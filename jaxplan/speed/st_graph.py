@@ -51,7 +51,7 @@ def time_margin(b: STBoundary, m: int) -> STBoundary:
     return STBoundary(jnp.where(X, L, b.lower), jnp.where(X, H, b.upper), X)
 
 
-def build_scene(
+def build_speed_scene(
     profile: PathProfile,
     obstacles: Obstacles,
     vehicle: VehicleParams,
@@ -59,6 +59,7 @@ def build_scene(
     keep_clear=None,
     v0=0.0,
     road: SpeedRoad | None = None,
+    buffer=None,
 ) -> SpeedScene:
     """Resample obstacles to the check times, project them to the path once per time,
     classify them, project keep-clear regions, sample the speed limit.
@@ -69,9 +70,12 @@ def build_scene(
         keep_clear: optional ``(vertices (R, P, 2), valid (R, P), active (R,))``.
         v0: the car's speed (the ``behind`` rule).
         road: ``SpeedRoad`` or None (no limit but curvature and ``v_max``, no stop, no goal).
+        buffer: ``()`` the clearance around obstacles and before a stop (m), traced; None:
+            ``config.buffer``.
     """
     dtype = profile.s.dtype
     road = SpeedRoad.free(dtype) if road is None else road
+    buffer = config.buffer if buffer is None else buffer
     tf = jnp.asarray(config.fine_times(), dtype)
     obs = resample_obstacles(obstacles, tf)
     s0 = profile.s[0]
@@ -85,7 +89,7 @@ def build_scene(
         config.a_min,
         lane_s=road.lane_s,
         side_width=config.side_width,
-        buffer=config.buffer,
+        buffer=buffer,
         no_overtake_side=config.no_overtake_side,
         v_moving=config.v_moving,
     )
@@ -96,7 +100,7 @@ def build_scene(
     has = jnp.isfinite(stop)
     F = tf.shape[0]
     wall = STBoundary(
-        jnp.full((1, F), jnp.where(has, stop - front - config.buffer, BIG), dtype),
+        jnp.full((1, F), jnp.where(has, stop - front - buffer, BIG), dtype),
         jnp.full((1, F), BIG, dtype),
         jnp.full((1, F), has),
     )
@@ -137,8 +141,10 @@ def make_scene(
     keep_clear=None,
     v0=0.0,
     road=None,
+    buffer=None,
 ) -> tuple[PathProfile, SpeedScene]:
-    """Path profile on the DP station grid and the scene boundaries."""
+    """Path profile on the DP station grid and the scene boundaries (``buffer``: as
+    ``build_speed_scene``'s)."""
     vehicle = VehicleParams() if vehicle is None else vehicle
     profile = path_profile(path, s0, config.n_s, config.ds)
-    return profile, build_scene(profile, obstacles, vehicle, config, keep_clear, v0, road)
+    return profile, build_speed_scene(profile, obstacles, vehicle, config, keep_clear, v0, road, buffer)
