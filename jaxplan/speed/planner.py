@@ -384,6 +384,7 @@ class PathSpeedPlanner:
             ahead_lane = jnp.maximum(v0, ctx.v_set) * self.horizon + 20.0
             l_nb, runs, goal_ok = neighbour_lane(scene, ctx, ahead_lane)
             paths.append(route_path(scene, ctx, ego, rp.s.shape[0], 20.0, self.path_ahead, target_l=l_nb))
+        nb = len(paths) - 1  # the neighbour lane's path (with lane_change)
         buffers = [self.speed.buffer] * len(paths)
         if self.tight:  # the first path again, without the clearance buffer
             paths.append(paths[0])
@@ -407,7 +408,6 @@ class PathSpeedPlanner:
             # share of a lane still to move over (plus a margin: with nothing to gain the car goes
             # back to the route's lane); not toward a goal region ahead in another lane unless the
             # lane's own plan collides
-            nb = len(paths) - 1
             width = jnp.maximum(ctx.lane_width[scene.own_lane], 1.0)
             shift = jnp.abs(l_nb - ctx.l) / width
             # hysteresis from the car's own motion: a move under way (the car's slope to the route
