@@ -399,6 +399,7 @@ class PathSpeedPlanner:
             # the moving ones too: the bounds path is taken when its speed plan is collision-free,
             # or when neither is and it costs less (a bypass into a lane where traffic already
             # is would be hit whatever the speed; then the car stays in its lane and stops).
+            bp_ok = use  # the bounds path itself is usable (its QP solved, clear, not blocked)
             use = use & (plans.feasible[0] | (~plans.feasible[1] & (plans.cost[0] <= plans.cost[1])))
             keep = jnp.where(use, 0, 1)
         change = jnp.asarray(False)
@@ -438,10 +439,15 @@ class PathSpeedPlanner:
         if self.tight:
             # the plan without the buffer where the first path's buffered plan collides or is hit
             # from behind for longer than TIGHT_GAIN_S, and the plain overlap leaves a way
+            # (instead of the first path's plan, or of the route path's where the first is a usable
+            # bounds path: both keep the lane)
             it = len(paths) - 1
             gain = REAR_CONTACT * self.speed.big * TIGHT_GAIN_S
-            tight = (keep == 0) & plans.feasible[it] & (plans.cost[it] < plans.cost[0] - gain)
+            lane_kept = (keep == 0) if bp is None else (keep == 0) | ((keep == 1) & bp_ok)
+            tight = lane_kept & plans.feasible[it] & (plans.cost[it] < plans.cost[keep] - gain)
             keep = jnp.where(tight, it, keep)
+            if bp is not None:
+                use = jnp.where(tight, True, use)
         path, ref, s0, plan = jax.tree_util.tree_map(lambda x: x[keep], every)
         prof = smooth_plan(plan, v0, a0, self.speed, self.smooth)
         return dict(
