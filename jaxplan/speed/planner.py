@@ -278,9 +278,10 @@ class PathSpeedPlanner:
             (``CostWeights.w_lane_change``).
         tight: also plan the speed on the first path with no clearance buffer around the
             obstacles (``speed.buffer`` 0: only the exact overlap blocks), and take that plan
-            when the buffered one collides, or costs more by ``TIGHT_GAIN_S`` seconds of contact
-            with a vehicle behind (stopping for an oncoming car that passes 0.1 m clear, and
-            being hit from behind); ``info["tight"]``.
+            where the lane-keeping plan (the first path's, or the route path's where the first
+            is a usable bounds path) collides, or costs more by ``TIGHT_GAIN_S`` seconds of
+            contact with a vehicle behind (stopping for an oncoming car that passes 0.1 m clear,
+            and being hit from behind); ``info["tight"]``.
     """
 
     vehicle: VehicleParams = SIM_VEHICLE
