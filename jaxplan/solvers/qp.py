@@ -337,21 +337,23 @@ def admm_prefactored(fixed: Prefactored, q, lo, hi, settings: LadderSettings = L
     k0 = int(np.argmin(np.abs(np.log(np.asarray(fixed.ladder)) - np.log(settings.rho0))))
     res = lambda z, w, y: residuals(z, w, y, Ps, qs, cz, cty, d, e, c)
 
+    # the residuals ride in the loop's state: each phase computes them once, for its step size
+    # and the next test
     def more(carry):
-        z, w, y, k, i = carry
-        rp, rd, _, _ = res(z, w, y)
+        *_, i, rp, rd = carry
         return (i < settings.min_phases) | (
             (i < settings.phases) & ((rp >= settings.eps_prim) | (rd >= settings.eps_dual))
         )
 
     def body(carry):
-        z, w, y, k, i = carry
+        z, w, y, k, i, _, _ = carry
         rho = ladder[k]
         (z, w, y), _ = admm_iterations(settings.iters, inv[k], cz, cty, qs, ls, us, rho, settings.alpha, (z, w, y))
-        want = adapted_rho(rho, *res(z, w, y))
-        k_new = jnp.argmin(jnp.abs(jnp.log(ladder) - jnp.log(want))).astype(jnp.int32)
-        return z, w, y, k_new, i + 1
+        r = res(z, w, y)
+        k_new = jnp.argmin(jnp.abs(jnp.log(ladder) - jnp.log(adapted_rho(rho, *r)))).astype(jnp.int32)
+        return z, w, y, k_new, i + 1, r[0], r[1]
 
-    z, w, y, _, _ = jax.lax.while_loop(more, body, (z, w, y, jnp.int32(k0), jnp.int32(0)))
+    r0 = res(z, w, y)
+    z, w, y, *_ = jax.lax.while_loop(more, body, (z, w, y, jnp.int32(k0), jnp.int32(0), r0[0], r0[1]))
     r_prim, r_dual, _, _ = res(z, w, y)
     return d * z, r_prim, r_dual

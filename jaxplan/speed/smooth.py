@@ -230,15 +230,22 @@ def corridor(plan: SpeedPlan, config: SpeedConfig, t):
     F = lo.shape[-1]
     fa = jnp.clip(jnp.floor(t / hc + 1e-6).astype(jnp.int32), 0, F - 1)
     fb = jnp.clip(jnp.ceil(t / hc - 1e-6).astype(jnp.int32), 0, F - 1)
-    ha, hb = hit[:, fa], hit[:, fb]
     big = 1e9
-    low = jnp.minimum(jnp.where(ha, lo[:, fa], big), jnp.where(hb, lo[:, fb], big))
-    up = jnp.maximum(jnp.where(ha, hi[:, fa], -big), jnp.where(hb, hi[:, fb], -big))
+
+    def at_times(lo, hi, hit):
+        """A boundary ``(K, F)`` at the QP times, covered by both checks around each: ``(low,
+        up, hit)`` each ``(K, n)``."""
+        ha, hb = hit[:, fa], hit[:, fb]
+        low = jnp.minimum(jnp.where(ha, lo[:, fa], big), jnp.where(hb, lo[:, fb], big))
+        up = jnp.maximum(jnp.where(ha, hi[:, fa], -big), jnp.where(hb, hi[:, fb], -big))
+        return low, up, ha | hb
+
+    low, up, covered = at_times(lo, hi, hit)
     # the stop wall (the last row) where the car already stands past it (a blockage of the path at
     # the car itself): the DP could not stay behind it and charges entering, not staying, so it is no
     # bound of the corridor either (the obstacles themselves are rows of their own)
     past = (jnp.arange(lo.shape[0]) == lo.shape[0] - 1) & hit[:, 0] & (lo[:, 0] <= 0.0)
-    on = (ha | hb) & ~past[:, None]
+    on = covered & ~past[:, None]
     s_dp, _, _ = profile_at(plan, t)
     passed = on & (s_dp >= 0.5 * (low + up))
     behind = on & ~passed
@@ -246,9 +253,8 @@ def corridor(plan: SpeedPlan, config: SpeedConfig, t):
     lower = jnp.max(jnp.where(passed, up, -INF), 0)
     # the vehicles behind the DP stays ahead of (a vehicle closing in from behind that will not brake)
     rear = plan.scene.classified.rear
-    ra, rb = rear.hit[:, fa], rear.hit[:, fb]
-    r_up = jnp.maximum(jnp.where(ra, rear.upper[:, fa], -big), jnp.where(rb, rear.upper[:, fb], -big))
-    ahead = (ra | rb) & (s_dp >= r_up)
+    _, r_up, r_on = at_times(rear.lower, rear.upper, rear.hit)
+    ahead = r_on & (s_dp >= r_up)
     lower = jnp.maximum(lower, jnp.max(jnp.where(ahead, r_up, -INF), 0, initial=-INF))
     return lower, upper
 
