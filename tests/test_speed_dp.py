@@ -648,6 +648,12 @@ def test_a_vehicle_closing_in_from_behind_is_escaped_at_the_limits():
     # behind is escaped only just)
     prof = smooth_plan(p, 13.5, 0.0, cfg)
     s_qp = np.asarray(prof.s)[1:]
-    s_a = np.asarray(hardest_acceleration(0.0, 13.5, jnp.full(t.shape, cfg.v_max), t.shape[0], h, cfg))
+    # the most the limits reach (independent of the module): the acceleration rising from 0 at
+    # jerk_max to a_max, the speed held at v_max once there, integrated finely
+    tf = np.arange(0.0, float(t[-1]) + 1e-9, 1e-3)
+    v_f = np.minimum(13.5 + np.cumsum(np.minimum(cfg.jerk_max * tf, cfg.a_max)) * 1e-3, cfg.v_max)
+    s_a = np.interp(np.asarray(t), tf, np.cumsum(v_f) * 1e-3)
+    assert np.allclose(s_a, np.asarray(hardest_acceleration(0.0, 13.5, jnp.full(t.shape, cfg.v_max), t.shape[0], h, cfg)),
+                       atol=0.05)
     keep = np.minimum(r_up, s_a - LOWER_MARGIN)
     assert np.all(s_qp[ahead] >= keep[ahead] - 0.05), (s_qp - keep)[ahead].min()
