@@ -12,6 +12,7 @@ from jaxplan.bounds.frenet_bounds import path_bounds_jit
 from jaxplan.bounds.optimize import optimize_path_jit
 from jaxplan.bounds.path_qp import PathQPConfig, PathWeights, state_problem
 from jaxplan.geometry import ReferenceLine, box_corners, has_overlap, to_cartesian
+from jaxplan.solvers import ADMMSettings
 from jaxplan.types import VehicleParams
 
 CAR = box_corners(jnp.array([0.0, 0.0, 4.0, 2.0, 0.0]))  # x in [-2, 2], y in [-1, 1]
@@ -337,7 +338,7 @@ def test_path_qp_gradient_finite_difference():
     lo = np.full((3, T), -3.0, np.float32)
     up = np.full((3, T), 3.0, np.float32)
 
-    cfg = PathQPConfig(early_exit=False, max_iter=400, rho_updates=1)
+    cfg = PathQPConfig(admm=ADMMSettings(early_exit=False, max_iter=400, rho_updates=1))
 
     def f(bound):
         r = optimize_path_jit(jnp.asarray(lo), jnp.asarray(up).at[0, 8:12].set(bound), 1.0,

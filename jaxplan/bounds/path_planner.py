@@ -57,6 +57,7 @@ from jaxplan.bounds.path_qp import PathQPConfig, PathWeights, curvature_bounds
 from jaxplan.geometry.boxes import box_has_overlap, poses_to_boxes
 from jaxplan.geometry.frenet import frenet_to_cartesian_state, ref_state
 from jaxplan.geometry.quintic import cartesian_to_frenet_state
+from jaxplan.solvers import ADMMSettings
 from jaxplan.types import VehicleParams, pytree_dataclass
 
 RANGE_MARGIN = 0.01  # m: the car's reach at headings between the sampled ones of a heading range
@@ -110,7 +111,7 @@ class PathConfig:
     room_cap: float = 1.0
     min_gap: float = 0.0
     weights: tuple = (1.0, 10.0, 100.0, 1000.0)
-    qp: PathQPConfig = PathQPConfig(jerk_max=0.2, max_iter=2000)
+    qp: PathQPConfig = PathQPConfig(jerk_max=0.2, admm=ADMMSettings(max_iter=2000))
 
 
 @pytree_dataclass(

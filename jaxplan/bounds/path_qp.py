@@ -54,62 +54,35 @@ class PathQPConfig:
         dl_max: ``|l'|`` bound (default when no per-point bound is given).
         ddl_max: ``|l''|`` bound (default when no per-point bound is given), 1/m.
         jerk_max: ``|l'''|`` bound, 1/m^2.
-        eps_abs, eps_rel: OSQP's convergence tolerances (unscaled residuals).
-        eps_pinf: tolerance of the primal-infeasibility certificate, relative to ``||dy||``
-            (3e-2: in float32 OSQP's 1e-4 lets 70 % of the infeasible frames of the OSQP test
-            run to ``max_iter`` uncertified; no solvable frame is certified infeasible).
-        rho: initial ADMM step; adapted (``adaptive_rho``) at most ``rho_updates`` times (6: with
-            3, 8 % of the frames OSQP solves stop unconverged at ``max_iter``; with 6, 0.1 %).
-        check_every: iterations between residual / certificate checks.
-        max_iter: iteration cap (a multiple of ``check_every``).
         tol_violation: bound violation (m) above which a solution is not ``ok``.
-        ruiz_iters: equilibration passes.
+        admm: the ADMM's settings (``jaxplan.solvers.ADMMSettings``; its ``eps_abs`` and
+            ``eps_rel`` are also the polished solution's convergence test). Its defaults suit
+            this QP: ``eps_pinf`` 3e-2 (in float32 OSQP's 1e-4 lets 70 % of the infeasible
+            frames of the OSQP test run to ``max_iter`` uncertified; no solvable frame is
+            certified infeasible) and ``rho_updates`` 6 (with 3, 8 % of the frames OSQP solves
+            stop unconverged at ``max_iter``; with 6, 0.1 %). With ``early_exit=False`` every
+            iteration runs (``fori_loop``), and so does every polishing pass, so that
+            ``jax.grad`` can differentiate through the solve by unrolling (solved problems keep
+            their state).
         polish: OSQP's solution polishing after the ADMM (``polish_state``): the QP with the
             constraints the ADMM finds active as equalities, solved directly, the active set
             corrected pass by pass (block principal pivoting); the polished solution replaces the
             ADMM's (and counts as converged) only where it passes the convergence test itself
-            (``eps_abs``, ``eps_rel``: bounds met, complementary, correctly signed multipliers).
+            (``admm.eps_abs``, ``admm.eps_rel``: bounds met, complementary, correctly signed
+            multipliers).
         polish_passes: at most this many active-set passes (each one block-tridiagonal KKT
             factorisation, ``O(T)``).
         polish_refine: iterative-refinement steps per pass.
-        early_exit: stop when converged (``lax.while_loop``); False runs every iteration
-            (``fori_loop``), so that ``jax.grad`` can differentiate through the solve by
-            unrolling (solved problems keep their state).
     """
 
     dl_max: float = 2.0
     ddl_max: float = 1.0
     jerk_max: float = 1.0
-    eps_abs: float = 1e-4
-    eps_rel: float = 1e-4
-    eps_pinf: float = 3e-2
-    rho: float = 0.1
-    adaptive_rho: bool = True
-    check_every: int = 25
-    rho_updates: int = 6
-    early_exit: bool = True
-    max_iter: int = 4000
     tol_violation: float = 1e-3
-    ruiz_iters: int = 10
+    admm: ADMMSettings = ADMMSettings()
     polish: bool = True
     polish_passes: int = 16
     polish_refine: int = 2
-
-    @property
-    def admm(self) -> ADMMSettings:
-        """The ADMM's part of these settings (``jaxplan.solvers.admm_solve``)."""
-        return ADMMSettings(
-            eps_abs=self.eps_abs,
-            eps_rel=self.eps_rel,
-            eps_pinf=self.eps_pinf,
-            rho=self.rho,
-            adaptive_rho=self.adaptive_rho,
-            check_every=self.check_every,
-            rho_updates=self.rho_updates,
-            max_iter=self.max_iter,
-            ruiz_iters=self.ruiz_iters,
-            early_exit=self.early_exit,
-        )
 
 
 def jerk_map(T: int, ds, dtype=jnp.float32):

@@ -43,8 +43,9 @@ def polish_state(P, q, A, lo, hi, z, act_lo, act_hi, config: PathQPConfig, matve
             (its row layout: boxes, jerks, position and velocity integration).
         z: ``(3T,)`` the ADMM's solution (start of the refinement).
         act_lo, act_hi: ``(6T-3,)`` the ADMM's guess of the active rows (``admm_solve``).
-        config: ``PathQPConfig`` (``eps_abs``, ``eps_rel``, ``polish_passes``, ``polish_refine``,
-            ``early_exit``: stop once no row is wrong (``while_loop``), or run every pass).
+        config: ``PathQPConfig`` (``polish_passes``, ``polish_refine``, ``admm.eps_abs``,
+            ``admm.eps_rel``, ``admm.early_exit``: stop once no row is wrong (``while_loop``), or
+            run every pass).
         matvec: optional ``x -> A x`` (``state_matvec``).
         skip: ``()`` bool, no polishing (e.g. certified infeasible: the passes stop at once).
 
@@ -126,8 +127,8 @@ def polish_state(P, q, A, lo, hi, z, act_lo, act_hi, config: PathQPConfig, matve
         finite = jnp.all(jnp.isfinite(x)) & jnp.all(jnp.isfinite(y))  # a singular active set: never a candidate
         good = (
             finite
-            & (prim <= config.eps_abs + config.eps_rel * p_scale)
-            & (dual <= config.eps_abs + config.eps_rel * d_scale)
+            & (prim <= config.admm.eps_abs + config.admm.eps_rel * p_scale)
+            & (dual <= config.admm.eps_abs + config.admm.eps_rel * d_scale)
         )
         take = good & (prim < best)
         xb, yb = jnp.where(take, x, xb), jnp.where(take, yp, yb)
@@ -165,7 +166,7 @@ def polish_state(P, q, A, lo, hi, z, act_lo, act_hi, config: PathQPConfig, matve
         jnp.asarray(m + 1, jnp.int32),
         jnp.asarray(3, jnp.int32),
     )
-    if config.early_exit:
+    if config.admm.early_exit:
         c = jax.lax.while_loop(lambda c: (c[0] < config.polish_passes) & ~c[4], one_pass, c)
     else:
         c = jax.lax.fori_loop(0, config.polish_passes, lambda _, c: one_pass(c), c)
