@@ -183,7 +183,7 @@ def test_lattice_shape_order_and_start():
 def test_stations_finite_flags_every_candidate_of_a_bad_profile():
     """The plan's finiteness check leaves out x and y (finite where l and the profile's points on the
     line are): ``stations_finite`` must flag exactly the candidates of a profile with a bad point."""
-    from jaxplan.lattice.candidates import LatticeParts, stations_finite
+    from jaxplan.lattice.parts import LatticeParts, stations_finite
 
     G, P, T = 6, 4, 9
     rows = lambda *shape: jnp.asarray(np.random.default_rng(0).normal(size=(G, T) + shape), jnp.float32)
@@ -393,7 +393,7 @@ def test_batched_plan_matches_single_and_does_not_recompile():
 def test_fast_atan2_and_box_separation_axes(rng):
     from jaxplan.geometry import box_separation
     from jaxplan.geometry.boxes import box_separation_axes
-    from jaxplan.lattice.candidates import atan2
+    from jaxplan.lattice.lateral import atan2
     y, x = rng.normal(size=5000), rng.normal(size=5000)
     x[:10] = 0.0
     np.testing.assert_allclose(np.asarray(atan2(jnp.asarray(y, jnp.float32), jnp.asarray(x, jnp.float32))),

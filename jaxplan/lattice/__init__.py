@@ -1,7 +1,8 @@
 """Quintic candidate lattice with velocity profiles, time-aware collision risk and cost selection."""
 
 from jaxplan.geometry.quintic import cartesian_to_frenet_state, quintic_coeffs, quintic_eval
-from jaxplan.lattice.candidates import KMH, Candidates, LatticeConfig, PlanState, generate
+from jaxplan.lattice.candidates import Candidates, generate
+from jaxplan.lattice.config import KMH, LatticeConfig
 from jaxplan.lattice.cost import (
     CONSTRAINED,
     EMERGENCY,
@@ -30,6 +31,7 @@ from jaxplan.lattice.risk import (
     risk_from_separation,
     trajectory_boxes,
 )
+from jaxplan.lattice.state import PlanState
 
 __all__ = [
     "KMH",

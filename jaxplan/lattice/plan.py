@@ -12,15 +12,8 @@ import numpy as np
 from jaxplan.compile_options import NO_YNN, jit
 from jaxplan.geometry.boxes import car_reach
 from jaxplan.geometry.frenet import ReferenceLine, to_frenet, wrap_angle
-from jaxplan.lattice.candidates import (
-    Candidates,
-    LatticeConfig,
-    PlanState,
-    candidate_trajectory,
-    generate_from,
-    lattice_parts,
-    stations_finite,
-)
+from jaxplan.lattice.candidates import Candidates, candidate_trajectory, generate_from
+from jaxplan.lattice.config import LatticeConfig
 from jaxplan.lattice.cost import (
     INVALID,
     CostWeights,
@@ -35,6 +28,7 @@ from jaxplan.lattice.cost import (
 )
 from jaxplan.lattice.crossroad import with_stop_target
 from jaxplan.lattice.feasibility import feasibility, usable, violation
+from jaxplan.lattice.parts import lattice_parts, stations_finite
 from jaxplan.lattice.risk import (
     BIG,
     Risk,
@@ -48,6 +42,7 @@ from jaxplan.lattice.risk import (
     min_separation_topk,
     risk_from_separation,
 )
+from jaxplan.lattice.state import PlanState
 from jaxplan.lattice.targets import RoadTargets, extents, lane_leader, obstacle_frenet, speed_along
 from jaxplan.plan_context import goal_region_ahead
 from jaxplan.types import Obstacles, is_concrete, pytree_dataclass
@@ -167,7 +162,7 @@ def _kinematics(cand: Candidates, ref, targets, config, v_set, t, stations_ok):
 
     Args:
         stations_ok: ``(N,)`` the candidate's profile has finite points on the line
-            (``candidates.stations_finite``).
+            (``parts.stations_finite``).
 
     Returns:
         dict of ``(N, ...)`` arrays.

@@ -26,9 +26,10 @@ from typing import ClassVar
 import jax.numpy as jnp
 
 from jaxplan.compile_options import NO_YNN
-from jaxplan.lattice.candidates import LatticeConfig, PlanState
+from jaxplan.lattice.config import LatticeConfig
 from jaxplan.lattice.cost import INVALID, MODE_NAMES, RISK, CostWeights
 from jaxplan.lattice.plan import LatticeResult, _plan
+from jaxplan.lattice.state import PlanState
 from jaxplan.lattice.targets import RoadTargets
 from jaxplan.plan_context import road_context, route_sample, set_speed
 from jaxplan.planner import SIM_VEHICLE, EgoState, PlanOutput

@@ -48,7 +48,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxplan.lattice.candidates import Candidates, LatticeConfig
+from jaxplan.lattice.candidates import Candidates
+from jaxplan.lattice.config import LatticeConfig
 from jaxplan.tuning.traffic import FrenetTraffic, IDMParams, idm_rollout, leader
 
 FEATURES = (
