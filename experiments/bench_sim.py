@@ -20,8 +20,8 @@ import numpy as np
 
 from jaxplan.eval.timing import best_time, timed, write_figures
 from jaxplan.planner import make_planner
+from jaxplan.scenarios.batch import stack_scenes
 from jaxplan.scenarios.builtin import builtin_records
-from jaxplan.scenarios.scene import stack_scenes
 from jaxplan.sim.drive import time_plans
 from jaxplan.sim.rollout import SimConfig, rollout
 

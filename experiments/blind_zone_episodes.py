@@ -22,7 +22,8 @@ import numpy as np
 from jaxplan.planner import SIM_VEHICLE
 from jaxplan.eval.speed_suite import _blind_zone_steps
 from jaxplan.eval.timing import write_figures
-from jaxplan.scenarios.scene import load_records, stack_scenes
+from jaxplan.scenarios.batch import stack_scenes
+from jaxplan.scenarios.files import load_records
 from jaxplan.speed import SpeedConfig
 from jaxplan.speed.nonblocking import obstacle_speed
 

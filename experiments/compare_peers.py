@@ -35,7 +35,7 @@ start lanelet, else the speed that reaches the goal region's centre along the ro
 middle of the goal's time interval (clipped to 2..36 m/s), else the start speed.
 
 Route: ``--routes FILE`` (``{"routes": {key: [[x, y], ...]}}``, world coordinates), else built by
-``ROUTE_BUILDER`` below: jaxplan's route (``jaxplan.scenarios.scene.world_route``: the route to
+``ROUTE_BUILDER`` below: jaxplan's route (``jaxplan.scenarios.files.world_route``: the route to
 the goal lanelets that jaxplan's planners drive on, in world coordinates), so every planner follows
 the same route; ``ROUTE_BUILDER = None`` uses commonroad-route-planner's shortest reference path.
 
@@ -136,7 +136,7 @@ DEFAULT_SCENARIOS = [os.path.join(DATA, "commonroad2018a"), os.path.join(DATA, "
 # The reference path every planner follows: "module:function" taking a scenario file and returning
 # its route as (N, 2) world points, called in the referee's environment; None = commonroad-route-planner
 # in the reactive planner's venv. Switch with this one line once jaxplan's route builder is on main, e.g.
-ROUTE_BUILDER = "jaxplan.scenarios.scene:world_route"  # the route every jaxplan planner drives on
+ROUTE_BUILDER = "jaxplan.scenarios.files:world_route"  # the route every jaxplan planner drives on
 
 # BMW 320i (CommonRoad vehicle type 2), the reactive planner's and Frenetix's default car.
 CAR_LENGTH, CAR_WIDTH = 4.508, 1.61

@@ -30,8 +30,8 @@ def main(argv=None):
     ap.add_argument("--out", default=None, help="JSON of the figures")
     a = ap.parse_args(argv)
     from jaxplan.lattice.planner import LatticePlanner
+    from jaxplan.scenarios.batch import stack_scenes
     from jaxplan.scenarios.builtin import builtin_records
-    from jaxplan.scenarios.scene import stack_scenes
     from jaxplan.sim.rollout import SimConfig, driven_scene, rollout
     from jaxplan.tuning.closed_loop import drive_objective
 

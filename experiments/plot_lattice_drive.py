@@ -39,8 +39,8 @@ def main(argv=None):
     from jaxplan.geometry import box_corners
     from jaxplan.lattice.cost import MODE_NAMES
     from jaxplan.planner import EgoState, make_planner
+    from jaxplan.scenarios.batch import stack_scenes
     from jaxplan.scenarios.builtin import KINDS, _generate
-    from jaxplan.scenarios.scene import stack_scenes
     from jaxplan.sim.rollout import SimConfig, rollout
 
     if args.kind not in KINDS:

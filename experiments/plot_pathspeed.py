@@ -27,7 +27,7 @@ def main(argv=None) -> int:
     from jaxplan.speed.plot import plot_cycle
 
     if a.scenario:
-        from jaxplan.scenarios.scene import load_records
+        from jaxplan.scenarios.files import load_records
 
         rec = load_records([a.scenario])[0]
     else:

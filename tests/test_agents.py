@@ -14,8 +14,10 @@ from jaxplan.geometry.boxes import box_separation
 from jaxplan.plan_context import road_context
 from jaxplan.planner import PlanOutput
 from jaxplan.scenarios import builtin
+from jaxplan.scenarios.batch import stack_scenes
+from jaxplan.scenarios.build import build_scene
 from jaxplan.scenarios.loader import parse_scenario
-from jaxplan.scenarios.scene import SceneRecord, build_scene, stack_scenes
+from jaxplan.scenarios.scene import SceneRecord
 from jaxplan.sim import SimConfig, driven_scene, evaluate_batch, rollout
 from jaxplan.sim.agents import AgentParams
 from test_sim import _road_dict

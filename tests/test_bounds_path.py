@@ -212,9 +212,9 @@ def test_path_qp_against_osqp_1000_frames():
 
 # --------------------------------------------------------------------------- the planner on scenes
 def _scene(kind, seed):
+    from jaxplan.scenarios.build import build_scene
     from jaxplan.scenarios.builtin import scene_dict
     from jaxplan.scenarios.loader import parse_scenario
-    from jaxplan.scenarios.scene import build_scene
 
     d = scene_dict(kind, np.random.default_rng(seed), 0)
     return d, build_scene(parse_scenario(d, d["id"]))[0]
@@ -222,9 +222,9 @@ def _scene(kind, seed):
 
 def _wall_scene():
     """A straight two-lane road with a stopped car in each lane 40 m ahead: no way past."""
+    from jaxplan.scenarios.build import build_scene
     from jaxplan.scenarios.builtin import DT, LANE, START_S, _car, _lanelets, _Road
     from jaxplan.scenarios.loader import parse_scenario
-    from jaxplan.scenarios.scene import build_scene
 
     road = _Road(0.0, 0.0)
     obstacles = [_car(1 + i, road, START_S + 40.0, i * LANE, role="static") for i in range(2)]
@@ -245,7 +245,7 @@ def _plan_batch():
     from jaxplan.planner import SIM_VEHICLE
     from jaxplan.plan_context import road_context
     from jaxplan.planner import EgoState
-    from jaxplan.scenarios.scene import stack_scenes
+    from jaxplan.scenarios.batch import stack_scenes
 
     kinds = [("stopped_car", 1), ("parked_cars", 2), ("curve_stop", 3), ("slow_leader", 4), ("stopped_car", 6)]
     scenes = [_scene(k, s)[1] for k, s in kinds]

@@ -9,7 +9,7 @@ import pytest
 
 from jaxplan.baselines import BrakePlanner, IDMPlanner
 from jaxplan.lattice.cost import soft_choice
-from jaxplan.scenarios.scene import stack_scenes
+from jaxplan.scenarios.batch import stack_scenes
 from jaxplan.sim import SimConfig, rollout
 from jaxplan.sim.rollout import driven_scene
 from jaxplan.tuning.closed_loop import ObjectiveWeights, drive_objective

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from jaxplan.baselines import BrakePlanner, IDMPlanner
-from jaxplan.scenarios.scene import stack_scenes
+from jaxplan.scenarios.batch import stack_scenes
 from jaxplan.sim import SimConfig, rollout
 from jaxplan.sim import drive as drive_mod
 from jaxplan.sim.rollout import ChunkedRollout

@@ -11,7 +11,7 @@ import pytest
 from conftest import DATA_DIR, shared_data_or_skip
 
 from jaxplan.lattice.planner import LatticePlanner
-from jaxplan.scenarios.scene import stack_scenes
+from jaxplan.scenarios.batch import stack_scenes
 from jaxplan.sim import SimConfig
 from jaxplan.sim.rollout import ChunkedRollout, driven_scene
 from jaxplan.sim.metrics.registry import evaluate_batch
@@ -63,7 +63,7 @@ def _tjunction():
     files = glob.glob(os.path.join(DATA_DIR, "commonroad", "hand-crafted", "ZAM_Tjunction-1_100_T-1.xml.gz"))
     if not files:
         return None
-    from jaxplan.scenarios.scene import load_records
+    from jaxplan.scenarios.files import load_records
 
     return dataclasses.replace(load_records(files)[0], name="TJUNCTION")
 

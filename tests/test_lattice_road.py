@@ -494,9 +494,11 @@ def _scene(kind):
 @functools.lru_cache(maxsize=1)
 def _drives():
     from jaxplan.lattice.planner import LatticePlanner
+    from jaxplan.scenarios.batch import stack_scenes
+    from jaxplan.scenarios.build import build_scene
     from jaxplan.scenarios.builtin import survivable
     from jaxplan.scenarios.loader import parse_scenario
-    from jaxplan.scenarios.scene import SceneRecord, build_scene, stack_scenes
+    from jaxplan.scenarios.scene import SceneRecord
     from jaxplan.sim.metrics.registry import evaluate_batch
     from jaxplan.sim.rollout import SimConfig, rollout
 

@@ -44,7 +44,7 @@ def test_every_name_in_all_resolves():
     assert jaxplan.EgoState is mod("jaxplan.planner").EgoState
     assert jaxplan.make_planner is mod("jaxplan.planner").make_planner
     assert jaxplan.Scene is mod("jaxplan.scenarios.scene").Scene
-    assert jaxplan.load_scenes is mod("jaxplan.scenarios.scene").load_scenes
+    assert jaxplan.load_scenes is mod("jaxplan.scenarios.files").load_scenes
     assert jaxplan.rollout is mod("jaxplan.sim.rollout").rollout
     assert jaxplan.evaluate is mod("jaxplan.sim.metrics.registry").evaluate
     for sub in ("lattice", "speed", "sim", "tuning", "scenarios"):

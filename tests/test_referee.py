@@ -174,8 +174,7 @@ def test_jaxplan_drive_metrics_agree_with_the_referee(tmp_path):
     agree with the referee on every drive: recorded scenes with a map seam (US101-10, a 4 cm gap between
     two lanes), a rear-end collision (US101-5 braking), a static obstacle (ZAM_Over), non-identical shared
     bounds (DEU_Muc-2) and a reachable goal (ZAMRamp), driven by the brake and IDM baselines."""
-    from jaxplan.scenarios.files import scenario_keys
-    from jaxplan.scenarios.scene import load_records, unique_names
+    from jaxplan.scenarios.files import load_records, scenario_keys, unique_names
     from jaxplan.sim import SimConfig
     from jaxplan.sim.drive import drive
 

@@ -79,7 +79,7 @@ def test_route_end_is_the_dead_end_of_the_road_not_where_the_route_stops_walking
     assert not np.isfinite(long.end_s) and len(long.lanelets) < 12
     survival = plan_route(_chain(12, goal=False))
     assert len(survival.lanelets) > len(long.lanelets) and not np.isfinite(survival.end_s)
-    from jaxplan.scenarios.scene import build_scene
+    from jaxplan.scenarios.build import build_scene
 
     assert not np.isfinite(float(build_scene(_chain(12))[0].route_end_s))
     assert float(build_scene(_chain(3))[0].route_end_s) < 200.0

@@ -16,8 +16,10 @@ from jaxplan.baselines import BrakePlanner, IDMPlanner
 from jaxplan.compile_options import NO_YNN, _supported, options_key
 from jaxplan.planner import EgoState
 from jaxplan.scenarios import builtin
+from jaxplan.scenarios.batch import stack_scenes
+from jaxplan.scenarios.build import build_scene
 from jaxplan.scenarios.loader import parse_scenario
-from jaxplan.scenarios.scene import SceneRecord, build_scene, stack_scenes
+from jaxplan.scenarios.scene import SceneRecord
 from jaxplan.sim import SimConfig, rollout
 from jaxplan.sim.metrics.goal import goal_reached, heading_in
 from jaxplan.sim.metrics.offroad import offroad_steps
@@ -510,7 +512,7 @@ import sys, numpy as np, jax
 sys.path.insert(0, sys.argv[2])  # the tests' folder: the same scenes as the test process
 from test_sim import IDM_STEPS, _idm_records
 from jaxplan.baselines import IDMPlanner
-from jaxplan.scenarios.scene import stack_scenes
+from jaxplan.scenarios.batch import stack_scenes
 from jaxplan.sim.drive import run_planner
 from jaxplan.sim.rollout import SimConfig
 batch = stack_scenes([r.scene for r in _idm_records()], min_steps=IDM_STEPS + 1)

@@ -55,9 +55,10 @@ def _synthetic():
 def _rollout():
     """The built-in scenes (one per kind, survivable) and the synthetic ones in one batch: one
     compiled rollout."""
+    from jaxplan.scenarios.batch import stack_scenes
+    from jaxplan.scenarios.build import build_scene
     from jaxplan.scenarios.builtin import builtin_dicts
     from jaxplan.scenarios.loader import parse_scenario
-    from jaxplan.scenarios.scene import build_scene, stack_scenes
     from jaxplan.sim.metrics.registry import evaluate_batch
     from jaxplan.sim.rollout import SimConfig, rollout
 

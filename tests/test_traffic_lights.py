@@ -11,9 +11,10 @@ import pytest
 
 from conftest import shared_data_or_skip
 from jaxplan.planner import EgoState, make_planner
+from jaxplan.scenarios.batch import index_scene, stack_scenes
+from jaxplan.scenarios.build import build_scene
 from jaxplan.scenarios.lights import GREEN, INACTIVE, RED, YELLOW, colors_at, line_colors, movement
 from jaxplan.scenarios.loader import Lane, ScenarioError, TrafficLight, parse_scenario
-from jaxplan.scenarios.scene import build_scene, index_scene, stack_scenes
 
 LINE_X = 40.0  # the stop line, metres ahead of the ego start
 DT = 0.1

@@ -47,9 +47,11 @@ def recorded_scenes(directories, n: int | None = None) -> tuple[list, int]:
     import os
     import sys
 
+    from jaxplan.scenarios.build import build_scene
+    from jaxplan.scenarios.files import unique_names
     from jaxplan.scenarios.loader import ScenarioError, load_folder
     from jaxplan.scenarios.route import RouteError
-    from jaxplan.scenarios.scene import SceneRecord, build_scene, unique_names
+    from jaxplan.scenarios.scene import SceneRecord
 
     recs: list[SceneRecord] = []
     skipped = 0
@@ -260,7 +262,7 @@ def plot_st_graph(path: str, planner, scene, title: str, step: int = 0) -> str:
 def speed_suite(args: SuiteArgs) -> dict:
     import json
 
-    from jaxplan.scenarios.scene import stack_scenes
+    from jaxplan.scenarios.batch import stack_scenes
     from jaxplan.sim.drive import DEFAULT_MAX_STEPS, n_steps_for, run_planner
     from jaxplan.sim.rollout import SimConfig
     from jaxplan.speed.planner import PathSpeedPlanner

@@ -3,22 +3,16 @@
 
 Files to scenes: ``load_scenes(paths)`` (or ``load_records`` to keep each scene's scenario, route
 and name); built-in ones: ``builtin_scenes``; a batch: ``stack_scenes``. The modules hold the rest
-(``loader``, ``commonroad``, ``files``, ``route``, ``lights``, ``builtin``, ``cache``, ...).
+(``scene`` the types, ``build`` scenes from scenarios, ``batch`` batches of scenes, ``files``,
+``loader``, ``commonroad``, ``route``, ``lights``, ``builtin``, ``cache``, ...).
 """
 
+from jaxplan.scenarios.batch import index_scene, stack_scenes
+from jaxplan.scenarios.build import build_scene
 from jaxplan.scenarios.builtin import builtin_records, builtin_scenes
+from jaxplan.scenarios.files import load_records, load_scenes
 from jaxplan.scenarios.loader import Scenario, ScenarioError
-from jaxplan.scenarios.scene import (
-    Goal,
-    Scene,
-    SceneConfig,
-    SceneRecord,
-    build_scene,
-    index_scene,
-    load_records,
-    load_scenes,
-    stack_scenes,
-)
+from jaxplan.scenarios.scene import Goal, Scene, SceneConfig, SceneRecord
 
 __all__ = [
     "Goal",

@@ -202,7 +202,7 @@ def survivable(records) -> np.ndarray:
     """``(n,)`` bool: in-lane braking at ``SURVIVAL_DECEL`` from ``t = 0`` touches no obstacle
     (driven to the end of each goal's time window, at most 20 s)."""
     from jaxplan.baselines import BrakePlanner
-    from jaxplan.scenarios.scene import stack_scenes
+    from jaxplan.scenarios.batch import stack_scenes
     from jaxplan.sim.drive import n_steps_for, run_planner
     from jaxplan.sim.rollout import SimConfig
 
@@ -215,8 +215,9 @@ def survivable(records) -> np.ndarray:
 
 def _draw(kind: str, rng, i: int):
     """``(scenario dict, SceneRecord)`` of one scene of ``kind`` drawn from ``rng`` (``scene_dict``)."""
+    from jaxplan.scenarios.build import build_scene
     from jaxplan.scenarios.loader import parse_scenario
-    from jaxplan.scenarios.scene import SceneRecord, build_scene
+    from jaxplan.scenarios.scene import SceneRecord
 
     d = scene_dict(kind, rng, i)
     sc = parse_scenario(d, d["id"])
@@ -266,7 +267,7 @@ def builtin_records(quick: bool = False, seed: int = 0) -> list:
 
 def builtin_scenes(n_per_kind: int = 1, seed: int = 0, kinds=KINDS, check: bool = True) -> list:
     """``n_per_kind`` built-in scenes of each of ``kinds``, as unbatched numpy ``Scene``s (give them
-    to ``jaxplan.scenarios.scene.stack_scenes`` for a batch); deterministic in ``seed``.
+    to ``jaxplan.scenarios.batch.stack_scenes`` for a batch); deterministic in ``seed``.
 
     Args:
         check: keep only scenes that braking survives, as ``builtin_records`` (and ``jaxplan drive

@@ -91,7 +91,7 @@ def _entry_key(digest: str, config, horizon) -> str:
 
 def _load_one(path: str, config, horizon):
     """``("ok", record)`` or ``("error", reason)`` for one file (runs in a worker process)."""
-    from jaxplan.scenarios.scene import load_records
+    from jaxplan.scenarios.files import load_records
 
     try:
         return "ok", load_records([path], config, horizon)[0]
@@ -147,7 +147,7 @@ def load_many(
     use_cache: bool = True,
     progress: bool = True,
 ) -> Loaded:
-    """Load scenario files into ``SceneRecord``s (``jaxplan.scenarios.scene.load_records``), from
+    """Load scenario files into ``SceneRecord``s (``jaxplan.scenarios.files.load_records``), from
     the cache where possible, parsing the rest in ``workers`` processes.
 
     Args:

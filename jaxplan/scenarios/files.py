@@ -1,24 +1,35 @@
-"""Scenario files on the command line: folders expanded, one unique key per file, any format read.
+"""Scenario files on the command line: folders expanded, one unique key per file, any format read,
+scenes built from them.
 
 Formats: the shared JSON (``.json``) and CommonRoad 2020a XML (``.xml``), each also
 gzip-compressed (``.json.gz``, ``.xml.gz``: large collections are kept that way).
-``load_file`` reads any of them into a ``Scenario``.
+``load_file`` reads any of them into a ``Scenario``; ``load_records`` reads files into
+``SceneRecord``s (the scenario, its ``Scene`` from ``jaxplan.scenarios.build.build_scene``, its
+route), ``load_scenes`` into their ``Scene``s, and ``world_route`` gives the route a planner drives
+on in a file, in world coordinates.
 
 A drive is written to ``DIR/<key>/driven.json``. The key is the scenario's id (the JSON
 ``id``; for CommonRoad XML the id commonroad-io reads, as ``load_commonroad`` does). Two files
 may carry the same id (``../shared/data`` has ``DEU_Muc-3_1_T-1`` twice and ``ZAM_Over-1_1``
 as JSON and as XML); the first file (in the order given, folders sorted) keeps the plain id, each
-later one gets ``<id>@<file name>``, so keys stay unique and say where they came from.
+later one gets ``<id>@<file name>``, so keys stay unique and say where they came from
+(``scenario_keys`` for files, ``unique_names`` for loaded records).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import glob
 import json
 import os
 
+import numpy as np
+
+from jaxplan.scenarios.build import build_scene
 from jaxplan.scenarios.commonroad import load_commonroad, read_commonroad
-from jaxplan.scenarios.loader import load_scenario, read_bytes
+from jaxplan.scenarios.loader import ScenarioError, load_scenario, read_bytes
+from jaxplan.scenarios.route import RouteError
+from jaxplan.scenarios.scene import SceneConfig, SceneRecord
 
 SUFFIXES = (".json", ".xml", ".json.gz", ".xml.gz")
 
@@ -117,8 +128,6 @@ def sample_files(files: list, n: int, seed: int = 0) -> list:
         n: sample size; all files when ``n >= len(files)``.
         seed: the sample's seed (the same seed and files give the same sample).
     """
-    import numpy as np
-
     files = list(files)
     if n >= len(files):
         return files
@@ -158,3 +167,61 @@ def split_of(name: str) -> str:
 
     h = int(hashlib.sha256((SPLIT_SALT + location(name)).encode()).hexdigest(), 16)
     return "validation" if h % 3 == 0 else "train"
+
+
+def load_records(paths: list, config: SceneConfig = SceneConfig(), horizon: float | None = None) -> list:
+    """``SceneRecord``s from scenario files (``.json`` shared format, ``.xml`` CommonRoad, either
+    gzip-compressed: ``load_file``).
+
+    Names are the scenario ids; give several files to ``unique_names`` to make them unique.
+
+    Raises:
+        ValueError: naming the file, for unreadable files, scenarios without a planning
+            problem, without lanelets, or with a goal region of an unknown kind.
+    """
+    recs = []
+    for p in paths:
+        sc = load_file(p, horizon)
+        try:
+            scene, route = build_scene(sc, config)
+        except RouteError as e:
+            raise ScenarioError(f"{p}: {e}") from None
+        recs.append(SceneRecord(sc.id, scene, sc, route, p))
+    return recs
+
+
+def load_scenes(paths: list, config: SceneConfig = SceneConfig(), horizon: float | None = None) -> list:
+    """The ``Scene`` of each scenario file, in order: ``[r.scene for r in load_records(paths, ...)]``
+    (``load_records`` also keeps the scenario, its route and a name).
+
+    Args:
+        paths: scenario files (``.json`` shared format, ``.xml`` CommonRoad, either gzip-compressed).
+        config: ``SceneConfig``; horizon: seconds of obstacle recording kept (default all).
+
+    Returns:
+        unbatched numpy ``Scene``s of their own sizes (obstacles ``(K, T, 5)``, ``drivable (M, V, 2)``,
+        ...; the layout in ``jaxplan.scenarios.scene``); ``jaxplan.scenarios.batch.stack_scenes`` pads
+        them into one batch with a leading scene axis.
+
+    Raises:
+        ValueError: naming the file (as ``load_records``).
+    """
+    return [r.scene for r in load_records(paths, config, horizon)]
+
+
+def unique_names(records: list) -> list:
+    """The records renamed as ``scenario_keys`` keys files: the first of each id keeps it, later
+    ones become ``<id>@<file name>``."""
+    seen, out = set(), []
+    for r in records:
+        name = r.name if r.name not in seen else f"{r.name}@{os.path.basename(r.path)}"
+        seen.add(name)
+        out.append(dataclasses.replace(r, name=name))
+    return out
+
+
+def world_route(path: str) -> np.ndarray:
+    """The route a jaxplan planner drives on in scenario ``path``, in world coordinates ``(R, 2)``
+    (for other planners run on the same route, ``experiments/compare_peers.py``)."""
+    rec = load_records([path])[0]
+    return np.asarray(rec.scene.route.xy, float) + np.asarray(rec.scenario.origin, float)

@@ -78,3 +78,31 @@ def smooth_polyline(xy: np.ndarray, wavelength: float, max_dev: float, order: in
             return out
         lam /= 4.0
     return xy.copy()
+
+
+def simplify(xy: np.ndarray, tol: float) -> np.ndarray:
+    """Douglas-Peucker simplification of a polyline ``(P, 2)`` within ``tol`` metres (keeps ends)."""
+    xy = np.asarray(xy, float)
+    if len(xy) <= 2 or tol <= 0:
+        return xy
+    keep = np.zeros(len(xy), bool)
+    keep[0] = keep[-1] = True
+    stack = [(0, len(xy) - 1)]
+    while stack:
+        i, j = stack.pop()
+        if j <= i + 1:
+            continue
+        a, b = xy[i], xy[j]
+        d = b - a
+        n = np.linalg.norm(d)
+        p = xy[i + 1 : j]
+        if n < 1e-12:
+            dist = np.linalg.norm(p - a, axis=1)
+        else:
+            dist = np.abs(d[0] * (p[:, 1] - a[1]) - d[1] * (p[:, 0] - a[0])) / n
+        k = int(np.argmax(dist))
+        if dist[k] > tol:
+            m = i + 1 + k
+            keep[m] = True
+            stack += [(i, m), (m, j)]
+    return xy[keep]

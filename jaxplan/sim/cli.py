@@ -148,7 +148,7 @@ def run(args) -> int:
                 return _fail(f"--weights {args.weights}: planner {n}: {e}")
             params[n] = w
     from jaxplan.scenarios.cache import enable_compilation_cache, load_many
-    from jaxplan.scenarios.scene import unique_names
+    from jaxplan.scenarios.files import unique_names
     from jaxplan.sim.drive import run_settings
     from jaxplan.sim.rollout import SimConfig
     from jaxplan.sim.store import RunMismatch, check_settings

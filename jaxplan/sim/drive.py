@@ -315,7 +315,7 @@ def _judge(log: DriveLog, records, run: dict, vehicle, batch_size: int):
     traffic padded to the run's sizes (``sizes.run_sizes``), the outlines' vertices to the batch's class
     and the steps to the class of the batch's longest drive: a few metrics programs serve a run.
     Returns ``(the scenes as driven (numpy), {metric: (B,) numpy})``."""
-    from jaxplan.scenarios.scene import scene_sizes, stack_scenes
+    from jaxplan.scenarios.batch import scene_sizes, stack_scenes
 
     # the run's sizes, but the outlines' vertices at the batch's own class (the metrics' work grows with them)
     v_class = max(sizes.size_class(scene_sizes(r.scene)["V"], sizes.CLASSES["V"]) for r in records)
@@ -391,7 +391,7 @@ def drive(
     """Drive ``records`` (``SceneRecord``s) with each planner name; write the outputs under ``out``.
 
     Args:
-        records: the scenes (names unique: ``jaxplan.scenarios.scene.unique_names``).
+        records: the scenes (names unique: ``jaxplan.scenarios.files.unique_names``).
         planners: planner names (``jaxplan.planner.make_planner``).
         out: output folder; a run there with the same settings and scenes is resumed.
         config: ``SimConfig``; its ``n_steps`` is the step cap: each scene is driven to the end of
@@ -413,7 +413,7 @@ def drive(
     """
     from tqdm import tqdm
 
-    from jaxplan.scenarios.scene import stack_scenes
+    from jaxplan.scenarios.batch import stack_scenes
 
     if plots not in ("auto", "all", "failed", "none"):
         raise ValueError(f"plots must be auto, all, failed or none, got {plots!r}")

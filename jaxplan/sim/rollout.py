@@ -466,7 +466,7 @@ def rollout(planner: Planner, scenes, config: SimConfig = SimConfig(), params=No
 
     Args:
         planner: a ``Planner`` (hashable; static).
-        scenes: a batched ``Scene`` (``jaxplan.scenarios.scene.stack_scenes``).
+        scenes: a batched ``Scene`` (``jaxplan.scenarios.batch.stack_scenes``).
         config: ``SimConfig``.
         params: the planner's params (a pytree shaped as ``planner.init_params()``, shared by every
             scene; default those). Inside a caller's ``jit`` or ``grad``, ``drive_one`` under

@@ -2,7 +2,7 @@
 
 A jitted program is compiled for its arrays' shapes. Scenes differ in their counts of
 obstacles, recorded steps, lanelet outlines, goal polygons, stop lines and lane paths
-(``jaxplan.scenarios.scene.SIZE_NAMES``); padded to the largest scene, a batch of small scenes
+(``jaxplan.scenarios.batch.SIZE_NAMES``); padded to the largest scene, a batch of small scenes
 pays for one large one, and every new file with a new count compiles again. So:
 
 - the obstacle count ``K``, which sets a planner's work, is rounded up to its **class** (the
@@ -45,7 +45,7 @@ def size_class(n: int, classes: tuple) -> int:
 
 def obstacle_class(scene) -> int:
     """The obstacle class ``K`` of an unbatched scene (at least one obstacle slot)."""
-    from jaxplan.scenarios.scene import scene_sizes
+    from jaxplan.scenarios.batch import scene_sizes
 
     return size_class(max(scene_sizes(scene)["K"], 1), CLASSES["K"])
 
@@ -53,7 +53,7 @@ def obstacle_class(scene) -> int:
 def run_sizes(scenes) -> dict:
     """The padded sizes of a run over unbatched scenes: every count's class, the largest over the
     scenes (``K`` included: the metrics' size; the drives use each group's ``obstacle_class``)."""
-    from jaxplan.scenarios.scene import SIZE_NAMES, scene_sizes
+    from jaxplan.scenarios.batch import SIZE_NAMES, scene_sizes
 
     out = {k: 0 for k in SIZE_NAMES}
     for s in scenes:

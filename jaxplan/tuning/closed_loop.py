@@ -323,9 +323,9 @@ def tune_files(
     import os
 
     from jaxplan.planner import make_planner
+    from jaxplan.scenarios.batch import stack_scenes
     from jaxplan.scenarios.cache import enable_compilation_cache, load_many
     from jaxplan.scenarios.files import expand_paths, sample_files, split_of
-    from jaxplan.scenarios.scene import stack_scenes
     from jaxplan.sim import sizes
     from jaxplan.sim.rollout import SimConfig
     from jaxplan.weights import save_weights
