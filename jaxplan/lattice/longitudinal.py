@@ -36,10 +36,10 @@ from typing import Any
 
 import jax.numpy as jnp
 
+from jaxplan.lattice.config import KMH
 from jaxplan.lattice.profiles import accel_profile, jerk_profile
 from jaxplan.types import pytree_dataclass
 
-KMH = 1.0 / 3.6
 # Mode ids of the longitudinal profiles.
 CRUISE, FOLLOW, STOP, GOAL, EMERGENCY, FALLBACK = 0, 1, 2, 3, 4, 5
 # the profiles run along the reference line; the car's own acceleration adds the line's
