@@ -46,6 +46,9 @@ SIM_VEHICLE = VehicleParams(length=4.508, width=1.61, wheelbase=2.578, rear_over
 # m/s^2: the hardest braking a road planner plans with in an emergency (one figure for every planner:
 # the lattice's emergency candidates, the speed planner's hardest braking)
 EMERGENCY_DECEL = 8.0
+# m/s^2: the most lateral acceleration a road planner plans with in an emergency (the speed planner's
+# executed profile where its DP runs above the comfortable curvature limit to escape a vehicle behind)
+EMERGENCY_LAT_ACCEL = 6.0
 
 
 @pytree_dataclass(data_fields=("x", "y", "heading", "v", "a", "kappa"))

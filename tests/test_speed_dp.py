@@ -649,11 +649,51 @@ def test_a_vehicle_closing_in_from_behind_is_escaped_at_the_limits():
     prof = smooth_plan(p, 13.5, 0.0, cfg)
     s_qp = np.asarray(prof.s)[1:]
     # the most the limits reach (independent of the module): the acceleration rising from 0 at
-    # jerk_max to a_max, the speed held at v_max once there, integrated finely
-    tf = np.arange(0.0, float(t[-1]) + 1e-9, 1e-3)
-    v_f = np.minimum(13.5 + np.cumsum(np.minimum(cfg.jerk_max * tf, cfg.a_max)) * 1e-3, cfg.v_max)
-    s_a = np.interp(np.asarray(t), tf, np.cumsum(v_f) * 1e-3)
+    # jerk_max to a_max, easing off at jerk_max to meet v_max with no acceleration left,
+    # integrated finely
+    dt = 1e-4
+    tf = np.arange(0.0, float(t[-1]) + 1e-9, dt)
+    v_f, s_f, a, v, x = np.empty_like(tf), np.empty_like(tf), 0.0, 13.5, 0.0
+    for i, ti in enumerate(tf):
+        v_f[i], s_f[i] = v, x
+        a = min(cfg.a_max, a + cfg.jerk_max * dt, np.sqrt(2.0 * cfg.jerk_max * max(cfg.v_max - v, 0.0)))
+        x += v * dt + 0.5 * a * dt * dt
+        v += a * dt
+    s_a = np.interp(np.asarray(t), tf, s_f)
     assert np.allclose(s_a, np.asarray(hardest_acceleration(0.0, 13.5, jnp.full(t.shape, cfg.v_max), t.shape[0], h, cfg)),
                        atol=0.05)
     keep = np.minimum(r_up, s_a - LOWER_MARGIN)
     assert np.all(s_qp[ahead] >= keep[ahead] - 0.05), (s_qp - keep)[ahead].min()
+
+
+def test_a_vehicle_behind_and_a_lower_limit_ahead_still_give_an_executable_profile():
+    """The car at 13.5 m/s, a car 11 m behind it at 21 m/s (it will not brake), and a speed
+    limit of 11 m/s from 20 m ahead (a bend). The DP weighs the limit against the car behind
+    and runs above the limit. The smoothing QP's corridor (ahead of the car behind) and the
+    limit leave no profile together; the QP runs above the limit as the DP does, up to the
+    limit at the emergency lateral acceleration, and no further: the executed profile
+    converges, keeps the acceleration and jerk limits, and runs at that stretched limit past
+    the limit's start (as far ahead of the car behind as it may)."""
+    from jaxplan.planner import EMERGENCY_LAT_ACCEL
+    from jaxplan.speed.smooth import smooth_plan
+
+    cfg = SpeedConfig()
+    obs = _moving([[-11.0, 0.0, 4.5, 1.8, 0.0]], [21.0])
+    road = _road(limit_s=(0.0, 19.9, 20.0, 300.0), limit_v=(INF, INF, 11.0, 11.0))
+    p = plan_speed(REF, obs, cfg, W, v0=13.5, a0=0.0, s0=10.0, keep_clear=NO_KC, vehicle=CAR, road=road)
+    h = cfg.qp_dt
+    t = jnp.arange(1, int(round(cfg.horizon / h)) + 1, dtype=jnp.float32) * h
+    s_dp, v_dp, _ = (np.asarray(x) for x in profile_at(p, t))
+    assert np.any((s_dp > 20.0) & (v_dp > 11.5)), "the DP keeps the limit: nothing to test"
+    prof = smooth_plan(p, 13.5, 0.0, cfg)
+    assert bool(prof.ok), (float(prof.r_prim), float(prof.r_dual))
+    a, v, s = np.asarray(prof.a), np.asarray(prof.v), np.asarray(prof.s)
+    assert np.all(a >= cfg.a_brake - 1e-3) and np.all(a <= cfg.a_max + 1e-3)
+    assert np.all(np.abs(np.asarray(prof.jerk)) <= cfg.jerk_max + 1e-2)
+    stretched = 11.0 * np.sqrt(EMERGENCY_LAT_ACCEL / cfg.a_lat_max)
+    past = s > 20.5
+    assert past.sum() > 40
+    assert np.all(v[past] <= stretched + 0.05), v[past].max()
+    # the car behind is closing in: the profile holds the stretched limit once it has met it
+    held = past & (np.asarray(prof.t) > 2.0)
+    assert np.all(v[held] >= stretched - 0.1), v[held].min()

@@ -18,11 +18,16 @@ Each side of the corridor is one the limits can keep: the upper side is widened 
 hardest braking the limits allow reaches (``hardest_braking``: the jerk-limited stop at
 ``a_brake``, ``upper_k >= s_brake_k``), the lower side narrowed to the most they reach
 (``hardest_acceleration``, less ``LOWER_MARGIN``) and below the upper side, and the speed limit
-relaxed to what braking at ``LIMIT_DECEL`` reaches. Where the DP could not avoid a boundary,
+relaxed to what braking at ``LIMIT_DECEL`` reaches and, where the DP's profile runs above it
+(the DP weighs the limit against its other costs), raised to the DP's speed up to the limit at
+``EMERGENCY_LAT_ACCEL`` instead of ``SpeedConfig.a_lat_max``. Where the DP could not avoid a boundary,
 only the hardest braking is left there, and ``slack`` (how far the corridor had to be widened)
 says so. The references are clipped into the corridor, so the QP tracks the boundary, not the
-DP's profile through an obstacle. (Where both sides bind at once a corridor the limits cannot
-keep is left, the solver stops unconverged and ``ok`` says so.)
+DP's profile through an obstacle. Where both sides and the speed limit bind at once (a vehicle
+behind pushes the car faster than a bend ahead allows), a corridor the limits cannot keep may
+be left: the QP is solved with and without the corridor's lower sides (the two as one vmapped
+solve), and the one without them is executed where the first's iterate does not keep its
+bounds; ``ok`` is that solve's.
 
 The solver is ``jaxplan.solvers.admm_prefactored`` (OSQP's ADMM on constant matrices): the
 Hessian and the constraint matrix depend only on the weights and the grid, so they are
@@ -36,12 +41,14 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import math
 from typing import Any
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxplan.planner import EMERGENCY_LAT_ACCEL
 from jaxplan.solvers.qp import INF, LadderSettings, admm_prefactored, prefactor
 from jaxplan.speed.problem import SpeedConfig, SpeedPlan, profile_at
 
@@ -155,21 +162,53 @@ def hardest_braking(a0, v0, n: int, h: float, config: SpeedConfig):
 
 
 def hardest_acceleration(a0, v0, v_lim, n: int, h: float, config: SpeedConfig):
-    """The most station ``(n,)`` at ``k h`` (k = 1..n) the QP's limits reach from ``(a0, v0)``:
-    the acceleration rising at ``jerk_max`` to ``a_max``, the speed held at the limit ``v_lim
-    (n,)`` where it would pass it (trapezoidal stations: within a few centimetres of the QP's
-    own integration)."""
-    J = config.jerk_max
-
-    def step(c, vl):
-        a, v, s = c
-        a1 = jnp.minimum(a + J * h, config.a_max)
-        v1 = jnp.minimum(v + 0.5 * h * (a + a1), jnp.maximum(vl, v))
-        s1 = s + 0.5 * h * (v + v1)
-        return (a1, v1, s1), s1
-
+    """The most station ``(n,)`` at ``k h`` (k = 1..n) the QP's limits reach from ``(a0, v0)``,
+    in the QP's own integration: each step the acceleration rises at ``jerk_max`` towards
+    ``a_max`` unless that passes the speed limit ``v_lim (n,)``, now or (by the hardest braking
+    from the state it leaves, ``hardest_braking``'s rule) later; then it is the one that meets
+    the limit as it eases off at ``jerk_max``, else the one that meets it now, else none, else it
+    falls at ``jerk_max``. A profile within the acceleration,
+    jerk and speed limits wherever one exists (the limit met within a centimetre per second)."""
+    J, ab, am = config.jerk_max, config.a_brake, config.a_max
     f = v_lim.dtype
-    _, s = jax.lax.scan(step, (jnp.asarray(a0, f), jnp.asarray(v0, f), jnp.zeros((), f)), v_lim)
+    steps = jnp.arange(n)
+
+    def advance(a, v, a1):
+        return v + 0.5 * h * (a + a1), h * v + h * h * (a / 3.0 + a1 / 6.0)
+
+    def brakes_within(a, v, k):
+        """The hardest braking from ``(a, v)`` after step ``k`` keeps every later limit."""
+
+        def brake(c, j):
+            a, v, ok = c
+            a_f = jnp.maximum(a - J * h, ab)
+            v_f = v + 0.5 * h * (a + a_f)
+            rising = v_f <= 0.5 * a_f * a_f / J + 0.5 * h * jnp.abs(a_f)
+            a1 = jnp.where(rising, jnp.minimum(a + J * h, 0.0), a_f)
+            v1, _ = advance(a, v, a1)
+            later = j > k
+            ok = ok & (~later | (v1 <= v_lim[j] + 0.01))
+            return (jnp.where(later, a1, a), jnp.where(later, v1, v), ok), None
+
+        (_, _, ok), _ = jax.lax.scan(brake, (a, v, jnp.asarray(True)), steps)
+        return ok
+
+    def step(c, k):
+        a, v, s = c
+        lo, hi = jnp.maximum(a - J * h, ab), jnp.minimum(a + J * h, am)
+        # the first of: the most acceleration, the one that meets the limit as it eases off to
+        # none at jerk_max, the one that meets it now, none, the least
+        gap = v_lim[k] - v - 0.5 * h * a
+        meet = J * (jnp.sqrt(jnp.maximum(0.25 * h * h + 2.0 * gap / J, 0.0)) - 0.5 * h)
+        exact = 2.0 * (v_lim[k] - v) / h - a
+        tries = jnp.clip(jnp.stack([hi, meet, exact, jnp.zeros_like(a), lo]), lo, hi)
+        v_try, _ = advance(a, v, tries)
+        ok = (v_try <= v_lim[k] + 0.01) & jax.vmap(brakes_within, (0, 0, None))(tries, v_try, k)
+        a1 = tries[jnp.argmax(ok.at[-1].set(True))]
+        v1, ds = advance(a, v, a1)
+        return (a1, v1, s + ds), s + ds
+
+    _, s = jax.lax.scan(step, (jnp.asarray(a0, f), jnp.asarray(v0, f), jnp.zeros((), f)), steps)
     return s
 
 
@@ -280,15 +319,25 @@ def smooth_plan(
     qi = jnp.clip(s_ref / config.ds, 0.0, vl.shape[0] - 1.0)
     k = jnp.clip(jnp.floor(qi).astype(jnp.int32), 0, vl.shape[0] - 2)
     v_lim = vl[k] + (qi - k) * (vl[k + 1] - vl[k])
+    # where the DP runs above the limit (it weighed the limit against a vehicle behind), the
+    # limit is its speed, up to what the emergency lateral acceleration allows
+    stretch = math.sqrt(max(EMERGENCY_LAT_ACCEL / config.a_lat_max, 1.0))
+    v_lim = jnp.maximum(v_lim, jnp.minimum(v_ref, stretch * v_lim))
     q, l, u, slack = qp_problem(s_ref, v_ref, lower, upper, v_lim, a0, v0, config, w)
     m = qp_matrices(n, h, w)
-    x, rp, rd = admm_prefactored(m["fixed"], q, l, u, solver, a_ref)
+    # the QP, and the QP without the corridor's lower sides (its last n rows), as one vmapped
+    # solve: the second where the first's iterate does not keep its bounds (no profile keeps
+    # them) and the second is solved
+    both = jnp.stack([l, l.at[3 * n :].set(-INF)])
+    xs, rps, rds = jax.vmap(lambda lo: admm_prefactored(m["fixed"], q, lo, u, solver, a_ref))(both)
+    solved = (rps < solver.eps_prim) & (rds < solver.eps_dual) & jnp.all(jnp.isfinite(xs), axis=-1)
+    i = jnp.where((rps[0] >= solver.eps_prim) & solved[1], 1, 0)
+    x, rp, rd, ok = xs[i], rps[i], rds[i], solved[i]
     acc = jnp.clip(x, config.a_brake, config.a_max)
     y = jnp.stack([a0, v0])
     v = jnp.asarray(m["Va"], f) @ acc + jnp.asarray(m["Vy"], f) @ y
     s = jnp.asarray(m["Sa"], f) @ acc + jnp.asarray(m["Sy"], f) @ y
     finite = jnp.all(jnp.isfinite(x))
-    ok = (rp < solver.eps_prim) & (rd < solver.eps_dual) & finite
     # the iterate, clipped to the acceleration bounds and integrated exactly, is a valid
     # profile even where the solver stopped early (held at a stop, never backwards)
     acc = jnp.where(v <= 0.0, jnp.maximum(acc, 0.0), acc)
