@@ -37,6 +37,7 @@ from typing import Any, Protocol
 
 import jax
 import jax.numpy as jnp
+from jaxtyping import Array, ArrayLike, Bool, Float, Int, Shaped
 
 from jaxplan.types import Trajectory, VehicleParams, pytree_dataclass
 
@@ -56,15 +57,15 @@ class EgoState:
     """The car's state, each field ``(...)``: position of its reference point (m), heading
     (rad), speed (m/s, >= 0 forward), acceleration (m/s^2), curvature (1/m)."""
 
-    x: Any
-    y: Any
-    heading: Any
-    v: Any
-    a: Any = 0.0
-    kappa: Any = 0.0
+    x: Float[Any, " ..."]
+    y: Float[Any, " ..."]
+    heading: Float[Any, " ..."]
+    v: Float[Any, " ..."]
+    a: Float[Any, " ..."] = 0.0
+    kappa: Float[Any, " ..."] = 0.0
 
     @classmethod
-    def from_box_centre(cls, start, vehicle: VehicleParams) -> EgoState:
+    def from_box_centre(cls, start: Float[ArrayLike, "... 5"], vehicle: VehicleParams) -> EgoState:
         """From a box-centre state ``start (..., 5)`` = [x, y, heading, v, a] (a ``Scene``'s start)."""
         start = jnp.asarray(start)
         h = start[..., 2]
@@ -78,7 +79,7 @@ class EgoState:
             jnp.zeros_like(h),
         )
 
-    def box_centre(self, vehicle: VehicleParams):
+    def box_centre(self, vehicle: VehicleParams) -> Float[Array, "... 2"]:
         """``(..., 2)`` centre of the car's box."""
         off = jnp.asarray(vehicle.center_offset, jnp.result_type(self.x))
         return jnp.stack([self.x + off * jnp.cos(self.heading), self.y + off * jnp.sin(self.heading)], -1)
@@ -95,9 +96,9 @@ class PlanOutput:
     """A plan: ``trajectory`` (``Trajectory`` with fields ``(..., H)``, t from now), ``ok (...)``
     bool, ``info``: a dict of ``(...)`` arrays (e.g. mode, candidates rejected)."""
 
-    trajectory: Any
-    ok: Any
-    info: Any
+    trajectory: Trajectory
+    ok: Bool[Any, " ..."]
+    info: dict[str, Shaped[Any, " ..."]]
 
 
 class Planner(Protocol):
@@ -111,7 +112,7 @@ class Planner(Protocol):
 
     def init_params(self, values: Mapping | None = None, /) -> Any: ...
 
-    def plan(self, params, scene, ego: EgoState, step) -> PlanOutput: ...
+    def plan(self, params, scene, ego: EgoState, step: Int[ArrayLike, ""]) -> PlanOutput: ...
 
 
 def check_params(planner, params) -> Any:

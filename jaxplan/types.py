@@ -2,7 +2,9 @@
 
 Array fields carry any number of leading batch dimensions. Each type has a
 host-side ``validate()`` that raises ``ValueError`` with a clear message; call it
-at the API boundary, before ``jax.jit``.
+at the API boundary, before ``jax.jit``. The fields' annotations give their dtype
+kind and shape (jaxtyping, e.g. ``Float[Any, "... K T 5"]``); their array type is
+``Any``: JAX arrays, or numpy arrays on the host.
 """
 
 from __future__ import annotations
@@ -13,6 +15,7 @@ from typing import TYPE_CHECKING, Any
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jaxtyping import Array, ArrayLike, Bool, Float, Int, Real
 
 REAR_AXLE = "rear_axle"
 CENTER = "center"
@@ -229,11 +232,13 @@ class Polygon:
         valid: ``(..., N)`` bool; valid vertices form a prefix.
     """
 
-    vertices: Any
-    valid: Any
+    vertices: Float[Any, "... N 2"]
+    valid: Bool[Any, "... N"]
 
     @classmethod
-    def from_vertices(cls, vertices, valid=None, reorient: bool = True) -> Polygon:
+    def from_vertices(
+        cls, vertices: Float[ArrayLike, "... N 2"], valid: Bool[ArrayLike, "... N"] | None = None, reorient: bool = True
+    ) -> Polygon:
         v, m = check_polygons(vertices, valid, reorient=reorient)
         return cls(jnp.asarray(v, dtype=jnp.result_type(float)), jnp.asarray(m))
 
@@ -249,18 +254,18 @@ class Trajectory:
     ``gear`` is +1 forward, -1 reverse; ``s`` is signed arc length travelled.
     """
 
-    x: Any
-    y: Any
-    theta: Any
-    kappa: Any
-    v: Any
-    a: Any
-    t: Any
-    s: Any
-    gear: Any
+    x: Float[Any, "... T"]
+    y: Float[Any, "... T"]
+    theta: Float[Any, "... T"]
+    kappa: Float[Any, "... T"]
+    v: Float[Any, "... T"]
+    a: Float[Any, "... T"]
+    t: Float[Any, "... T"]
+    s: Float[Any, "... T"]
+    gear: Real[Any, "... T"]
 
     @property
-    def xy(self):
+    def xy(self) -> Float[Array, "... T 2"]:
         return jnp.stack([self.x, self.y], axis=-1)
 
     def validate(self) -> Trajectory:
@@ -293,10 +298,10 @@ class Obstacles:
             Default: all False.
     """
 
-    boxes: Any
-    valid: Any
-    t: Any
-    static: Any = None
+    boxes: Float[Any, "... K T 5"]
+    valid: Bool[Any, "... K T"]
+    t: Float[Any, "... T"]
+    static: Bool[Any, "... K"] = None
 
     def __post_init__(self):
         # default flag for arrays (not for the prefix specs jax.vmap builds, whose leaves are ints / None)
@@ -309,7 +314,12 @@ class Obstacles:
         return cls(jnp.zeros(t.shape[:-1] + (0, t.shape[-1], 5)), jnp.zeros(t.shape[:-1] + (0, t.shape[-1]), bool), t)
 
     @classmethod
-    def held(cls, boxes, t, valid=None) -> Obstacles:
+    def held(
+        cls,
+        boxes: Float[ArrayLike, "... K 5"],
+        t: Float[ArrayLike, " T"],
+        valid: Bool[ArrayLike, "... K"] | None = None,
+    ) -> Obstacles:
         """Static obstacles ``(..., K, 5)`` held over times ``(T,)`` (and beyond)."""
         boxes = jnp.asarray(boxes)
         t = jnp.asarray(t)
@@ -317,7 +327,7 @@ class Obstacles:
         m = jnp.ones(boxes.shape[:-1], bool) if valid is None else jnp.asarray(valid, bool)
         return cls(b, jnp.broadcast_to(m[..., None], b.shape[:-1]), t, m)
 
-    def window(self, start, n_steps: int) -> Obstacles:
+    def window(self, start: Int[ArrayLike, ""], n_steps: int) -> Obstacles:
         """Predictions for steps ``start .. start + n_steps - 1`` (jittable; ``start`` may be traced).
 
         Steps past the end of the recording are invalid for dynamic obstacles and
@@ -358,7 +368,7 @@ class Obstacles:
         st = jnp.asarray(self.static, bool).reshape(self.static.shape + (1,) * (extra + 1))
         return jnp.where(st, held, moving)
 
-    def at_times(self, t) -> Obstacles:
+    def at_times(self, t: Float[ArrayLike, " T2"]) -> Obstacles:
         """Predictions at times ``t`` ``(T2,)`` (jittable): what the planners see at their own time grid.
 
         Poses and sizes are interpolated linearly between the two neighbouring stamps of

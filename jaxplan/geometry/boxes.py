@@ -5,6 +5,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 from jax import lax
+from jaxtyping import Array, ArrayLike, Bool, Float
 
 from jaxplan.types import VehicleParams, check_boxes, check_trailing, is_concrete
 
@@ -13,7 +14,7 @@ from jaxplan.types import VehicleParams, check_boxes, check_trailing, is_concret
 _CORNER_SIGNS = ((1.0, 1.0), (-1.0, 1.0), (-1.0, -1.0), (1.0, -1.0))
 
 
-def box_corners(boxes):
+def box_corners(boxes: Float[ArrayLike, "... 5"]) -> Float[Array, "... 4 2"]:
     """Corners of oriented boxes.
 
     Args:
@@ -41,7 +42,7 @@ def _box_corners(boxes):
     return jnp.stack([cx, cy], axis=-1)
 
 
-def headings_from_path(xy, eps: float = 1e-9):
+def headings_from_path(xy: Float[ArrayLike, "... T 2"], eps: float = 1e-9) -> Float[Array, "... T"]:
     """Heading of every path point from consecutive points.
 
     ``theta[i] = atan2(xy[i] - xy[i-1])`` and the first point takes the next
@@ -74,7 +75,9 @@ def headings_from_path(xy, eps: float = 1e-9):
     return jnp.concatenate([h[..., :1], h], axis=-1)
 
 
-def poses_to_boxes(xy, heading, vehicle: VehicleParams):
+def poses_to_boxes(
+    xy: Float[ArrayLike, "... 2"], heading: Float[ArrayLike, " ..."], vehicle: VehicleParams
+) -> Float[Array, "... 5"]:
     """Car boxes ``(..., 5)`` from reference-point positions ``(..., 2)`` and headings ``(...)``."""
     xy = jnp.asarray(xy)
     heading = jnp.asarray(heading, xy.dtype)
@@ -86,7 +89,9 @@ def poses_to_boxes(xy, heading, vehicle: VehicleParams):
     return jnp.stack([cx, cy, length, width, heading], axis=-1)
 
 
-def vehicle_corners(path_xy, vehicle: VehicleParams, heading=None):
+def vehicle_corners(
+    path_xy: Float[ArrayLike, "... T 2"], vehicle: VehicleParams, heading: Float[ArrayLike, "... T"] | None = None
+) -> Float[Array, "... T 4 2"]:
     """The car's four contour corners at every trajectory point.
 
     Args:
@@ -104,7 +109,7 @@ def vehicle_corners(path_xy, vehicle: VehicleParams, heading=None):
     return box_corners(poses_to_boxes(path_xy, heading, vehicle))
 
 
-def box_separation(boxes_a, boxes_b):
+def box_separation(boxes_a: Float[ArrayLike, "... 5"], boxes_b: Float[ArrayLike, "... 5"]) -> Float[Array, " ..."]:
     """Signed SAT separation of oriented boxes, straight from their parameters.
 
     The same quantity as ``separation(box_corners(a), box_corners(b))`` (the
@@ -123,7 +128,7 @@ def box_separation(boxes_a, boxes_b):
     )
 
 
-def box_has_overlap(boxes_a, boxes_b):
+def box_has_overlap(boxes_a: Float[ArrayLike, "... 5"], boxes_b: Float[ArrayLike, "... 5"]) -> Bool[Array, " ..."]:
     """Whether oriented boxes ``(..., 5)`` overlap (touching is not). Returns ``(...)`` bool."""
     return box_separation(boxes_a, boxes_b) < 0
 

@@ -16,6 +16,7 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jaxtyping import Array, ArrayLike, Float
 
 from jaxplan.types import check_finite, check_trailing
 
@@ -34,7 +35,7 @@ MIN_SPACING = 1e-3
 MAX_TURN_COS = -0.5
 
 
-def wrap_angle(a):
+def wrap_angle(a: Float[ArrayLike, " ..."]) -> Float[Array, " ..."]:
     """Angles wrapped to (-pi, pi]."""
     return jnp.arctan2(jnp.sin(a), jnp.cos(a))
 
@@ -51,17 +52,17 @@ class ReferenceLine:
         kappa: ``(N,)`` vertex curvatures (d theta / d s).
     """
 
-    xy: Any
-    s: Any
-    theta: Any
-    kappa: Any
+    xy: Float[Any, "N 2"]
+    s: Float[Any, " N"]
+    theta: Float[Any, " N"]
+    kappa: Float[Any, " N"]
 
     @property
     def length(self):
         return self.s[-1]
 
     @classmethod
-    def from_polyline(cls, xy) -> ReferenceLine:
+    def from_polyline(cls, xy: Float[ArrayLike, "N 2"]) -> ReferenceLine:
         """Host-side constructor: checks the input and drops repeated points.
 
         Args:
@@ -121,7 +122,7 @@ def check_turns(a: np.ndarray) -> None:
 
 
 @jax.jit
-def reference_line(xy) -> ReferenceLine:
+def reference_line(xy: Float[ArrayLike, "N 2"]) -> ReferenceLine:
     """Jittable constructor from ``(N, 2)`` distinct points (see ``ReferenceLine.from_polyline``).
     Jitted: called eagerly it is one compiled program per shape, not one per operation."""
     xy = jnp.asarray(xy)
@@ -136,7 +137,9 @@ def reference_line(xy) -> ReferenceLine:
 
 
 @jax.jit
-def ref_state(ref: ReferenceLine, s):
+def ref_state(
+    ref: ReferenceLine, s: Float[ArrayLike, " ..."]
+) -> tuple[Float[Array, "... 2"], Float[Array, " ..."], Float[Array, " ..."], Float[Array, " ..."]]:
     """Position, heading, curvature and its derivative of the line at arc length ``s``.
 
     Args:
@@ -157,7 +160,7 @@ def _unit(theta):
     return jnp.stack([jnp.cos(theta), jnp.sin(theta)], axis=-1)
 
 
-def to_cartesian(ref: ReferenceLine, s, l):
+def to_cartesian(ref: ReferenceLine, s: Float[ArrayLike, " ..."], l: Float[ArrayLike, " ..."]) -> Float[Array, "... 2"]:
     """Frenet ``(s, l)`` (each ``(...)``) to Cartesian ``(..., 2)``."""
     xy, theta, _, _ = ref_state(ref, s)
     nrm = _unit(theta + 0.5 * jnp.pi)
@@ -224,14 +227,22 @@ def frenet_points(ref: ReferenceLine, px, py, newton_steps: int = 4):
     return s, jnp.cos(theta) * (py - y) - jnp.sin(theta) * (px - x), theta, kappa
 
 
-def to_frenet(ref: ReferenceLine, xy, newton_steps: int = 4):
+def to_frenet(
+    ref: ReferenceLine, xy: Float[ArrayLike, "... 2"], newton_steps: int = 4
+) -> tuple[Float[Array, " ..."], Float[Array, " ..."]]:
     """Cartesian points ``(..., 2)`` to Frenet ``(s, l)``, each ``(...)`` (``frenet_points``)."""
     p = jnp.asarray(xy, ref.xy.dtype)
     s, l, _, _ = frenet_points(ref, p[..., 0], p[..., 1], newton_steps)
     return s, l
 
 
-def frenet_to_cartesian_state(ref: ReferenceLine, s, l, dl, ddl):
+def frenet_to_cartesian_state(
+    ref: ReferenceLine,
+    s: Float[ArrayLike, " ..."],
+    l: Float[ArrayLike, " ..."],
+    dl: Float[ArrayLike, " ..."],
+    ddl: Float[ArrayLike, " ..."],
+) -> tuple[Float[Array, "... 2"], Float[Array, " ..."], Float[Array, " ..."]]:
     """A Frenet curve l(s) with derivatives to Cartesian position, heading, curvature.
 
     Args:

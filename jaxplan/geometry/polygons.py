@@ -11,6 +11,7 @@ from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
+from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
 from jaxplan.types import check_polygons, is_concrete
 
@@ -46,7 +47,9 @@ def _tol(*arrays):
 
 
 @jax.jit
-def polygon_edges(v, valid=None):
+def polygon_edges(
+    v: Float[ArrayLike, "... N 2"], valid: Bool[ArrayLike, "... N"] | None = None
+) -> tuple[Float[Array, "... N 2"], Float[Array, "... N 2"], Bool[Array, "... N"]]:
     """Edges of padded convex polygons.
 
     Args:
@@ -80,7 +83,12 @@ def _max_separation(a, va, b, vb):
     return jnp.max(jnp.where(ok, per_edge, -_BIG), axis=-1)
 
 
-def separation(poly_a, poly_b, valid_a=None, valid_b=None):
+def separation(
+    poly_a: Float[ArrayLike, "... N 2"],
+    poly_b: Float[ArrayLike, "... M 2"],
+    valid_a: Bool[ArrayLike, "... N"] | None = None,
+    valid_b: Bool[ArrayLike, "... M"] | None = None,
+) -> Float[Array, " ..."]:
     """Signed separation of convex polygons along the best separating axis.
 
     Positive: the polygons are apart by at least this much (exact when the
@@ -102,7 +110,12 @@ def separation(poly_a, poly_b, valid_a=None, valid_b=None):
     return jnp.maximum(_max_separation(a, va, b, vb), _max_separation(b, vb, a, va))
 
 
-def has_overlap(poly_a, poly_b, valid_a=None, valid_b=None):
+def has_overlap(
+    poly_a: Float[ArrayLike, "... N 2"],
+    poly_b: Float[ArrayLike, "... M 2"],
+    valid_a: Bool[ArrayLike, "... N"] | None = None,
+    valid_b: Bool[ArrayLike, "... M"] | None = None,
+) -> Bool[Array, " ..."]:
     """Separating-axis overlap test of convex polygons; touching is not overlap.
 
     Returns:
@@ -111,7 +124,12 @@ def has_overlap(poly_a, poly_b, valid_a=None, valid_b=None):
     return separation(poly_a, poly_b, valid_a, valid_b) < 0
 
 
-def points_in_polygon(points, poly, valid=None, tol=0.0):
+def points_in_polygon(
+    points: Float[Array, "... P 2"],
+    poly: Float[ArrayLike, "... N 2"],
+    valid: Bool[ArrayLike, "... N"] | None = None,
+    tol=0.0,
+) -> Bool[Array, "... P"]:
     """Whether points lie inside (or within ``tol`` of) a convex polygon.
 
     Args:
@@ -139,11 +157,11 @@ class OverlapPolygon(NamedTuple):
         index_b: ``(..., N+M)`` likewise for B.
     """
 
-    vertices: jnp.ndarray
-    valid: jnp.ndarray
-    source: jnp.ndarray
-    index_a: jnp.ndarray
-    index_b: jnp.ndarray
+    vertices: Float[Array, "... N+M 2"]
+    valid: Bool[Array, "... N+M"]
+    source: Int[Array, "... N+M"]
+    index_a: Int[Array, "... N+M"]
+    index_b: Int[Array, "... N+M"]
 
 
 def _pseudo_angle(d):
@@ -203,7 +221,12 @@ def _clip_edges(p, vp, q, vq, tol, keep_shared):
     return e, t_in, t_out, kept, jnp.argmax(t_enter, axis=-1)
 
 
-def overlap_area(poly_a, poly_b, valid_a=None, valid_b=None):
+def overlap_area(
+    poly_a: Float[ArrayLike, "... N 2"],
+    poly_b: Float[ArrayLike, "... M 2"],
+    valid_a: Bool[ArrayLike, "... N"] | None = None,
+    valid_b: Bool[ArrayLike, "... M"] | None = None,
+) -> Float[Array, " ..."]:
     """Area of the intersection of convex polygons, without building the polygon.
 
     The boundary of A-and-B is A's edges clipped to B plus B's edges clipped to
@@ -218,7 +241,7 @@ def overlap_area(poly_a, poly_b, valid_a=None, valid_b=None):
     _check(poly_a, poly_b, valid_a, valid_b)
     a, va, b, vb, tol = _prepare(poly_a, poly_b, valid_a, valid_b)
     c = a[..., :1, :]  # shoelace about a nearby point, for precision
-    total = 0.0
+    total: float | Array = 0.0
     for p, vp, q, vq, first in ((a, va, b, vb, True), (b, vb, a, va, False)):
         e, t_in, t_out, kept, _ = _clip_edges(p, vp, q, vq, tol, first)
         p0 = p - c + t_in[..., None] * e
@@ -228,7 +251,12 @@ def overlap_area(poly_a, poly_b, valid_a=None, valid_b=None):
     return jnp.maximum(total, 0.0)
 
 
-def overlap_polygon_tagged(poly_a, poly_b, valid_a=None, valid_b=None) -> OverlapPolygon:
+def overlap_polygon_tagged(
+    poly_a: Float[ArrayLike, "... N 2"],
+    poly_b: Float[ArrayLike, "... M 2"],
+    valid_a: Bool[ArrayLike, "... N"] | None = None,
+    valid_b: Bool[ArrayLike, "... M"] | None = None,
+) -> OverlapPolygon:
     """Convex intersection polygon with every vertex tagged by where it comes from.
 
     Each vertex is the start of one boundary piece: an edge of A clipped to B or
@@ -291,7 +319,12 @@ def overlap_polygon_tagged(poly_a, poly_b, valid_a=None, valid_b=None) -> Overla
     )
 
 
-def overlap_polygon(poly_a, poly_b, valid_a=None, valid_b=None):
+def overlap_polygon(
+    poly_a: Float[ArrayLike, "... N 2"],
+    poly_b: Float[ArrayLike, "... M 2"],
+    valid_a: Bool[ArrayLike, "... N"] | None = None,
+    valid_b: Bool[ArrayLike, "... M"] | None = None,
+) -> tuple[Float[Array, "... N+M 2"], Bool[Array, "... N+M"]]:
     """Convex intersection polygon of two convex polygons.
 
     Returns:
@@ -302,7 +335,9 @@ def overlap_polygon(poly_a, poly_b, valid_a=None, valid_b=None):
     return out.vertices, out.valid
 
 
-def polygon_area(vertices, valid=None):
+def polygon_area(
+    vertices: Float[ArrayLike, "... N 2"], valid: Bool[ArrayLike, "... N"] | None = None
+) -> Float[Array, " ..."]:
     """Area of polygons by the shoelace formula (positive when counter-clockwise).
 
     Args:
@@ -320,7 +355,12 @@ def polygon_area(vertices, valid=None):
     return jnp.where(jnp.sum(m, axis=-1) >= 3, area, 0.0)
 
 
-def points_in_simple_polygon(points, poly, valid=None, tol=0.0):
+def points_in_simple_polygon(
+    points: Float[ArrayLike, "... P 2"],
+    poly: Float[ArrayLike, "... N 2"],
+    valid: Bool[ArrayLike, "... N"] | None = None,
+    tol=0.0,
+) -> Bool[Array, "... P"]:
     """Whether points lie inside a simple (possibly non-convex) polygon, or within ``tol`` of its boundary.
 
     The even-odd (crossing-number) rule with half-open edges, so a point on an edge shared

@@ -15,11 +15,18 @@ reference line), a 5th-degree polynomial from the car's ``(l0, l0', l0'')`` to
 from __future__ import annotations
 
 import jax.numpy as jnp
+from jaxtyping import Array, ArrayLike, Float
 
 from jaxplan.geometry.frenet import ReferenceLine, ref_state, to_frenet, wrap_angle
 
 
-def quintic_coeffs(l0, dl0, ddl0, l1, S):
+def quintic_coeffs(
+    l0: Float[ArrayLike, " ..."],
+    dl0: Float[ArrayLike, " ..."],
+    ddl0: Float[ArrayLike, " ..."],
+    l1: Float[ArrayLike, " ..."],
+    S: Float[ArrayLike, " ..."],
+) -> Float[Array, "... 6"]:
     """Coefficients ``(..., 6)`` (ascending powers of s) of the quintic from
     ``(l0, dl0, ddl0)`` at 0 to ``(l1, 0, 0)`` at ``S``; all args ``(...)``, ``S > 0``."""
     l0, dl0, ddl0, l1, S = jnp.broadcast_arrays(
@@ -34,7 +41,9 @@ def quintic_coeffs(l0, dl0, ddl0, l1, S):
     return jnp.stack([l0, dl0, 0.5 * ddl0, c3, c4, c5], axis=-1)
 
 
-def quintic_eval(coeffs, S, s):
+def quintic_eval(
+    coeffs: Float[Array, "... 6"], S: Float[ArrayLike, " ..."], s: Float[ArrayLike, "... T"]
+) -> tuple[Float[Array, "... T"], Float[Array, "... T"], Float[Array, "... T"]]:
     """``l, dl/ds, d2l/ds2`` at ``s`` ``(..., T)`` for coefficients ``(..., 6)`` and
     length ``S`` ``(...)``; for ``s >= S`` the end value with zero slope and curvature."""
     c = [coeffs[..., i, None] for i in range(6)]
@@ -47,7 +56,13 @@ def quintic_eval(coeffs, S, s):
     return l, jnp.where(past, 0.0, dl), jnp.where(past, 0.0, ddl)
 
 
-def cartesian_to_frenet_state(ref: ReferenceLine, xy, theta, kappa, sl=None):
+def cartesian_to_frenet_state(
+    ref: ReferenceLine,
+    xy: Float[ArrayLike, "... 2"],
+    theta: Float[ArrayLike, " ..."],
+    kappa: Float[ArrayLike, " ..."],
+    sl: tuple[Float[Array, " ..."], Float[Array, " ..."]] | None = None,
+) -> tuple[Float[Array, " ..."], Float[Array, " ..."], Float[Array, " ..."], Float[Array, " ..."]]:
     """Frenet state ``(s, l, dl/ds, d2l/ds2)`` of a pose with curvature.
 
     Inverse of ``frenet_to_cartesian_state`` (valid where ``1 - kappa_r l > 0`` and the

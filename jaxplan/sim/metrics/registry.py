@@ -6,6 +6,7 @@ import functools
 from collections.abc import Callable
 
 import jax
+from jaxtyping import Array, Shaped
 
 METRICS: dict[str, Callable] = {}
 
@@ -21,7 +22,7 @@ def register_metric(name: str):
     return wrap
 
 
-def evaluate(log, scene, vehicle, names=None) -> dict:
+def evaluate(log, scene, vehicle, names=None) -> dict[str, Shaped[Array, ""]]:
     """Every metric (or those in ``names``) of one drive (unbatched ``log`` and ``scene``)."""
     out = {}
     for name in names or sorted(METRICS):
