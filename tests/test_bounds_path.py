@@ -186,7 +186,7 @@ def test_path_qp_against_osqp_1000_frames():
             ineq = u_ - l_ > 1e-9
             wrong = max(np.max(y[ineq & (Ax < u_ - 1e-4)], initial=0.0),  # a multiplier of the wrong sign
                         -np.min(y[ineq & (Ax > l_ + 1e-4)], initial=0.0))
-            if (prim > cfg.eps_abs + cfg.eps_rel * np.max(np.abs(Ax)) or dual > cfg.eps_abs + cfg.eps_rel * d_scale
+            if (prim > cfg.admm.eps_abs + cfg.admm.eps_rel * np.max(np.abs(Ax)) or dual > cfg.admm.eps_abs + cfg.admm.eps_rel * d_scale
                     or wrong > 1e-3 * max(1.0, np.max(np.abs(y)))):
                 kkt_fail.append(f)
         if np.any(l_ > u_):  # crossing bounds: infeasible on their face (OSQP refuses such data)

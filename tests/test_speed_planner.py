@@ -38,7 +38,9 @@ def _synthetic():
     and a car 10 m behind at 11.5 m/s (keeping the follow distance gets the car rear-ended within 4 s;
     closing up to the car ahead leaves room until the goal's time); SQUEEZE: one lane, the car at 10
     m/s, an oncoming car passing 0.15 m clear of it (inside the speed plan's 0.3 m buffer, outside
-    the car) and a car 14 m behind at 12 m/s (stopping for the oncoming car gets the car hit)."""
+    the car) and a car 14 m behind at 12 m/s (stopping for the oncoming car gets the car hit);
+    MAPEND: one lane that ends 120 m ahead of the car (15 m/s), a goal region 75-95 m ahead to be
+    met at 13-20 m/s (the drive ends there: the end of the map beyond it is no reason to slow)."""
     lane0 = np.zeros(251)
     slow = (START + 25.0 + 4.0 * TT, lane0)
     roads = {"SLOW": _road_dict(obstacles=[slow]),
@@ -47,7 +49,15 @@ def _synthetic():
              "BEHIND": _road_dict(obstacles=[(START + 20.0 + 10.0 * TT, lane0), (START - 10.0 + 11.5 * TT, lane0)],
                                   n_lanes=1, v0=10.0, goal_t=(0.0, 8.0)),
              "SQUEEZE": _road_dict(obstacles=[(START + 70.0 - 10.0 * TT, np.full(251, SQUEEZE_L)),
-                                              (START - 14.0 + 12.0 * TT, lane0)], n_lanes=1, v0=10.0, goal_t=(0.0, 8.0))}
+                                              (START - 14.0 + 12.0 * TT, lane0)], n_lanes=1, v0=10.0, goal_t=(0.0, 8.0)),
+             "MAPEND": _road_dict(n_lanes=1, v0=15.0, goal_t=(0.0, 10.0))}
+    mapend = roads["MAPEND"]
+    for lane in mapend["lanelets"]:
+        lane["left"], lane["right"] = lane["left"][:76], lane["right"][:76]  # 150 m of road from s = 0
+    goal = mapend["planning_problems"][0]["goals"][0]
+    cx, cy = goal["rectangle"]["center"]  # 120 m ahead on the straight road (heading 0.3): 35 m back
+    goal["rectangle"]["center"] = [cx - 35.0 * np.cos(0.3), cy - 35.0 * np.sin(0.3)]
+    goal["velocity"] = [13.0, 20.0]
     return {k: dataclasses.replace(_record(d), name=k) for k, d in roads.items()}
 
 
@@ -382,3 +392,11 @@ def test_passes_an_oncoming_car_inside_the_buffer_rather_than_be_hit_from_behind
     assert not m["overlap.collided"] and not m["offroad.offroad"]
     assert np.asarray(log.info["tight"]).any()
     assert log.v[: int(m["goal.step"]) + 1].min() > 5.0
+
+
+def test_a_goal_before_the_end_of_the_map_is_met_at_speed():
+    """The end of the mapped road beyond the goal region is no stop: the car meets the goal's speed
+    range there (it slowed to stop before the map's end and entered the region too slow)."""
+    log, m, _ = _synthetic_drive("MAPEND")
+    assert m["goal.reached"] and not m["overlap.collided"] and not m["offroad.offroad"], m
+    assert log.v[int(log.end_step)] >= 13.0

@@ -19,7 +19,7 @@
   ``w_keep_clear`` while inside a region slower than ``keep_clear_v``; the goal
   ``w_goal huber(dist(centre, goal stations))`` at check times in the last ``GOAL_TAIL``
   seconds of the goal's time window (per second of that part; the stations moved in from the
-  region's ends, ``goal_inside``);
+  region's ends, ``goal_inside``; beyond the region nothing once the window is open);
 * per knot: speed ``w_speed (v - v_target(s))^2`` with ``v_target = min(v_cruise,
   v_limit(s))``, and ``w_limit relu(v - v_limit(s))^2`` above the limit (the lane's speed
   limit and the continuous curvature limit ``sqrt(a_lat_max / |kappa(s)|)``, interpolated
@@ -171,10 +171,13 @@ def _obstacle_tables(xs, x0, ds, scene: SpeedScene, config: SpeedConfig, w: Cost
 def _goal_table(xs, f_goal, scene: SpeedScene, w: CostWeights):
     """``(F, X)`` goal cost rate: the box centre's distance (Huber) to the part of the goal
     region planners aim for (``goal_inside``) at the check times ``f_goal (F,)`` of the
-    window's last part, per second of that part (a short window asks as much as a long one)."""
+    window's last part, per second of that part (a short window asks as much as a long one).
+    Beyond the region costs nothing where the window is already open: the car passed through
+    the region inside the window (the goal is met on arrival; what lies past it is no matter)."""
     cx = xs + 0.5 * (scene.front + scene.rear)
     aim = goal_inside(scene.goal_s)
-    gd = jnp.maximum(aim[0] - cx, 0.0) + jnp.maximum(cx - aim[1], 0.0)
+    passed = jnp.where(scene.goal_t[0] <= 0.0, 0.0, jnp.maximum(cx - aim[1], 0.0))
+    gd = jnp.maximum(aim[0] - cx, 0.0) + passed
     gd = jnp.where(jnp.isfinite(gd), gd, 0.0)
     hub = jnp.where(gd < GOAL_HUBER, gd * gd, GOAL_HUBER * (2.0 * gd - GOAL_HUBER))
     tail = jnp.clip(scene.goal_t[1] - goal_tail_start(scene.goal_t), 0.1, GOAL_TAIL)

@@ -49,7 +49,7 @@ import jax.numpy as jnp
 from jaxplan.bounds.path_planner import PathConfig, plan_path
 from jaxplan.geometry.frenet import ReferenceLine, frenet_to_cartesian_state, ref_state, wrap_angle
 from jaxplan.geometry.quintic import cartesian_to_frenet_state, quintic_coeffs, quintic_eval
-from jaxplan.plan_context import RoadContext, road_context, route_sample, set_speed
+from jaxplan.plan_context import RoadContext, goal_region_ahead, road_context, route_sample, set_speed
 from jaxplan.planner import SIM_VEHICLE, EgoState, PlanOutput
 from jaxplan.speed.compose import compose_profile
 from jaxplan.speed.costs import REAR_CONTACT
@@ -220,14 +220,17 @@ def speed_road(scene, ctx: RoadContext, path, v_max: float, vehicle: VehiclePara
     """What the road asks of the speed on ``path``: the lane speed limit at each path point
     (read at its route station; raised to the set speed ``v_set`` where that is higher: a goal
     that cannot be met at the limit, ``set_speed``), a stop before the path's blockage (the car's reference point
-    before ``path.blocked_s``) and before the end of the mapped road (the car's front), the
+    before ``path.blocked_s``) and, without a goal region ahead (the drive ends there; the map
+    often ends just past it), before the end of the mapped road (the car's front), the
     goal's stations (box centre, along the route), time window and speeds, where the path
     leaves the car's lane (``lane_leave_s``)."""
     f = path.xy.dtype
     lim = route_sample(scene, scene.speed_limit, path.route_s)
     front, _ = car_extent(vehicle, f)
     end = ctx.route_end_s - ctx.s
-    stop = jnp.minimum(path.blocked_s + front, jnp.where(jnp.isfinite(end), end, jnp.inf))
+    goal_ahead = goal_region_ahead(ctx.goal_s, ctx.s + jnp.asarray(vehicle.center_offset, f))
+    end = jnp.where(jnp.isfinite(end) & ~goal_ahead, end, jnp.inf)
+    stop = jnp.minimum(path.blocked_s + front, end)
     goal_s = ctx.goal_s - ctx.s
     return SpeedRoad(
         path.s,

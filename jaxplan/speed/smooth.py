@@ -135,6 +135,23 @@ def qp_matrices(n: int, h: float, w: SmoothWeights):
     return dict(Va=Va, Vy=Vy, Sa=Sa, Sy=Sy, Ja=Ja, Jy=Jy, A=A, P=P, fixed=fixed)
 
 
+def _advance(a, v, a1, h: float):
+    """One step of the QP's integration: ``(v1, ds)`` from ``(a, v)`` with the acceleration
+    linear from ``a`` to ``a1`` over ``h``."""
+    return v + 0.5 * h * (a + a1), h * v + h * h * (a / 3.0 + a1 / 6.0)
+
+
+def _braking_step(a, v, h: float, config: SpeedConfig):
+    """The next acceleration of the jerk-limited hardest braking from ``(a, v)``: braking harder
+    at ``jerk_max`` (to ``a_brake``) unless the speed left after that step would be less than
+    what the jerk-limited rise back to 0 still takes away; then rising."""
+    J = config.jerk_max
+    a_f = jnp.maximum(a - J * h, config.a_brake)
+    v_f = v + 0.5 * h * (a + a_f)
+    rising = v_f <= 0.5 * a_f * a_f / J + 0.5 * h * jnp.abs(a_f)
+    return jnp.where(rising, jnp.minimum(a + J * h, 0.0), a_f)
+
+
 def hardest_braking(a0, v0, n: int, h: float, config: SpeedConfig):
     """The jerk-limited hardest braking from ``(a0, v0)`` in the QP's discretisation: the
     acceleration falls at ``jerk_max`` to ``a_brake`` and rises again at ``jerk_max`` to 0 as
@@ -142,19 +159,12 @@ def hardest_braking(a0, v0, n: int, h: float, config: SpeedConfig):
     tenths of a m/s). Returns
     ``(s, v, a)`` each ``(n,)`` at ``k h``, k = 1..n: a profile within every limit, close
     to the least station the limits allow."""
-    J, ab = config.jerk_max, config.a_brake
 
     def step(c, _):
         a, v, s = c
-        # keep braking harder unless the speed left after that step would be less than what
-        # the jerk-limited rise back to 0 still takes away: then rise
-        a_f = jnp.maximum(a - J * h, ab)
-        v_f = v + 0.5 * h * (a + a_f)
-        rising = v_f <= 0.5 * a_f * a_f / J + 0.5 * h * jnp.abs(a_f)
-        a1 = jnp.where(rising, jnp.minimum(a + J * h, 0.0), a_f)
-        v1 = v + 0.5 * h * (a + a1)
-        s1 = s + h * v + h * h * (a / 3.0 + a1 / 6.0)
-        return (a1, v1, s1), (s1, v1, a1)
+        a1 = _braking_step(a, v, h, config)
+        v1, ds = _advance(a, v, a1, h)
+        return (a1, v1, s + ds), (s + ds, v1, a1)
 
     f = jnp.result_type(a0, v0, jnp.float32)
     _, out = jax.lax.scan(step, (jnp.asarray(a0, f), jnp.asarray(v0, f), jnp.zeros((), f)), None, length=n)
@@ -167,24 +177,21 @@ def hardest_acceleration(a0, v0, v_lim, n: int, h: float, config: SpeedConfig):
     ``a_max`` unless that passes the speed limit ``v_lim (n,)``, now or (by the hardest braking
     from the state it leaves, ``hardest_braking``'s rule) later; then it is the one that meets
     the limit as it eases off at ``jerk_max``, else the one that meets it now, else none, else it
-    falls at ``jerk_max``. A profile within the acceleration,
-    jerk and speed limits wherever one exists (the limit met within a centimetre per second)."""
+    falls at ``jerk_max``. A profile within the acceleration, jerk and speed limits wherever
+    one exists (the limit met within a centimetre per second)."""
     J, ab, am = config.jerk_max, config.a_brake, config.a_max
     f = v_lim.dtype
     steps = jnp.arange(n)
 
     def advance(a, v, a1):
-        return v + 0.5 * h * (a + a1), h * v + h * h * (a / 3.0 + a1 / 6.0)
+        return _advance(a, v, a1, h)
 
     def brakes_within(a, v, k):
         """The hardest braking from ``(a, v)`` after step ``k`` keeps every later limit."""
 
         def brake(c, j):
             a, v, ok = c
-            a_f = jnp.maximum(a - J * h, ab)
-            v_f = v + 0.5 * h * (a + a_f)
-            rising = v_f <= 0.5 * a_f * a_f / J + 0.5 * h * jnp.abs(a_f)
-            a1 = jnp.where(rising, jnp.minimum(a + J * h, 0.0), a_f)
+            a1 = _braking_step(a, v, h, config)
             v1, _ = advance(a, v, a1)
             later = j > k
             ok = ok & (~later | (v1 <= v_lim[j] + 0.01))
