@@ -1,7 +1,9 @@
 """The park-out planner driven by the replanning supervisor through the planner callback.
 
 Needs two extra compilations (the park-out planner and the host-loop steps at its
-plan size): set JAXPLAN_SLOW=1 to run.
+plan size): set JAXPLAN_SLOW=1 to run. It fails at present: through the supervisor the car
+never starts (it stands for the 30 s of the drive); the park-out planner
+itself gets out of its slots (tests/test_parking_planner.py).
 """
 import os
 
@@ -9,7 +11,7 @@ import jax
 import numpy as np
 import pytest
 
-pytestmark = pytest.mark.skipif(not os.environ.get("JAXPLAN_SLOW"), reason="slow compile; set JAXPLAN_SLOW=1")
+pytestmark = pytest.mark.skipif(not os.environ.get("JAXPLAN_SLOW"), reason="slow compile, and failing: the car never starts through the supervisor; set JAXPLAN_SLOW=1")
 
 
 def test_parkout_through_lazy_supervisor():
