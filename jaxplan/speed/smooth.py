@@ -19,8 +19,9 @@ hardest braking the limits allow reaches (``hardest_braking``: the jerk-limited 
 ``a_brake``, ``upper_k >= s_brake_k``), the lower side narrowed to the most they reach
 (``hardest_acceleration``, less ``LOWER_MARGIN``) and below the upper side, and the speed limit
 relaxed to what braking at ``LIMIT_DECEL`` reaches and, where the DP's profile runs above it
-(the DP weighs the limit against its other costs), raised to the DP's speed up to the limit at
-``EMERGENCY_LAT_ACCEL`` instead of ``SpeedConfig.a_lat_max``. Where the DP could not avoid a boundary,
+(the DP weighs the limit against its other costs), raised to the DP's speed, up to
+``sqrt(EMERGENCY_LAT_ACCEL / a_lat_max)`` times the limit (in a bend: the curvature limit at
+``EMERGENCY_LAT_ACCEL`` instead of ``SpeedConfig.a_lat_max``). Where the DP could not avoid a boundary,
 only the hardest braking is left there, and ``slack`` (how far the corridor had to be widened)
 says so. The references are clipped into the corridor, so the QP tracks the boundary, not the
 DP's profile through an obstacle. Where both sides and the speed limit bind at once (a vehicle
@@ -327,7 +328,7 @@ def smooth_plan(
     k = jnp.clip(jnp.floor(qi).astype(jnp.int32), 0, vl.shape[0] - 2)
     v_lim = vl[k] + (qi - k) * (vl[k + 1] - vl[k])
     # where the DP runs above the limit (it weighed the limit against a vehicle behind), the
-    # limit is its speed, up to what the emergency lateral acceleration allows
+    # limit is its speed, up to the limit stretched as the emergency lateral acceleration allows
     stretch = math.sqrt(max(EMERGENCY_LAT_ACCEL / config.a_lat_max, 1.0))
     v_lim = jnp.maximum(v_lim, jnp.minimum(v_ref, stretch * v_lim))
     q, l, u, slack = qp_problem(s_ref, v_ref, lower, upper, v_lim, a0, v0, config, w)
