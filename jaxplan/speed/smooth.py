@@ -184,16 +184,13 @@ def hardest_acceleration(a0, v0, v_lim, n: int, h: float, config: SpeedConfig):
     f = v_lim.dtype
     steps = jnp.arange(n)
 
-    def advance(a, v, a1):
-        return _advance(a, v, a1, h)
-
     def brakes_within(a, v, k):
         """The hardest braking from ``(a, v)`` after step ``k`` keeps every later limit."""
 
         def brake(c, j):
             a, v, ok = c
             a1 = _braking_step(a, v, h, config)
-            v1, _ = advance(a, v, a1)
+            v1, _ = _advance(a, v, a1, h)
             later = j > k
             ok = ok & (~later | (v1 <= v_lim[j] + 0.01))
             return (jnp.where(later, a1, a), jnp.where(later, v1, v), ok), None
@@ -210,10 +207,10 @@ def hardest_acceleration(a0, v0, v_lim, n: int, h: float, config: SpeedConfig):
         meet = J * (jnp.sqrt(jnp.maximum(0.25 * h * h + 2.0 * gap / J, 0.0)) - 0.5 * h)
         exact = 2.0 * (v_lim[k] - v) / h - a
         tries = jnp.clip(jnp.stack([hi, meet, exact, jnp.zeros_like(a), lo]), lo, hi)
-        v_try, _ = advance(a, v, tries)
+        v_try, _ = _advance(a, v, tries, h)
         ok = (v_try <= v_lim[k] + 0.01) & jax.vmap(brakes_within, (0, 0, None))(tries, v_try, k)
         a1 = tries[jnp.argmax(ok.at[-1].set(True))]
-        v1, ds = advance(a, v, a1)
+        v1, ds = _advance(a, v, a1, h)
         return (a1, v1, s + ds), s + ds
 
     _, s = jax.lax.scan(step, (jnp.asarray(a0, f), jnp.asarray(v0, f), jnp.zeros((), f)), steps)
