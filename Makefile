@@ -29,7 +29,7 @@ check: $(BIN)/jaxplan
 	$(BIN)/mypy
 
 test: $(BIN)/jaxplan
-	$(BIN)/python -m pytest -n 2 --dist loadfile --no-loadscope-reorder --durations=15 tests
+	$(BIN)/python -m pytest -n 2 --max-worker-restart=0 --dist loadfile --no-loadscope-reorder --durations=15 tests
 
 bench: $(BIN)/jaxplan
 	$(BIN)/pip install -q -e ".[test,bench]"

@@ -23,9 +23,6 @@ import functools
 import jax
 
 NO_YNN = {"xla_cpu_experimental_ynn_fusion_type": ""}  # XLA CPU: no YNN fusions
-# XLA's full backend (LLVM) optimisation, for long-running kernels of a process whose XLA_FLAGS lower it
-# (the test suite compiles with it off)
-FULL_OPTIMISATION = {"xla_backend_optimization_level": 3}
 
 
 def options_key(options: dict) -> tuple:

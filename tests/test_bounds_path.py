@@ -133,12 +133,7 @@ def _qp_jit():
     cfg = PathQPConfig(jerk_max=0.3)
     kl, kh = curvature_bounds(jnp.zeros(QP_T), 0.25)
     dl = (jnp.full(QP_T, -1.0), jnp.full(QP_T, 1.0))
-    # compiled with XLA's full optimisation (conftest turns it off for the suite): 1000 frames of ADMM run
-    # in about 6 s instead of 13 s
-    from jaxplan.compile_options import FULL_OPTIMISATION, jit
-
-    return cfg, dl, (kl, kh), jit(lambda lo, up, r, i: optimize_path(lo, up, 0.8, r, i, None, cfg, dl, (kl, kh)),
-                                  options=FULL_OPTIMISATION)
+    return cfg, dl, (kl, kh), jax.jit(lambda lo, up, r, i: optimize_path(lo, up, 0.8, r, i, None, cfg, dl, (kl, kh)))
 
 
 def test_path_qp_against_osqp_1000_frames():

@@ -11,7 +11,6 @@ import shapely
 from jaxplan.replan import (GOAL, IMMEDIATE, LAZY, OBSTACLE, PERIOD, PERIODIC, ManeuverSimConfig, run_summary,
                             sample_scenarios, simulate, simulate_host)
 from jaxplan.replan import simulator as S
-from jaxplan.compile_options import FULL_OPTIMISATION, jit
 
 CFG = ManeuverSimConfig(steps=300)
 BUSY = 4  # per kind, with many obstacles; then 2 per kind with none and no noise
@@ -27,18 +26,12 @@ def _batch():
 
 @pytest.fixture(scope="module")
 def runs():
-    # The three closed loops run 900 steps: compiled with XLA's full optimisation (conftest turns it off
-    # for the suite, whose tests mostly compile more than they run) this fixture took 34.5 s instead of
-    # 71.0 s in a full run on the 2-core CI machine (alone: the first loop with its compilation 14.4 s
-    # against 17.4 s, each later one 1.0-1.4 s against 8.4-12.6 s). ``simulate`` runs unchanged around it.
-    with pytest.MonkeyPatch.context() as mp:
-        mp.setattr(S, "_simulate", jit(S._run_batch, options=FULL_OPTIMISATION, static_argnums=2))
-        sc = _batch()
-        out = {}
-        for s in (LAZY, PERIODIC, IMMEDIATE):
-            final, logs = simulate(sc, s, CFG)
-            out[s] = (run_summary(final), jax.tree.map(np.asarray, logs))
-        yield sc, out
+    sc = _batch()
+    out = {}
+    for s in (LAZY, PERIODIC, IMMEDIATE):
+        final, logs = simulate(sc, s, CFG)
+        out[s] = (run_summary(final), jax.tree.map(np.asarray, logs))
+    return sc, out
 
 
 def test_strategies_share_one_compiled_loop_and_agree_without_obstacles(runs):
