@@ -25,7 +25,10 @@ from typing import Any
 
 import numpy as np
 
-from jaxplan.scenarios.loader import Scenario, ScenarioError, _min_area_box, parse_scenario, read_bytes
+from jaxplan.scenarios.fields import ScenarioError
+from jaxplan.scenarios.loader import parse_scenario, read_bytes
+from jaxplan.scenarios.parse_obstacles import _min_area_box
+from jaxplan.scenarios.scenario import Scenario
 
 
 def _require():
@@ -116,7 +119,7 @@ def _toward(box: np.ndarray, heading: float) -> np.ndarray:
 def cover_box(shape, heading: float = 0.0) -> np.ndarray:
     """The smallest oriented box ``(5,)`` ``[x, y, length, width, theta]`` covering a CommonRoad shape:
     a rectangle itself, a circle the square of its diameter (at ``heading``), a polygon or a shape
-    group the smallest box around their outlines (``loader._min_area_box``); ``theta`` within 45 degrees
+    group the smallest box around their outlines (``parse_obstacles._min_area_box``); ``theta`` within 45 degrees
     of ``heading`` (length along it).
 
     Raises:
@@ -508,7 +511,7 @@ def dict_to_commonroad(d: dict, path: str = "scenario", id_map: dict | None = No
     from commonroad.scenario.traffic_sign import TrafficSign, TrafficSignElement
     from commonroad.scenario.trajectory import Trajectory as CRTrajectory
 
-    from jaxplan.scenarios.loader import DEFAULT_SIZE
+    from jaxplan.scenarios.parse_obstacles import DEFAULT_SIZE
 
     parse_scenario(d, path, quiet=True)  # every field check, with its message, before building anything
     shapes = _Shapes()
