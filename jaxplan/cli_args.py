@@ -110,7 +110,8 @@ def scenario_dir(text) -> str:
     Only the first loadable file is read, so the check stays cheap; the suites load the rest
     and name every file that fails (``jaxplan.scenarios.loader.load_folder``)."""
     path = existing_dir(text)
-    from jaxplan.scenarios.loader import ScenarioError, first_loadable
+    from jaxplan.scenarios.fields import ScenarioError
+    from jaxplan.scenarios.loader import first_loadable
 
     try:
         first_loadable(path)

@@ -203,7 +203,8 @@ def _run_recorded(directory, limit, batch, cfg=NORMAL):
     Returns (table, (times, example), files skipped, scenes skipped)."""
     import sys
 
-    from jaxplan.scenarios.loader import lane_reference, load_folder
+    from jaxplan.scenarios.loader import load_folder
+    from jaxplan.scenarios.scenario import lane_reference
 
     folder = load_folder(directory, horizon=cfg.horizon, limit=limit)
     scenes, unusable = [], 0

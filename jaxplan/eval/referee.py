@@ -7,7 +7,7 @@ Judges a drive, the ``driven.json`` that ``jaxplan drive`` and the peer comparis
 
 (``(x, y)`` the centre of the car's box in the scenario's world coordinates, ``t`` from the
 scenario start, one row per ``dt``), against its scenario (shared JSON, converted with
-``jaxplan.scenarios.commonroad.dict_to_commonroad``, or CommonRoad XML), with nothing of
+``jaxplan.scenarios.to_commonroad.dict_to_commonroad``, or CommonRoad XML), with nothing of
 jaxplan's geometry:
 
 * collision: the car's box (``L x W`` at the row's pose) against the scenario's
@@ -117,9 +117,10 @@ def load_driven(path: str) -> dict:
 
 def _open(path: str):
     """``(scenario, planning problem, id map)`` of a scenario file (``.json`` / ``.xml``, either ``.gz``)."""
-    from jaxplan.scenarios.commonroad import dict_to_commonroad, read_commonroad
+    from jaxplan.scenarios.commonroad import read_commonroad
     from jaxplan.scenarios.files import scenario_format
     from jaxplan.scenarios.loader import read_bytes
+    from jaxplan.scenarios.to_commonroad import dict_to_commonroad
 
     if scenario_format(path) == "json":
         id_map: dict = {}

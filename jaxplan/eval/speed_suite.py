@@ -48,8 +48,9 @@ def recorded_scenes(directories, n: int | None = None) -> tuple[list, int]:
     import sys
 
     from jaxplan.scenarios.build import build_scene
+    from jaxplan.scenarios.fields import ScenarioError
     from jaxplan.scenarios.files import unique_names
-    from jaxplan.scenarios.loader import ScenarioError, load_folder
+    from jaxplan.scenarios.loader import load_folder
     from jaxplan.scenarios.route import RouteError
     from jaxplan.scenarios.scene import SceneRecord
 

@@ -10,8 +10,9 @@ and name); built-in ones: ``builtin_scenes``; a batch: ``stack_scenes``. The mod
 from jaxplan.scenarios.batch import index_scene, stack_scenes
 from jaxplan.scenarios.build import build_scene
 from jaxplan.scenarios.builtin import builtin_records, builtin_scenes
+from jaxplan.scenarios.fields import ScenarioError
 from jaxplan.scenarios.files import load_records, load_scenes
-from jaxplan.scenarios.loader import Scenario, ScenarioError
+from jaxplan.scenarios.scenario import Scenario
 from jaxplan.scenarios.scene import Goal, Scene, SceneConfig, SceneRecord
 
 __all__ = [

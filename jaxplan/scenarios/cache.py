@@ -28,7 +28,7 @@ import pickle
 import sys
 import tempfile
 
-from jaxplan.scenarios.loader import ScenarioError
+from jaxplan.scenarios.fields import ScenarioError
 
 CACHE_ENV = "JAXPLAN_CACHE_DIR"
 

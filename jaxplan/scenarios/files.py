@@ -27,7 +27,8 @@ import numpy as np
 
 from jaxplan.scenarios.build import build_scene
 from jaxplan.scenarios.commonroad import load_commonroad, read_commonroad
-from jaxplan.scenarios.loader import ScenarioError, load_scenario, read_bytes
+from jaxplan.scenarios.fields import ScenarioError
+from jaxplan.scenarios.loader import load_scenario, read_bytes
 from jaxplan.scenarios.route import RouteError
 from jaxplan.scenarios.scene import SceneConfig, SceneRecord
 

@@ -26,7 +26,8 @@ from typing import Any
 import jax.numpy as jnp
 import numpy as np
 
-from jaxplan.scenarios.loader import LIGHT_COLORS, LIGHT_DIRECTIONS, ScenarioError
+from jaxplan.scenarios.fields import ScenarioError
+from jaxplan.scenarios.scenario import LIGHT_COLORS, LIGHT_DIRECTIONS
 from jaxplan.types import pytree_dataclass
 
 GREEN, YELLOW, RED, RED_YELLOW, INACTIVE = (

@@ -32,8 +32,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxplan.scenarios.loader import Scenario, ScenarioError, lane_at, lane_polyline
+from jaxplan.scenarios.fields import ScenarioError
 from jaxplan.scenarios.polylines import arc_length, nearest_on_polyline, resample_polyline
+from jaxplan.scenarios.scenario import Scenario, lane_at, lane_polyline
 
 LOCATIONS = ("US-101", "Lankershim", "German roads", "other")
 
