@@ -253,12 +253,12 @@ def init_state(sc: ManeuverScenario, cfg: ManeuverSimConfig) -> WorldState:
         s=z,
         lat=z,
         goal_est=goal_est,
-        ph_seen=jnp.full((P,), jnp.inf),
-        dyn_t0=jnp.full((D,), jnp.inf),
+        ph_seen=jnp.full((P,), jnp.inf, jnp.float32),
+        dyn_t0=jnp.full((D,), jnp.inf, jnp.float32),
         done=jnp.zeros((), bool),
         success=jnp.zeros((), bool),
         collided=jnp.zeros((), bool),
-        t_done=jnp.full((), jnp.nan),
+        t_done=jnp.full((), jnp.nan, jnp.float32),
         n_unnecessary=jnp.zeros((), jnp.int32),
     )
 
