@@ -14,6 +14,7 @@ the origin), as the park-out planner expects.
 from __future__ import annotations
 
 import dataclasses
+import math
 from typing import Any
 
 import jax
@@ -31,11 +32,27 @@ from jaxplan.types import VehicleParams
 
 @dataclasses.dataclass(frozen=True)
 class ParkoutPlanner:
-    """``PlanRequest -> Plan`` with ``config.max_moves * config.steps`` points (static, hashable)."""
+    """``PlanRequest -> Plan`` with ``config.max_moves * config.steps`` points (static, hashable).
+
+    Drive it with a supervisor whose ``limits`` are ``limits`` and whose ``clearance`` is at
+    most ``clearance`` (``ManeuverSimConfig`` checks both): a park-out move ends where the
+    footprint grown by the planner's margin would touch the grid, so it passes the parked
+    cars closer than the supervisor's default clearance, and a supervisor that grows the car
+    by more rejects every plan (the car never starts).
+    """
 
     config: ParkoutConfig = ParkoutConfig(max_moves=8)  # the plan size the replanning figures were made with
     vehicle: VehicleParams = VehicleParams()
     limits: MotionLimits = MotionLimits(v_fwd=1.0, v_rev=1.0, accel=0.5, decel=1.0)
+
+    @property
+    def clearance(self) -> float:
+        """Least distance (m) the plans keep from the obstacle boxes they were planned around:
+        the smallest margin the planner may use (``min_margin`` with ``shrink_margin``, else
+        ``margin``) less the grid's error, half a cell diagonal (``ParkoutConfig.min_margin``)."""
+        cfg = self.config
+        m = cfg.min_margin if cfg.shrink_margin else cfg.margin
+        return max(0.0, float(m) - 0.5 * math.sqrt(2.0) * float(cfg.cell))
 
     def __call__(self, r: PlanRequest) -> Plan:
         cfg, veh = self.config, self.vehicle
