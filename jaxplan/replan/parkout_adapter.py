@@ -110,7 +110,7 @@ def parkout_scenarios(seed: int, n: int, planner: ParkoutPlanner = ParkoutPlanne
     import numpy as np
 
     from jaxplan.parking.scenes import make_scenes
-    from jaxplan.replan.simulator import ManeuverScenario
+    from jaxplan.replan.simulator import ManeuverScenario, _jit_planner
 
     rng = np.random.default_rng(seed)
     kw: dict[str, Any] = dict(front_gap=rng.uniform(0.7, 1.2, n), rear_gap=rng.uniform(0.7, 1.2, n))
@@ -119,20 +119,25 @@ def parkout_scenarios(seed: int, n: int, planner: ParkoutPlanner = ParkoutPlanne
     boxes = jnp.asarray(info["boxes"], jnp.float32)
     valid = jnp.asarray(scene.valid)
     z3 = jnp.zeros((n, 3))
+    # The request as the supervisor makes it: the perceived slots are the real boxes, then the
+    # phantom and the pedestrian of the scenario (not seen here), so that the nominal park-outs
+    # are planned by the program the host loop calls (``simulate_host``), compiled once.
+    k = boxes.shape[1] + 2
     req = PlanRequest(
         z3,
         jnp.zeros(n),
         jnp.ones(n, jnp.int32),
         jnp.ones(n, jnp.int32),
         z3,
-        boxes,
-        jnp.zeros(boxes.shape[:-1] + (2,)),
-        valid,
+        jnp.zeros((n, k, 5)).at[:, : boxes.shape[1]].set(boxes),
+        jnp.zeros((n, k, 2)),
+        jnp.zeros((n, k), bool).at[:, : boxes.shape[1]].set(valid),
         jnp.zeros(n, bool),
         z3,
         z3,
     )
-    nominal = jax.jit(jax.vmap(planner))(req)
+    plan_one = _jit_planner(planner)
+    nominal = jax.tree.map(lambda *a: jnp.stack(a), *[plan_one(jax.tree.map(lambda a: a[i], req)) for i in range(n)])
     last = jnp.sum(nominal.valid, -1) - 1
     take = lambda a: jnp.take_along_axis(a, last[:, None], -1)[:, 0]  # noqa: E731
     goal = jnp.stack([take(nominal.traj.x), take(nominal.traj.y), take(nominal.traj.theta)], -1)
