@@ -1,17 +1,13 @@
 """The park-out planner driven by the replanning supervisor through the planner callback.
 
-Needs two extra compilations (the park-out planner and the host-loop steps at its
-plan size): set JAXPLAN_SLOW=1 to run. It fails at present: through the supervisor the car
-never starts (it stands for the 30 s of the drive); the park-out planner
-itself gets out of its slots (tests/test_parking_planner.py).
+A park-out move ends where the footprint grown by the planner's margin (0.05-0.1 m on its
+grid) would touch the parked cars, so the supervisor must not grow the car by more than the
+planner keeps (``ParkoutPlanner.clearance``): with its default 0.15 m it rejected every
+plan, and the car stood in its slot for the whole drive.
 """
-import os
-
 import jax
 import numpy as np
 import pytest
-
-pytestmark = pytest.mark.skipif(not os.environ.get("JAXPLAN_SLOW"), reason="slow compile, and failing: the car never starts through the supervisor; set JAXPLAN_SLOW=1")
 
 
 def test_parkout_through_lazy_supervisor():
@@ -24,8 +20,8 @@ def test_parkout_through_lazy_supervisor():
     sc, nominal = parkout_scenarios(0, 2, pp)
     lo, hi, dirs, count = jax.vmap(sub_trajectories)(nominal.traj.gear, nominal.valid)
     assert np.all(np.asarray(count) >= 2)  # a multi-move park-out: gear shifts between moves
-    cfg = ManeuverSimConfig(planner=pp, supervisor=SupervisorConfig(limits=pp.limits), sensor_range=30.0, lat_sigma=0.0,
-                    steps=300)
+    sup = SupervisorConfig(limits=pp.limits, clearance=pp.clearance)
+    cfg = ManeuverSimConfig(planner=pp, supervisor=sup, sensor_range=30.0, lat_sigma=0.0, steps=300)
     d = stop_line(pp.vehicle, pp.config.c)
     for i in range(2):
         fin, logs = simulate_host(jax.tree.map(lambda a: a[i], sc), LAZY, cfg)
@@ -36,4 +32,17 @@ def test_parkout_through_lazy_supervisor():
         ev = [j for j, lg in enumerate(logs) if bool(lg.replan)]
         assert ev, "the phantom on the way out should stop the car once"
         for j in ev:
-            assert v[j - 1] < cfg.supervisor.v_stopped and int(logs[j].reason) == OBSTACLE
+            assert v[j - 1] < sup.v_stopped and int(logs[j].reason) == OBSTACLE
+        # One stop: the car stands from its first re-plan to its last, then drives out.
+        assert np.all(v[ev[0] - 1 : ev[-1] + 1] < sup.v_stopped)
+        assert np.max(v[ev[-1] :]) > 0.5
+
+
+def test_supervisor_clearance_above_the_planners_is_refused():
+    from jaxplan.replan import ManeuverSimConfig, SupervisorConfig
+    from jaxplan.replan.parkout_adapter import ParkoutPlanner
+
+    pp = ParkoutPlanner()
+    assert 0.0 < pp.clearance < SupervisorConfig().clearance
+    with pytest.raises(ValueError, match="clearance"):
+        ManeuverSimConfig(planner=pp, supervisor=SupervisorConfig(limits=pp.limits))

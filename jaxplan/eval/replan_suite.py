@@ -210,7 +210,11 @@ def parkout_figures(n: int, seed: int) -> dict:
     pp = ParkoutPlanner()
     sc, _ = parkout_scenarios(seed, n, pp)
     cfg = ManeuverSimConfig(
-        planner=pp, supervisor=SupervisorConfig(limits=pp.limits), sensor_range=30.0, lat_sigma=0.0, steps=300
+        planner=pp,
+        supervisor=SupervisorConfig(limits=pp.limits, clearance=pp.clearance),
+        sensor_range=30.0,
+        lat_sigma=0.0,
+        steps=300,
     )
     d = stop_line(pp.vehicle, pp.config.c)
     res: dict[str, float] = {"parkout.runs_per_strategy": n}

@@ -14,6 +14,7 @@ the origin), as the park-out planner expects.
 from __future__ import annotations
 
 import dataclasses
+import math
 from typing import Any
 
 import jax
@@ -31,11 +32,27 @@ from jaxplan.types import VehicleParams
 
 @dataclasses.dataclass(frozen=True)
 class ParkoutPlanner:
-    """``PlanRequest -> Plan`` with ``config.max_moves * config.steps`` points (static, hashable)."""
+    """``PlanRequest -> Plan`` with ``config.max_moves * config.steps`` points (static, hashable).
+
+    Drive it with a supervisor whose ``limits`` are ``limits`` and whose ``clearance`` is at
+    most ``clearance`` (``ManeuverSimConfig`` checks both): a park-out move ends where the
+    footprint grown by the planner's margin would touch the grid, so it passes the parked
+    cars closer than the supervisor's default clearance, and a supervisor that grows the car
+    by more rejects every plan (the car never starts).
+    """
 
     config: ParkoutConfig = ParkoutConfig(max_moves=8)  # the plan size the replanning figures were made with
     vehicle: VehicleParams = VehicleParams()
     limits: MotionLimits = MotionLimits(v_fwd=1.0, v_rev=1.0, accel=0.5, decel=1.0)
+
+    @property
+    def clearance(self) -> float:
+        """Least distance (m) the plans keep from the obstacle boxes they were planned around:
+        the smallest margin the planner may use (``min_margin`` with ``shrink_margin``, else
+        ``margin``) less the grid's error, half a cell diagonal (``ParkoutConfig.min_margin``)."""
+        cfg = self.config
+        m = cfg.min_margin if cfg.shrink_margin else cfg.margin
+        return max(0.0, float(m) - 0.5 * math.sqrt(2.0) * float(cfg.cell))
 
     def __call__(self, r: PlanRequest) -> Plan:
         cfg, veh = self.config, self.vehicle
@@ -93,7 +110,7 @@ def parkout_scenarios(seed: int, n: int, planner: ParkoutPlanner = ParkoutPlanne
     import numpy as np
 
     from jaxplan.parking.scenes import make_scenes
-    from jaxplan.replan.simulator import ManeuverScenario
+    from jaxplan.replan.simulator import ManeuverScenario, _jit_planner
 
     rng = np.random.default_rng(seed)
     kw: dict[str, Any] = dict(front_gap=rng.uniform(0.7, 1.2, n), rear_gap=rng.uniform(0.7, 1.2, n))
@@ -102,20 +119,25 @@ def parkout_scenarios(seed: int, n: int, planner: ParkoutPlanner = ParkoutPlanne
     boxes = jnp.asarray(info["boxes"], jnp.float32)
     valid = jnp.asarray(scene.valid)
     z3 = jnp.zeros((n, 3))
+    # The request as the supervisor makes it: the perceived slots are the real boxes, then the
+    # phantom and the pedestrian of the scenario (not seen here), so that the nominal park-outs
+    # are planned by the program the host loop calls (``simulate_host``), compiled once.
+    k = boxes.shape[1] + 2
     req = PlanRequest(
         z3,
         jnp.zeros(n),
         jnp.ones(n, jnp.int32),
         jnp.ones(n, jnp.int32),
         z3,
-        boxes,
-        jnp.zeros(boxes.shape[:-1] + (2,)),
-        valid,
+        jnp.zeros((n, k, 5)).at[:, : boxes.shape[1]].set(boxes),
+        jnp.zeros((n, k, 2)),
+        jnp.zeros((n, k), bool).at[:, : boxes.shape[1]].set(valid),
         jnp.zeros(n, bool),
         z3,
         z3,
     )
-    nominal = jax.jit(jax.vmap(planner))(req)
+    plan_one = _jit_planner(planner)
+    nominal = jax.tree.map(lambda *a: jnp.stack(a), *[plan_one(jax.tree.map(lambda a: a[i], req)) for i in range(n)])
     last = jnp.sum(nominal.valid, -1) - 1
     take = lambda a: jnp.take_along_axis(a, last[:, None], -1)[:, 0]  # noqa: E731
     goal = jnp.stack([take(nominal.traj.x), take(nominal.traj.y), take(nominal.traj.theta)], -1)

@@ -108,6 +108,12 @@ class ApproachPlanner:
             raise ValueError("ApproachPlanner.pre_poses must be a non-empty tuple of (along, left, turn)")
 
     @property
+    def clearance(self) -> float:
+        """Least distance (m) a collision-free plan keeps from the obstacles it was given: its
+        car boxes are grown by ``margin`` and tested against the exact boxes."""
+        return float(self.margin)
+
+    @property
     def radius(self) -> float:
         return self.radius_factor / max_curvature(self.vehicle)
 

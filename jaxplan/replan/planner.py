@@ -5,6 +5,8 @@ the simulator only see this interface, so any planner (the drivable approach
 planner of :mod:`jaxplan.replan.path_planner`, the park-out planner through
 :mod:`jaxplan.replan.parkout_adapter`, a user's own) can drive them. Inside
 ``lax.scan`` it must be jittable; the host-loop simulator accepts any Python callable.
+A planner may say what it plans with (``vehicle``, ``limits``) and how close its plans may
+pass the obstacles (``clearance``, m); the simulator checks these against the supervisor's.
 ``finish_plan`` turns a geometric path into a plan with the speed profile and
 time stamps of the shared longitudinal model (:mod:`jaxplan.replan.longitudinal`).
 """

@@ -95,7 +95,10 @@ class ManeuverScenario(NamedTuple):
 @dataclasses.dataclass(frozen=True)
 class ManeuverSimConfig:
     """Simulator settings (static, hashable). The car's longitudinal limits are the
-    supervisor's ``limits``; the planner must plan with the same ones."""
+    supervisor's ``limits``; the planner must plan with the same ones. A planner that says
+    how close its plans may pass the obstacles (a ``clearance`` attribute, in metres) must
+    keep at least the supervisor's ``clearance``: the supervisor grows the car by that much
+    when it checks a new plan, so it would reject every plan that passes closer."""
 
     supervisor: SupervisorConfig = SupervisorConfig()
     planner: Callable = ApproachPlanner()
@@ -114,6 +117,13 @@ class ManeuverSimConfig:
         lim = getattr(self.planner, "limits", None)
         if lim is not None and lim != self.supervisor.limits:
             raise ValueError("ManeuverSimConfig: planner.limits must equal supervisor.limits (one longitudinal model)")
+        keeps = getattr(self.planner, "clearance", None)
+        if keeps is not None and self.supervisor.clearance > float(keeps) + 1e-9:
+            raise ValueError(
+                f"ManeuverSimConfig: supervisor.clearance ({self.supervisor.clearance} m) exceeds the planner's "
+                f"clearance ({float(keeps):.4f} m): the supervisor would reject every plan that passes an obstacle "
+                "closer than its clearance; use SupervisorConfig(clearance=planner.clearance) or less"
+            )
         if self.steps < 1 or self.plan_chunk < 1:
             raise ValueError("ManeuverSimConfig.steps and plan_chunk must be >= 1")
 
@@ -253,12 +263,12 @@ def init_state(sc: ManeuverScenario, cfg: ManeuverSimConfig) -> WorldState:
         s=z,
         lat=z,
         goal_est=goal_est,
-        ph_seen=jnp.full((P,), jnp.inf),
-        dyn_t0=jnp.full((D,), jnp.inf),
+        ph_seen=jnp.full((P,), jnp.inf, jnp.float32),
+        dyn_t0=jnp.full((D,), jnp.inf, jnp.float32),
         done=jnp.zeros((), bool),
         success=jnp.zeros((), bool),
         collided=jnp.zeros((), bool),
-        t_done=jnp.full((), jnp.nan),
+        t_done=jnp.full((), jnp.nan, jnp.float32),
         n_unnecessary=jnp.zeros((), jnp.int32),
     )
 

@@ -91,7 +91,9 @@ class SupervisorConfig:
     ``before`` / ``after``: the prediction window of the time-aware collision test;
     ``stitch_tol``: how far the car may be past the start of a new plan when it arrives;
     ``clearance``: the car boxes of the collision test are grown by this much on each side
-    (the tracking error; the planner keeps a larger margin);
+    (the tracking error); the planner must keep at least this much from the obstacles, else
+    every new plan fails the check before it is installed (``ManeuverSimConfig`` compares it
+    with a planner's ``clearance``);
     ``keep_s``: a re-plan whose start would lie this close to the end of the current
     sub-trajectory starts at that end instead (the old plan is kept up to there);
     ``prefix_points``: points of the kept stretch of the old plan.
