@@ -454,3 +454,62 @@ def test_path_starts_at_the_cars_pose_heading_and_curvature():
         assert np.allclose(np.asarray(pp.xy[0]), [float(ego.x), float(ego.y)], atol=1e-5)
         assert float(pp.theta[0]) == pytest.approx(float(ego.heading), abs=1e-5)
         assert float(pp.kappa[0]) == pytest.approx(k, abs=1e-6)
+
+
+def _passing_scene(l_of_t):
+    """A straight two-lane road, the car in the right lane at 10 m/s, and one car coming towards
+    it along offsets ``l_of_t (T,)`` from 80 m ahead at 10 m/s (the two meet about 40 m ahead)."""
+    from jaxplan.scenarios.build import build_scene
+    from jaxplan.scenarios.builtin import DT, LANE, RECORD_STEPS, START_S, _car, _lanelets, _Road
+    from jaxplan.scenarios.loader import parse_scenario
+
+    road = _Road(0.0, 0.0)
+    t = np.arange(RECORD_STEPS) * DT
+    start, th0 = road.pose(START_S, 0.0)
+    goal, _ = road.pose(START_S + 120.0, 0.5 * LANE)
+    d = {"id": "PASS", "source": "test", "tags": [], "dt": DT, "lanelets": _lanelets(road, 2, 20.0),
+         "obstacles": [_car(1, road, START_S + 80.0 - 10.0 * t, l_of_t)],
+         "planning_problems": [{"id": 1, "initial_state": {"t": 0.0, "position": start.tolist(),
+                                                          "orientation": float(th0), "velocity": 10.0,
+                                                          "acceleration": 0.0},
+                                "goals": [{"rectangle": {"center": goal.tolist(), "length": 30.0, "width": 2 * LANE,
+                                                         "orientation": 0.0}, "time": [0.0, 30.0]}]}]}
+    return build_scene(parse_scenario(d, d["id"]))[0]
+
+
+@pytest.mark.parametrize("nudge", [True, False])
+def test_path_moves_over_in_its_lane_for_a_moving_car_reaching_in(nudge):
+    """A car coming the other way with its near side 0.8 m over the lane line (0.15 m clear of the
+    car's body at the lane centre, inside ``nudge_buffer``): with
+    ``nudge`` the path keeps ``nudge_buffer`` from it where the two meet (the car's box at the
+    path's pose there, against the other car's box then) and is back at the lane centre past it;
+    a car crossing the lane centre does not move the path (the speed plan yields to it); without
+    ``nudge`` the path stays at the centre."""
+    from jaxplan.plan_context import road_context
+    from jaxplan.planner import SIM_VEHICLE, EgoState
+    from jaxplan.scenarios.builtin import LANE, RECORD_STEPS
+    from jaxplan.scenarios.batch import stack_scenes
+
+    cfg = PathConfig(vehicle=SIM_VEHICLE, nudge=nudge)
+    near = 0.5 * LANE - 0.8  # the oncoming car's near side, from the car's lane centre
+    reach_in = np.full(RECORD_STEPS, near + 0.9)
+    crossing = np.linspace(-6.0, 8.0, RECORD_STEPS)  # over the whole road within the horizon
+    batch = stack_scenes([_passing_scene(reach_in), _passing_scene(crossing)])
+
+    def one(scene):
+        ego = EgoState.from_box_centre(scene.start, SIM_VEHICLE)
+        return plan_path(scene, road_context(scene, ego, 0, 60, SIM_VEHICLE), cfg)
+
+    pp = jax.tree_util.tree_map(np.asarray, jax.jit(jax.vmap(one))(batch))
+    assert pp.ok.all()
+    s, l = pp.s[0], pp.l[0]
+    meet = np.abs(s - 40.0) < 3.0
+    half = 0.5 * SIM_VEHICLE.width
+    if nudge:
+        # the body's left side (the path is straight there: its heading is the road's) and the buffer
+        assert np.all(l[meet] + half <= near - cfg.nudge_buffer + 0.02), l[meet]
+        assert np.abs(l[-5:]).max() < 0.05  # back at the lane centre well past the other car
+    else:
+        assert np.abs(l).max() < 0.05
+        assert np.any(l[meet] + half > near - cfg.nudge_buffer)
+    assert np.abs(pp.l[1]).max() < 0.05  # the crossing car: no nudge

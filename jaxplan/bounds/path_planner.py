@@ -15,7 +15,11 @@
 3. **Road bounds**: the drivable corridor's edges about the route (the lanes beside the
    route that are contiguous with the route lane, opposite-direction lanes only with
    ``opposite_lanes``; never beyond ``road_left/right``), less the car body's reach at its
-   heading and ``edge_buffer``.
+   heading and ``edge_buffer``. With ``nudge``, narrowed away from *moving* obstacles that reach
+   into the car's lane from one side over the horizon (an oncoming car over the centre line, a
+   neighbour drifting in; ``nudge_edges``) about when the car meets them: the path keeps
+   ``nudge_buffer`` from them inside its own lane where the lane leaves room, and the speed plan
+   yields to what is still in the way.
 4. **Decision and corridor** (``jaxplan.bounds.decision``): each blocking obstacle's
    interval of offsets per station (exact overlap interval of the car's contour, the
    obstacle lengthened by ``lon_buffer + ds / 2`` so that the car's motion between stations
@@ -78,6 +82,9 @@ class PathConfig:
             car already closer than the buffer to an obstacle beside it is not boxed in.
         edge_buffer: margin to the road's edges (m).
         static_speed: dynamic obstacles slower than this (m/s) over the horizon are blocking.
+        nudge, nudge_buffer, nudge_window: keep ``nudge_buffer`` (m) sideways from moving obstacles
+            that reach into the car's lane from one side, within ``nudge_window`` (s) of when the
+            car gets there (``nudge_edges``).
         opposite_lanes: the corridor may use opposite-direction lanes (to pass a blockage).
         max_rounds: bounds-at-heading / QP rounds (4: on one frame of the bounds suite, R 8 m, the third
             round's QP is solved but its path turns past that round's heading range; the fourth
@@ -102,6 +109,9 @@ class PathConfig:
     buffer_ramp: float = 6.0
     edge_buffer: float = 0.1
     static_speed: float = 0.5
+    nudge: bool = True
+    nudge_buffer: float = 0.3
+    nudge_window: float = 2.0
     opposite_lanes: bool = True
     max_rounds: int = 4
     heading_max: float = 0.5
@@ -215,6 +225,69 @@ def blocking_footprints(obstacles, static_speed, dt):
     ctr = jnp.where(static[:, None], p0[:, :2], p0[:, :2] + 0.5 * disp)
     box = jnp.concatenate([ctr, (p0[:, 2] + along)[:, None], p0[:, 3:5]], -1)
     return box, blocking
+
+
+def nudge_edges(route, ctx, blocking, st, l_pref, lane_half, edge_left, edge_right, vehicle, config: PathConfig):
+    """The corridor's edges narrowed away from moving obstacles beside the car's lane.
+
+    An obstacle that is not blocking (it moves) and whose footprint, wherever it comes within the
+    path's stations, stays on one side of the lane centre (``l_pref`` at the car) bounds that
+    side: at every station where the car's body and the obstacle overlap along the route at a
+    time within ``nudge_window`` of when the car gets there at its present speed (at least 1
+    m/s), the car's body keeps ``nudge_buffer`` from the obstacle's near side. The narrowing is
+    at most what the car can move over by then at ``a_lat_max`` (and a quarter of the heading
+    bound), so the path can always follow it; it never moves an edge past the far side of the
+    car's own lane less the car's width (the car shifts inside its lane, it is not pushed out of
+    it); where both sides are nudged and the car no longer fits, that station keeps its edges.
+    Obstacles over the lane centre (a leader, a crossing car) are left to the speed plan.
+
+    Args:
+        route: ``ReferenceLine``; ctx: ``RoadContext`` (``obstacles`` ``(K, H, 5)``,
+            ``obstacle_s``, ``obstacle_l`` ``(K, H)``, ``ego``); blocking: ``(K,)`` bool (the path's).
+        st, l_pref, lane_half: ``(N,)`` stations, the lane centre's offset and half width there.
+        edge_left, edge_right: ``(N,)`` the edges the car's body stays inside.
+
+    Returns:
+        (edge_left, edge_right) ``(N,)`` each.
+    """
+    f = st.dtype
+    obs = ctx.obstacles
+    b, v = obs.boxes, obs.valid
+    s_o, l_o = jnp.asarray(ctx.obstacle_s, f), jnp.asarray(ctx.obstacle_l, f)
+    _, th_r, _, _ = ref_state(route, s_o)
+    dh = b[..., 4] - th_r
+    half_l, half_w = 0.5 * b[..., 2], 0.5 * b[..., 3]
+    hl = jnp.abs(half_l * jnp.sin(dh)) + jnp.abs(half_w * jnp.cos(dh))  # (K, H) lateral half extent
+    hs = jnp.abs(half_l * jnp.cos(dh)) + jnp.abs(half_w * jnp.sin(dh))  # along the route
+    front, rear = jnp.asarray(vehicle.front_offset, f), jnp.asarray(vehicle.rear_offset, f)
+    dist = st - st[0]
+    v0 = jnp.maximum(jnp.asarray(ctx.ego.v, f), 0.0)
+    t_car = dist / jnp.maximum(v0, 1.0)  # (N,) when the car gets to each station
+    t_o = jnp.asarray(obs.t, f) - jnp.asarray(obs.t, f)[0]  # (H,)
+    when = jnp.abs(t_o[None, :] - t_car[:, None]) <= config.nudge_window  # (N, H)
+    # (N, K, H): the car's body at station i and the obstacle at time j overlap along the route
+    ds = s_o[None] - st[:, None, None]
+    near = v[None] & ~blocking[None, :, None] & when[:, None, :] & (ds >= rear - hs[None]) & (ds <= front + hs[None])
+    inner_l, inner_r = l_o - hl, l_o + hl  # the near sides of an obstacle on the left / right
+    seen = jnp.any(near, axis=0)  # (K, H)
+    c = l_pref[0]
+    left = jnp.all(jnp.where(seen, inner_l > c, True), -1) & jnp.any(seen, -1)  # (K,)
+    right = jnp.all(jnp.where(seen, inner_r < c, True), -1) & jnp.any(seen, -1)
+    buf = jnp.asarray(config.nudge_buffer, f)
+    big = jnp.asarray(1e9, f)
+    bound_l = jnp.min(jnp.where(near & left[None, :, None], inner_l[None] - buf, big), axis=(1, 2))  # (N,)
+    bound_r = jnp.max(jnp.where(near & right[None, :, None], inner_r[None] + buf, -big), axis=(1, 2))
+    width = jnp.asarray(vehicle.width + 2.0 * config.edge_buffer + 2.0 * RANGE_MARGIN, f)
+    floor_l = jnp.maximum(edge_right, l_pref - lane_half) + width  # the car at its lane's right side
+    ceil_r = jnp.minimum(edge_left, l_pref + lane_half) - width
+    # how far the car can move over within ``dist``: two arcs at the lateral acceleration's curvature
+    k_steer = config.curvature_margin * jnp.tan(jnp.asarray(vehicle.max_steer, f)) / jnp.asarray(vehicle.wheelbase, f)
+    k_cap = jnp.minimum(k_steer, config.a_lat_max / jnp.maximum(v0 * v0, 1e-6))
+    reach = jnp.minimum(0.25 * k_cap * dist * dist, 0.25 * dist * jnp.tan(jnp.asarray(config.heading_max, f)))
+    new_l = edge_left - jnp.minimum(jnp.maximum(edge_left - jnp.maximum(bound_l, floor_l), 0.0), reach)
+    new_r = edge_right + jnp.minimum(jnp.maximum(jnp.minimum(bound_r, ceil_r) - edge_right, 0.0), reach)
+    fits = new_l - new_r >= width - 1e-3  # a nudge to a lane's side leaves exactly the width
+    return jnp.where(fits, new_l, edge_left), jnp.where(fits, new_r, edge_right)
 
 
 def _resample(S, values, s_out):
@@ -417,6 +490,9 @@ def _plan(scene, ctx, config, ego):
         _sample(scene, right_e, st + rear),
     )
     l_pref = _sample(scene, scene.lane_offset[scene.own_lane], st)
+    if config.nudge:
+        lane_half = 0.5 * _sample(scene, scene.lane_width[scene.own_lane], st)
+        edge_l, edge_r = nudge_edges(ref, ctx, blocking, st, l_pref, lane_half, edge_l, edge_r, veh, config)
     res = solve_path(ref, st, ds, boxes, blocking, edge_l, edge_r, l_pref, jnp.stack([l0, dl0, ddl0]), config, v0)
     cor, qp = res["corridor"], res["qp"]
     xy, th, kap, l = res["xy"], res["theta"], res["kappa"], res["l"]
