@@ -456,19 +456,18 @@ def test_path_starts_at_the_cars_pose_heading_and_curvature():
         assert float(pp.kappa[0]) == pytest.approx(k, abs=1e-6)
 
 
-def _passing_scene(l_of_t):
-    """A straight two-lane road, the car in the right lane at 10 m/s, and one car coming towards
-    it along offsets ``l_of_t (T,)`` from 80 m ahead at 10 m/s (the two meet about 40 m ahead)."""
+def _passing_scene(cars):
+    """A straight two-lane road, the car in the right lane at 10 m/s, and ``cars``: ``(s (T,), l (T,),
+    role)`` each (stations from the car's, offsets from its lane's centre)."""
     from jaxplan.scenarios.build import build_scene
-    from jaxplan.scenarios.builtin import DT, LANE, RECORD_STEPS, START_S, _car, _lanelets, _Road
+    from jaxplan.scenarios.builtin import DT, LANE, START_S, _car, _lanelets, _Road
     from jaxplan.scenarios.loader import parse_scenario
 
     road = _Road(0.0, 0.0)
-    t = np.arange(RECORD_STEPS) * DT
     start, th0 = road.pose(START_S, 0.0)
     goal, _ = road.pose(START_S + 120.0, 0.5 * LANE)
     d = {"id": "PASS", "source": "test", "tags": [], "dt": DT, "lanelets": _lanelets(road, 2, 20.0),
-         "obstacles": [_car(1, road, START_S + 80.0 - 10.0 * t, l_of_t)],
+         "obstacles": [_car(i + 1, road, START_S + s, l, role=role) for i, (s, l, role) in enumerate(cars)],
          "planning_problems": [{"id": 1, "initial_state": {"t": 0.0, "position": start.tolist(),
                                                           "orientation": float(th0), "velocity": 10.0,
                                                           "acceleration": 0.0},
@@ -483,8 +482,9 @@ def test_path_moves_over_in_its_lane_for_a_moving_car_reaching_in(nudge):
     car's body at the lane centre, inside ``nudge_buffer``): with
     ``nudge`` the path keeps ``nudge_buffer`` from it where the two meet (the car's box at the
     path's pose there, against the other car's box then) and is back at the lane centre past it;
-    a car crossing the lane centre does not move the path (the speed plan yields to it); without
-    ``nudge`` the path stays at the centre."""
+    a car crossing the lane centre does not move the path (the speed plan yields to it), nor does
+    a car driving inside the next lane when the path passes a stopped car through that lane (the
+    speed plan times the pass); without ``nudge`` the path stays at the centre."""
     from jaxplan.plan_context import road_context
     from jaxplan.planner import SIM_VEHICLE, EgoState
     from jaxplan.scenarios.builtin import LANE, RECORD_STEPS
@@ -492,9 +492,14 @@ def test_path_moves_over_in_its_lane_for_a_moving_car_reaching_in(nudge):
 
     cfg = PathConfig(vehicle=SIM_VEHICLE, nudge=nudge)
     near = 0.5 * LANE - 0.8  # the oncoming car's near side, from the car's lane centre
-    reach_in = np.full(RECORD_STEPS, near + 0.9)
-    crossing = np.linspace(-6.0, 8.0, RECORD_STEPS)  # over the whole road within the horizon
-    batch = stack_scenes([_passing_scene(reach_in), _passing_scene(crossing)])
+    t = np.arange(RECORD_STEPS) * 0.1
+    oncoming = 80.0 - 10.0 * t  # from 80 m ahead at 10 m/s: the two meet about 40 m ahead
+    reach_in = (oncoming, np.full(RECORD_STEPS, near + 0.9), "dynamic")
+    crossing = (oncoming, np.linspace(-6.0, 8.0, RECORD_STEPS), "dynamic")  # over the road within the horizon
+    stopped = (np.full(1, 30.0), np.zeros(1), "static")
+    next_lane = (-10.0 + 14.0 * t, np.full(RECORD_STEPS, LANE), "dynamic")  # passes the car, 0.85 m inside its lane
+    scenes = [_passing_scene([reach_in]), _passing_scene([crossing]), _passing_scene([stopped, next_lane])]
+    batch = stack_scenes(scenes)
 
     def one(scene):
         ego = EgoState.from_box_centre(scene.start, SIM_VEHICLE)
@@ -513,3 +518,4 @@ def test_path_moves_over_in_its_lane_for_a_moving_car_reaching_in(nudge):
         assert np.abs(l).max() < 0.05
         assert np.any(l[meet] + half > near - cfg.nudge_buffer)
     assert np.abs(pp.l[1]).max() < 0.05  # the crossing car: no nudge
+    assert not np.isfinite(pp.blocked_s[2]) and pp.l[2].max() > 2.0  # around the stopped car, through the next lane

@@ -230,9 +230,10 @@ def blocking_footprints(obstacles, static_speed, dt):
 def nudge_edges(route, ctx, blocking, st, l_pref, lane_half, edge_left, edge_right, vehicle, config: PathConfig):
     """The corridor's edges narrowed away from moving obstacles beside the car's lane.
 
-    An obstacle that is not blocking (it moves) and whose footprint, wherever it comes within the
-    path's stations, stays on one side of the lane centre (``l_pref`` at the car) bounds that
-    side: at every station where the car's body and the obstacle overlap along the route at a
+    An obstacle that is not blocking (it moves), whose footprint, wherever it comes within the
+    path's stations, stays on one side of the lane centre (``l_pref`` at the car) and reaches over
+    that side's lane line there at some time bounds that side (traffic inside the next lane does
+    not: a pass through that lane stays the speed plan's to time): at every station where the car's body and the obstacle overlap along the route at a
     time within ``nudge_window`` of when the car gets there at its present speed (at least 1
     m/s), the car's body keeps ``nudge_buffer`` from the obstacle's near side. The narrowing is
     at most what the car can move over by then at ``a_lat_max`` (and a quarter of the heading
@@ -270,9 +271,10 @@ def nudge_edges(route, ctx, blocking, st, l_pref, lane_half, edge_left, edge_rig
     near = v[None] & ~blocking[None, :, None] & when[:, None, :] & (ds >= rear - hs[None]) & (ds <= front + hs[None])
     inner_l, inner_r = l_o - hl, l_o + hl  # the near sides of an obstacle on the left / right
     seen = jnp.any(near, axis=0)  # (K, H)
-    c = l_pref[0]
-    left = jnp.all(jnp.where(seen, inner_l > c, True), -1) & jnp.any(seen, -1)  # (K,)
-    right = jnp.all(jnp.where(seen, inner_r < c, True), -1) & jnp.any(seen, -1)
+    # on one side of the lane centre, and reaching over that side's lane line at some time
+    c, half = l_pref[0], lane_half[0]
+    left = jnp.all(jnp.where(seen, inner_l > c, True), -1) & jnp.any(seen & (inner_l < c + half), -1)  # (K,)
+    right = jnp.all(jnp.where(seen, inner_r < c, True), -1) & jnp.any(seen & (inner_r > c - half), -1)
     buf = jnp.asarray(config.nudge_buffer, f)
     big = jnp.asarray(1e9, f)
     bound_l = jnp.min(jnp.where(near & left[None, :, None], inner_l[None] - buf, big), axis=(1, 2))  # (N,)
