@@ -697,3 +697,31 @@ def test_a_vehicle_behind_and_a_lower_limit_ahead_still_give_an_executable_profi
     # the car behind is closing in: the profile holds the stretched limit once it has met it
     held = past & (np.asarray(prof.t) > 2.0)
     assert np.all(v[held] >= stretched - 0.1), v[held].min()
+
+
+@pytest.mark.parametrize("v0, a0, start, end", [(13.0, 0.0, 12.0, 18.0), (10.7, -3.4, 4.0, 10.0)])
+def test_a_bend_the_executed_profile_reaches_after_the_dp_still_limits_it(v0, a0, start, end):
+    """A car closing in from behind at 16.1 m/s and a short bend ahead (limit 5.5 m/s between
+    ``start`` and ``end``): the DP weighs the bend against the car behind and runs through it
+    above the limit; the executed profile cannot follow the DP (it starts slower, or braking),
+    so it reaches the bend later than the DP does. At the stations it reaches, its speed stays
+    within the limit stretched to the emergency lateral acceleration (taken at the DP's
+    stations alone, the limit had left the bend behind: 9.1 and 8.9 m/s here)."""
+    from jaxplan.planner import EMERGENCY_LAT_ACCEL
+    from jaxplan.speed.smooth import smooth_plan
+
+    cfg = SpeedConfig()
+    obs = _moving([[-17.5, 0.0, 4.5, 1.8, 0.0]], [16.1])
+    road = _road(limit_s=(0.0, start - 0.1, start, end, end + 0.1, 300.0), limit_v=(INF, INF, 5.5, 5.5, INF, INF))
+    p = plan_speed(REF, obs, cfg, W, v0=v0, a0=a0, s0=10.0, keep_clear=NO_KC, vehicle=CAR, road=road)
+    stretched = 5.5 * np.sqrt(EMERGENCY_LAT_ACCEL / cfg.a_lat_max)
+    t = jnp.arange(1, int(round(cfg.horizon / cfg.qp_dt)) + 1, dtype=jnp.float32) * cfg.qp_dt
+    s_dp, v_dp, _ = (np.asarray(x) for x in profile_at(p, t))
+    bend = (s_dp >= start) & (s_dp <= end)
+    assert v_dp[bend].max() > stretched + 1.0, "the DP keeps the limit: nothing to test"
+    prof = smooth_plan(p, v0, a0, cfg)
+    assert bool(prof.ok), (float(prof.r_prim), float(prof.r_dual))
+    s, v = np.asarray(prof.s), np.asarray(prof.v)
+    bend = (s >= start) & (s <= end)
+    assert bend.sum() >= 5
+    assert v[bend].max() <= stretched + 0.05, v[bend].max()

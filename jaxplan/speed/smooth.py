@@ -21,7 +21,12 @@ hardest braking the limits allow reaches (``hardest_braking``: the jerk-limited 
 relaxed to what braking at ``LIMIT_DECEL`` reaches and, where the DP's profile runs above it
 (the DP weighs the limit against its other costs), raised to the DP's speed, up to
 ``sqrt(EMERGENCY_LAT_ACCEL / a_lat_max)`` times the limit (in a bend: the curvature limit at
-``EMERGENCY_LAT_ACCEL`` instead of ``SpeedConfig.a_lat_max``). Where the DP could not avoid a boundary,
+``EMERGENCY_LAT_ACCEL`` instead of ``SpeedConfig.a_lat_max``); that stretched limit is relaxed
+only to what the hardest braking reaches. The limit is a bound per time, read at the stations
+the car is at then: first the DP's, then (``LIMIT_ROUNDS`` solves in all) the least limit
+between the DP's station and the last solution's, since the executed profile lags the DP where
+it cannot follow it (the jerk limit, braking when the cycle starts) and meets a bend later.
+Where the DP could not avoid a boundary,
 only the hardest braking is left there, and ``slack`` (how far the corridor had to be widened)
 says so. The references are clipped into the corridor, so the QP tracks the boundary, not the
 DP's profile through an obstacle. Where both sides and the speed limit bind at once (a vehicle
@@ -57,6 +62,7 @@ RHO_LADDER = tuple(float(r) for r in 10.0 ** np.linspace(-3, 3, 13))
 LIMIT_DECEL = 3.0  # m/s^2: the speed limit of the QP is relaxed to what braking at this meets
 V_TOL = 0.01  # m/s: speeds down to -V_TOL are feasible in the QP (the output is held at 0)
 LOWER_MARGIN = 0.1  # m: the corridor's lower side stays this far below the most the limits reach
+LIMIT_ROUNDS = 3  # QP solves: the speed limit at the DP's stations, then also where the last solution is
 
 
 @dataclasses.dataclass(frozen=True)
@@ -225,10 +231,12 @@ def leavable_a0(a0, v0, config: SpeedConfig):
     return jnp.maximum(a0, -jnp.sqrt(config.jerk_max * jnp.maximum(v0, 0.0)))
 
 
-def qp_problem(s_ref, v_ref, lower, upper, v_lim, a0, v0, config: SpeedConfig, w: SmoothWeights):
+def qp_problem(s_ref, v_ref, lower, upper, v_lim, a0, v0, config: SpeedConfig, w: SmoothWeights, v_hard=None):
     """The QP of one scene: ``(q (n,), l (4n,), u (4n,), slack ())`` for the constant ``P``,
     ``A`` of ``qp_matrices`` (references, bounds and limits ``(n,)`` at ``k h``, k = 1..n;
-    ``a0`` one the car can leave, ``leavable_a0``)."""
+    ``a0`` one the car can leave, ``leavable_a0``). ``v_lim`` is relaxed to what braking at
+    ``LIMIT_DECEL`` reaches; ``v_hard (n,)`` (default none), a limit relaxed only to what the
+    hardest braking reaches, caps it."""
     n = s_ref.shape[-1]
     h = config.qp_dt
     m = qp_matrices(n, h, w)
@@ -241,6 +249,8 @@ def qp_problem(s_ref, v_ref, lower, upper, v_lim, a0, v0, config: SpeedConfig, w
     slack = jnp.max(jnp.maximum(s_b - upper, 0.0))
     upper = jnp.maximum(upper, s_b + 0.02)
     v_lim = jnp.maximum(v_lim, jnp.maximum(jnp.asarray(v0, f) - LIMIT_DECEL * tk, v_b) + 0.02)
+    if v_hard is not None:
+        v_lim = jnp.minimum(v_lim, jnp.maximum(v_hard, v_b + 0.2))
     s_a = hardest_acceleration(a0, v0, v_lim, n, h, config)
     lower = jnp.minimum(lower, jnp.minimum(s_a - LOWER_MARGIN, upper - 0.02))
     # references inside the corridor: where the DP's profile leaves it, track the boundary
@@ -321,27 +331,53 @@ def smooth_plan(
     s_ref, v_ref, a_ref = profile_at(plan, t[1:])
     lower, upper = corridor(plan, config, t[1:])
     vl = plan.scene.v_limit
-    qi = jnp.clip(s_ref / config.ds, 0.0, vl.shape[0] - 1.0)
-    k = jnp.clip(jnp.floor(qi).astype(jnp.int32), 0, vl.shape[0] - 2)
-    v_lim = vl[k] + (qi - k) * (vl[k + 1] - vl[k])
-    # where the DP runs above the limit (it weighed the limit against a vehicle behind), the
-    # limit is its speed, up to the limit stretched as the emergency lateral acceleration allows
     stretch = math.sqrt(max(EMERGENCY_LAT_ACCEL / config.a_lat_max, 1.0))
-    v_lim = jnp.maximum(v_lim, jnp.minimum(v_ref, stretch * v_lim))
-    q, l, u, slack = qp_problem(s_ref, v_ref, lower, upper, v_lim, a0, v0, config, w)
+
+    def limit(lo, hi):
+        # the least speed limit over the stations ``[lo, hi] (n,)`` (where the car may be at each
+        # time); where the DP runs above it (it weighed the limit against a vehicle behind), the
+        # DP's speed, up to the limit stretched as the emergency lateral acceleration allows
+        def at(x):
+            qi = jnp.clip(x / config.ds, 0.0, vl.shape[0] - 1.0)
+            k = jnp.clip(jnp.floor(qi).astype(jnp.int32), 0, vl.shape[0] - 2)
+            return vl[k] + (qi - k) * (vl[k + 1] - vl[k])
+
+        grid = jnp.arange(vl.shape[0], dtype=f) * config.ds
+        inside = (grid >= lo[:, None]) & (grid <= hi[:, None])
+        lim = jnp.minimum(jnp.minimum(at(lo), at(hi)), jnp.min(jnp.where(inside, vl, INF), -1))
+        return jnp.stack([jnp.maximum(lim, jnp.minimum(v_ref, stretch * lim)), stretch * lim])
+
     m = qp_matrices(n, h, w)
-    # the QP, and the QP without the corridor's lower sides (its last n rows), as one vmapped
-    # solve: the second where the first's iterate does not keep its bounds (no profile keeps
-    # them) and the second is solved
-    both = jnp.stack([l, l.at[3 * n :].set(-INF)])
-    xs, rps, rds = jax.vmap(lambda lo: admm_prefactored(m["fixed"], q, lo, u, solver, a_ref))(both)
-    solved = (rps < solver.eps_prim) & (rds < solver.eps_dual) & jnp.all(jnp.isfinite(xs), axis=-1)
-    i = jnp.where((rps[0] >= solver.eps_prim) & solved[1], 1, 0)
-    x, rp, rd, ok = xs[i], rps[i], rds[i], solved[i]
-    acc = jnp.clip(x, config.a_brake, config.a_max)
+    Va, Vy, Sa, Sy = (jnp.asarray(m[k], f) for k in ("Va", "Vy", "Sa", "Sy"))
     y = jnp.stack([a0, v0])
-    v = jnp.asarray(m["Va"], f) @ acc + jnp.asarray(m["Vy"], f) @ y
-    s = jnp.asarray(m["Sa"], f) @ acc + jnp.asarray(m["Sy"], f) @ y
+
+    def solve(v_lim, warm):
+        q, l, u, slack = qp_problem(s_ref, v_ref, lower, upper, v_lim[0], a0, v0, config, w, v_lim[1])
+        # the QP, and the QP without the corridor's lower sides (its last n rows), as one
+        # vmapped solve: the second where the first's iterate does not keep its bounds (no
+        # profile keeps them) and the second is solved
+        both = jnp.stack([l, l.at[3 * n :].set(-INF)])
+        xs, rps, rds = jax.vmap(lambda lo: admm_prefactored(m["fixed"], q, lo, u, solver, warm))(both)
+        solved = (rps < solver.eps_prim) & (rds < solver.eps_dual) & jnp.all(jnp.isfinite(xs), axis=-1)
+        i = jnp.where((rps[0] >= solver.eps_prim) & solved[1], 1, 0)
+        return xs[i], rps[i], rds[i], solved[i], slack
+
+    def rounds(r, carry):
+        # the limit is also taken where the last solution is: the executed profile lags the DP
+        # where it cannot follow it (the jerk limit, braking when the cycle starts), and a bend
+        # the DP has passed at that time is still ahead of the car
+        v_lim, x, *_ = carry
+        good = jnp.all(jnp.isfinite(x))
+        at = jnp.where(good, Sa @ jnp.clip(x, config.a_brake, config.a_max) + Sy @ y, s_ref)
+        v_lim = jnp.where(r > 0, jnp.minimum(v_lim, limit(jnp.minimum(at, s_ref), jnp.maximum(at, s_ref))), v_lim)
+        return (v_lim, *solve(v_lim, a_ref))
+
+    zero = jnp.zeros((), f)
+    init = (limit(s_ref, s_ref), a_ref, zero, zero, jnp.asarray(False), zero)
+    _, x, rp, rd, ok, slack = jax.lax.fori_loop(0, LIMIT_ROUNDS, rounds, init)
+    acc = jnp.clip(x, config.a_brake, config.a_max)
+    v = Va @ acc + Vy @ y
+    s = Sa @ acc + Sy @ y
     finite = jnp.all(jnp.isfinite(x))
     # the iterate, clipped to the acceleration bounds and integrated exactly, is a valid
     # profile even where the solver stopped early (held at a stop, never backwards)
