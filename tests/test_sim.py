@@ -334,6 +334,9 @@ def test_brake_rollout_is_analytic_and_batched_equals_single():
     assert d == pytest.approx(15.0 ** 2 / 10.0, abs=0.05)
     assert list(m["overlap.collided"]) == [True, False, False] and not m["offroad.offroad"].any()
     assert m["comfort.max_abs_accel"][1] == pytest.approx(5.0, abs=1e-3)
+    # what the road asks when braking from the start: nothing on the straight roads, v0^2 kappa
+    # on the arc (its largest at the start)
+    np.testing.assert_allclose(m["comfort.lat_accel_floor"], [0.0, 0.0, 10.0**2 / 150.0], atol=0.02)
     one = rollout(BrakePlanner(decel=5.0), jax.tree_util.tree_map(lambda a: a[2:3], batch), cfg)
     np.testing.assert_allclose(np.asarray(one.x[0]), log.x[2], atol=1e-5)
     np.testing.assert_allclose(np.asarray(one.y[0]), log.y[2], atol=1e-5)
@@ -550,3 +553,14 @@ def test_sharded_drives_equal_single_device(tmp_path):
     np.testing.assert_array_equal(here["collided"], more["collided"])
     for k in ("x", "y", "v"):
         np.testing.assert_allclose(here[k], more[k], rtol=1e-6, atol=1e-5)
+
+
+def test_summary_counts_lateral_accelerations_over_the_limit_that_the_road_allowed():
+    from jaxplan.planner import EMERGENCY_LAT_ACCEL
+    from jaxplan.sim.drive import summarize
+
+    row = lambda lat, floor: {"success": True, "comfort.max_abs_lat_accel": lat, "comfort.lat_accel_floor": floor}
+    e = EMERGENCY_LAT_ACCEL
+    out = summarize([row(e + 1.0, e - 3.0), row(e + 1.0, e + 3.0), row(e - 1.0, e - 3.0), row(e + 0.5, e)])
+    assert out["lat_accel_over_limit"] == 3.0
+    assert out["lat_accel_over_limit_avoidable"] == 2.0

@@ -44,7 +44,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxplan.planner import check_params, make_planner
+from jaxplan.planner import EMERGENCY_LAT_ACCEL, check_params, make_planner
 from jaxplan.scenarios.files import location, scenario_format
 from jaxplan.sim import sizes, verdict
 from jaxplan.sim.devices import place, sharded_map
@@ -102,6 +102,11 @@ def summarize(rows: list) -> dict:
         out[name] = float(reduce[how](v)) if len(v) else None
     col = lambda k: np.array([float(r.get(k) or 0.0) for r in rows])  # noqa: E731
     out["collisions"] = float(np.sum(col("overlap.collided")))
+    if "comfort.lat_accel_floor" in rows[0]:  # drives over the emergency lateral limit, and those whose road allowed it
+        over = col("comfort.max_abs_lat_accel") > EMERGENCY_LAT_ACCEL
+        out["lat_accel_over_limit"] = float(np.sum(over))
+        allowed = col("comfort.lat_accel_floor") <= EMERGENCY_LAT_ACCEL
+        out["lat_accel_over_limit_avoidable"] = float(np.sum(over & allowed))
     out["not_at_fault_collisions"] = float(np.sum(col("overlap.collided")) - np.sum(col("overlap.at_fault")))
     reached = col("goal.reached") > 0
     times = np.array([r.get("goal.time") if r.get("goal.time") is not None else np.inf for r in rows], float)

@@ -17,6 +17,7 @@ HEADLINE = (  # column, figure, format
     ("goal off map", "goal_off_map", "{:.0f}"),
     ("max abs accel (m/s^2)", "max_abs_accel", "{:.1f}"),
     ("max abs lat accel (m/s^2)", "max_abs_lat_accel", "{:.1f}"),
+    ("lat accel > 6 where the road allows <= 6", "lat_accel_over_limit_avoidable", "{:.0f}"),
     ("in blind zones (s)", "blind_zone_s", "{:.1f}"),
     ("plan not ok", "plan_not_ok_share", "{:.1%}"),
 )
@@ -44,6 +45,9 @@ DEFINITIONS = """\
 - **goal off map**: drives whose goal region lies off the lanelets (reaching it means leaving the road);
   counted in the other columns too, and shown here apart.
 - **max abs accel / lat accel**: largest |dv/dt| and |v dtheta/dt| of the driven states.
+- **lat accel > 6 where the road allows <= 6**: drives whose lateral acceleration passed the
+  emergency limit (6 m/s^2) although braking at 8 m/s^2 from the start keeps v^2 |kappa| along the
+  route's centre line within it (``comfort.lat_accel_floor``).
 - **plan not ok**: share of planning cycles in which the planner reported no good plan.
 """
 
