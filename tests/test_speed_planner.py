@@ -400,3 +400,34 @@ def test_a_goal_before_the_end_of_the_map_is_met_at_speed():
     log, m, _ = _synthetic_drive("MAPEND")
     assert m["goal.reached"] and not m["overlap.collided"] and not m["offroad.offroad"], m
     assert log.v[int(log.end_step)] >= 13.0
+
+
+def _numpy_quintic(l0, m, k, d, length, n=2001):
+    """``(l, d2l/ds2)`` of the quintic from ``(l0, m, k)`` to ``(d, 0, 0)`` over ``length``,
+    solved here with numpy (independent of ``jaxplan.geometry.quintic``)."""
+    L = length
+    A = np.array([[L**3, L**4, L**5], [3 * L**2, 4 * L**3, 5 * L**4], [6 * L, 12 * L**2, 20 * L**3]])
+    c3, c4, c5 = np.linalg.solve(A, [d - l0 - m * L - k * L * L / 2, -m - k * L, -k])
+    x = np.linspace(0.0, L, n)
+    return l0 + m * x + k * x**2 / 2 + c3 * x**3 + c4 * x**4 + c5 * x**5, k + 6 * c3 * x + 12 * c4 * x**2 + 20 * c5 * x**3
+
+
+@pytest.mark.parametrize("slope", [0.344, 0.05])
+def test_a_join_begun_while_moving_over_fast_stays_in_the_target_lane(slope):
+    """A car 1.08 m short of its target lane's centre, moving over toward it at ``slope``
+    (17 degrees: a lane change under way) at 7.16 m/s: the usual join (27.9 m) swings 1.05 m past
+    the centre, out of a 3.5 m lane for a 1.8 m car; the join taken is shorter and stays within
+    the room (0.65 m) at a comfortable lateral acceleration. A car moving over slowly keeps the
+    usual length."""
+    from jaxplan.speed.planner import join_length
+
+    v, room, a_lat, start = 7.16, 0.65, 3.0, (2.417, slope, -0.00275)
+    longest = float(np.clip(10.0 + 2.5 * v, 15.0, 60.0))
+    got = float(join_length(tuple(jnp.float32(x) for x in start), jnp.float32(3.5), jnp.float32(v), a_lat, room))
+    l, ddl = _numpy_quintic(*start, 3.5, got)
+    assert l.max() - 3.5 <= room + 1e-3 and v * v * np.abs(ddl).max() <= a_lat + 1e-2, (got, l.max(), np.abs(ddl).max())
+    if slope > 0.3:
+        assert _numpy_quintic(*start, 3.5, longest)[0].max() - 3.5 > room  # the usual join would leave the lane
+        assert got < longest
+    else:
+        assert got == pytest.approx(longest)

@@ -129,21 +129,58 @@ def _total_points(n_path: int, n_ext: int) -> tuple[int, int]:
     raise ValueError(f"no route path size fits a bounds path of {n_path} points")
 
 
+JOIN_SHARES = (1.0, 0.8, 0.65, 0.5, 0.4, 0.3)  # of the join's length: the shorter ones tried
+JOIN_MARGIN = 0.2  # m: a join that swings past its target offset keeps this much of the lane's room
+
+
+def join_length(start, target_l, v, a_lat, room):
+    """The length (m) of the quintic that joins the offset ``target_l`` from ``start = (l,
+    dl/ds, d2l/ds2)`` for a car at speed ``v``: ``clip(10 + 2.5 v, 15, 60)``; where that
+    quintic swings past the target by more than ``room`` (a car already moving over fast
+    toward it: it would leave the target lane), the longest of its ``JOIN_SHARES`` that does not
+    and whose ``v^2 |d2l/ds2|`` stays within ``a_lat`` (or within the car's own at the start)."""
+    longest = jnp.clip(10.0 + 2.5 * v, 15.0, 60.0)
+    f = longest.dtype
+    lengths = longest * jnp.asarray(JOIN_SHARES, f)
+    x = jnp.linspace(0.0, 1.0, 33, dtype=f)
+    side = jnp.sign(target_l - start[0])
+    lat = jnp.maximum(a_lat, v * v * jnp.abs(start[2]))
+
+    def fits(length):
+        l, _, ddl = _quintic(start, target_l, length, length * x)
+        return (jnp.max((l - target_l) * side) <= room) & (v * v * jnp.max(jnp.abs(ddl)) <= lat)
+
+    ok = jax.vmap(fits)(lengths)
+    return jnp.where(ok[0] | ~jnp.any(ok), longest, lengths[jnp.argmax(ok)])
+
+
 def route_path(
-    scene, ctx: RoadContext, ego: EgoState, n: int = 96, back: float = 20.0, ahead: float = 240.0, target_l=0.0
+    scene,
+    ctx: RoadContext,
+    ego: EgoState,
+    n: int = 96,
+    back: float = 20.0,
+    ahead: float = 240.0,
+    target_l=0.0,
+    a_lat: float = 3.0,
+    width: float = SIM_VEHICLE.width,
 ) -> RoutePath:
     """The route's centre line (offset ``target_l``) joined from the car's pose: ``l(s)`` a
     quintic in the route station from the car's offset, heading and curvature to
-    ``target_l`` over ``clip(10 + 2.5 v, 15, 60)`` m; ``n`` points from ``back`` metres behind
-    the car to ``ahead`` metres ahead of it (the path when the bounds path is off or fails)."""
+    ``target_l`` over ``join_length`` (its lateral acceleration ``a_lat``; the room past the
+    target what a lane as wide as the car's own leaves a car ``width`` wide, less
+    ``JOIN_MARGIN``); ``n`` points from ``back`` metres behind the car to ``ahead`` metres ahead
+    of it (the path when the bounds path is off or fails)."""
     ref = scene.route
     f = ref.xy.dtype
     nb = _n_behind(n) + 1
     u = jnp.concatenate([jnp.linspace(-back, 0.0, nb, dtype=f)[:-1], jnp.linspace(0.0, ahead, n - nb + 1, dtype=f)])
     sr = ctx.s + u
     start = _frenet_start(ref, ctx.s, ctx.l, ego.heading, ego.kappa)
-    length = jnp.clip(10.0 + 2.5 * ego.v, 15.0, 60.0)
-    xy, theta, kappa, l = _join_route(ref, sr, start, jnp.asarray(target_l, f), length, u)
+    target_l = jnp.asarray(target_l, f)
+    room = 0.5 * (ctx.lane_width[scene.own_lane] - width) - JOIN_MARGIN
+    length = join_length(start, target_l, jnp.asarray(ego.v, f), a_lat, jnp.maximum(room, 0.0))
+    xy, theta, kappa, l = _join_route(ref, sr, start, target_l, length, u)
     ones = jnp.ones_like(u, dtype=bool)
     return RoutePath(u, xy, theta, kappa, l, sr, ones, jnp.asarray(jnp.inf, f), jnp.asarray(True))
 
@@ -338,6 +375,11 @@ class PathSpeedPlanner:
             w = dataclasses.replace(w, w_no_bypass=z, w_blind=z, w_keep_clear=z)
         return w
 
+    @property
+    def _join(self) -> tuple:
+        """``route_path``'s ``(a_lat, width)`` for this planner's joins."""
+        return self.speed.a_lat_max, self.vehicle.width
+
     def plan_path(self, scene, ctx: RoadContext, ego: EgoState):
         """The paths of this cycle: ``(bp, rp, pp, use)``: the bounds path as a ``RoutePath``
         (None without ``self.path``), the route path (``route_path``, with the bounds path's
@@ -346,9 +388,10 @@ class PathSpeedPlanner:
         and nothing blocks it)."""
         ahead = self.path_ahead
         if self.path is None:
-            return None, route_path(scene, ctx, ego, self.path_points, 20.0, ahead), None, jnp.asarray(False)
+            rp = route_path(scene, ctx, ego, self.path_points, 20.0, ahead, 0.0, *self._join)
+            return None, rp, None, jnp.asarray(False)
         total, ext = _total_points(self.path.n_points, self.ext_points)
-        rp = route_path(scene, ctx, ego, total, 20.0, ahead)
+        rp = route_path(scene, ctx, ego, total, 20.0, ahead, 0.0, *self._join)
         pp = plan_path(scene, ctx, self.path)
         bp = bounds_route_path(scene, ctx, pp, rp, ext, ahead)
         blocked = jnp.isfinite(pp.blocked_s)
@@ -387,7 +430,8 @@ class PathSpeedPlanner:
         if self.lane_change:
             ahead_lane = jnp.maximum(v0, ctx.v_set) * self.horizon + 20.0
             l_nb, runs, goal_ok = neighbour_lane(scene, ctx, ahead_lane)
-            paths.append(route_path(scene, ctx, ego, rp.s.shape[0], 20.0, self.path_ahead, target_l=l_nb))
+            n_rp = rp.s.shape[0]
+            paths.append(route_path(scene, ctx, ego, n_rp, 20.0, self.path_ahead, l_nb, *self._join))
         nb = len(paths) - 1  # the neighbour lane's path (with lane_change)
         buffers = [self.speed.buffer] * len(paths)
         if self.tight:  # the first path again, without the clearance buffer
