@@ -320,6 +320,9 @@ def test_config_checks_and_nonblocking_switch():
     from jaxplan.bounds.path_planner import PathConfig
     with pytest.raises(ValueError, match="a_lat_max"):
         PathSpeedPlanner(path=PathConfig(a_lat_max=0.0))
+    for name in ("lat_decel", "nudge_buffer", "nudge_window"):
+        with pytest.raises(ValueError, match=f"PathConfig.{name} must be >= 0"):
+            PathConfig(**{name: -0.1})
     p = PathSpeedPlanner(nonblocking=False)
     w = p.cost_weights(p.init_params(), jnp.float32(10.0))
     assert float(w.w_blind) == 0.0 and float(w.w_no_bypass) == 0.0 and float(w.v_cruise) == 10.0

@@ -123,6 +123,13 @@ class PathConfig:
     weights: tuple = (1.0, 10.0, 100.0, 1000.0)
     qp: PathQPConfig = PathQPConfig(jerk_max=0.2, admm=ADMMSettings(max_iter=2000))
 
+    def __post_init__(self):
+        if not self.a_lat_max > 0:
+            raise ValueError(f"PathConfig.a_lat_max must be > 0, got {self.a_lat_max}")
+        for name in ("lat_decel", "nudge_buffer", "nudge_window"):
+            if not getattr(self, name) >= 0:
+                raise ValueError(f"PathConfig.{name} must be >= 0, got {getattr(self, name)}")
+
 
 @pytree_dataclass(
     data_fields=(

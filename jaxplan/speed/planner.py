@@ -338,11 +338,6 @@ class PathSpeedPlanner:
 
     def __post_init__(self):
         self.speed.validate()
-        if self.path is not None and not (self.path.a_lat_max > 0 and self.path.lat_decel >= 0):
-            raise ValueError(
-                f"PathSpeedPlanner.path: a_lat_max ({self.path.a_lat_max}) must be > 0 and lat_decel "
-                f"({self.path.lat_decel}) >= 0"
-            )
         if self.path is not None and self.path.vehicle != self.vehicle:
             object.__setattr__(self, "path", dataclasses.replace(self.path, vehicle=self.vehicle))
         if abs(self.speed.horizon - self.horizon) > 1e-9 or abs(self.speed.qp_dt - self.dt) > 1e-9:
