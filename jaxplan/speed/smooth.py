@@ -63,6 +63,7 @@ LIMIT_DECEL = 3.0  # m/s^2: the speed limit of the QP is relaxed to what braking
 V_TOL = 0.01  # m/s: speeds down to -V_TOL are feasible in the QP (the output is held at 0)
 LOWER_MARGIN = 0.1  # m: the corridor's lower side stays this far below the most the limits reach
 LIMIT_ROUNDS = 3  # QP solves: the speed limit at the DP's stations, then also where the last solution is
+HARD_MARGIN = 0.2  # m/s: the stretched limit stays this far above the hardest braking (0.02 stalled the ADMM)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -250,7 +251,7 @@ def qp_problem(s_ref, v_ref, lower, upper, v_lim, a0, v0, config: SpeedConfig, w
     upper = jnp.maximum(upper, s_b + 0.02)
     v_lim = jnp.maximum(v_lim, jnp.maximum(jnp.asarray(v0, f) - LIMIT_DECEL * tk, v_b) + 0.02)
     if v_hard is not None:
-        v_lim = jnp.minimum(v_lim, jnp.maximum(v_hard, v_b + 0.2))
+        v_lim = jnp.minimum(v_lim, jnp.maximum(v_hard, v_b + HARD_MARGIN))
     s_a = hardest_acceleration(a0, v0, v_lim, n, h, config)
     lower = jnp.minimum(lower, jnp.minimum(s_a - LOWER_MARGIN, upper - 0.02))
     # references inside the corridor: where the DP's profile leaves it, track the boundary
