@@ -370,10 +370,10 @@ class PathSpeedPlanner:
             w = dataclasses.replace(w, w_no_bypass=z, w_blind=z, w_keep_clear=z)
         return w
 
-    @property
-    def _join(self) -> tuple:
-        """``route_path``'s ``(a_lat, width)`` for this planner's joins."""
-        return self.speed.a_lat_max, self.vehicle.width
+    def route_path(self, scene, ctx: RoadContext, ego: EgoState, n: int, target_l=0.0) -> RoutePath:
+        """``route_path`` with this planner's lateral acceleration and car width, from 20 m
+        behind the car to ``path_ahead`` ahead of it."""
+        return route_path(scene, ctx, ego, n, 20.0, self.path_ahead, target_l, self.speed.a_lat_max, self.vehicle.width)
 
     def plan_path(self, scene, ctx: RoadContext, ego: EgoState):
         """The paths of this cycle: ``(bp, rp, pp, use)``: the bounds path as a ``RoutePath``
@@ -383,10 +383,9 @@ class PathSpeedPlanner:
         and nothing blocks it)."""
         ahead = self.path_ahead
         if self.path is None:
-            rp = route_path(scene, ctx, ego, self.path_points, 20.0, ahead, 0.0, *self._join)
-            return None, rp, None, jnp.asarray(False)
+            return None, self.route_path(scene, ctx, ego, self.path_points), None, jnp.asarray(False)
         total, ext = _total_points(self.path.n_points, self.ext_points)
-        rp = route_path(scene, ctx, ego, total, 20.0, ahead, 0.0, *self._join)
+        rp = self.route_path(scene, ctx, ego, total)
         pp = plan_path(scene, ctx, self.path)
         bp = bounds_route_path(scene, ctx, pp, rp, ext, ahead)
         blocked = jnp.isfinite(pp.blocked_s)
@@ -425,8 +424,7 @@ class PathSpeedPlanner:
         if self.lane_change:
             ahead_lane = jnp.maximum(v0, ctx.v_set) * self.horizon + 20.0
             l_nb, runs, goal_ok = neighbour_lane(scene, ctx, ahead_lane)
-            n_rp = rp.s.shape[0]
-            paths.append(route_path(scene, ctx, ego, n_rp, 20.0, self.path_ahead, l_nb, *self._join))
+            paths.append(self.route_path(scene, ctx, ego, rp.s.shape[0], l_nb))
         nb = len(paths) - 1  # the neighbour lane's path (with lane_change)
         buffers = [self.speed.buffer] * len(paths)
         if self.tight:  # the first path again, without the clearance buffer
