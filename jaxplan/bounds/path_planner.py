@@ -240,9 +240,10 @@ def nudge_edges(route, ctx, blocking, st, l_pref, lane_half, edge_left, edge_rig
     An obstacle that is not blocking (it moves), whose footprint, wherever it comes within the
     path's stations, stays on one side of the lane centre (``l_pref`` at the car) and reaches over
     that side's lane line there at some time bounds that side (traffic inside the next lane does
-    not: a pass through that lane stays the speed plan's to time): at every station where the car's body and the obstacle overlap along the route at a
-    time within ``nudge_window`` of when the car gets there at its present speed (at least 1
-    m/s), the car's body keeps ``nudge_buffer`` from the obstacle's near side. The narrowing is
+    not: a pass through that lane stays the speed plan's to time): at every station where the
+    car's body and the obstacle overlap along the route at a time within ``nudge_window`` of when
+    the car gets there at its present speed (at least 1 m/s), the car's body keeps
+    ``nudge_buffer`` from the obstacle's near side. The narrowing is
     at most what the car can move over by then at ``a_lat_max`` (and a quarter of the heading
     bound), so the path can always follow it; it never moves an edge past the far side of the
     car's own lane less the car's width (the car shifts inside its lane, it is not pushed out of

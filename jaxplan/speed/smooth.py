@@ -334,10 +334,11 @@ def smooth_plan(
     vl = plan.scene.v_limit
     stretch = math.sqrt(max(EMERGENCY_LAT_ACCEL / config.a_lat_max, 1.0))
 
-    def limit(lo, hi):
-        # the least speed limit over the stations ``[lo, hi] (n,)`` (where the car may be at each
-        # time); where the DP runs above it (it weighed the limit against a vehicle behind), the
-        # DP's speed, up to the limit stretched as the emergency lateral acceleration allows
+    def limits(lo, hi):
+        # ``(2, n)``: from the least speed limit over the stations ``[lo, hi] (n,)`` (where the car
+        # may be at each time), the QP's limit (where the DP runs above that limit, as it weighed
+        # it against a vehicle behind, the DP's speed) and its cap (the limit stretched as the
+        # emergency lateral acceleration allows)
         def at(x):
             qi = jnp.clip(x / config.ds, 0.0, vl.shape[0] - 1.0)
             k = jnp.clip(jnp.floor(qi).astype(jnp.int32), 0, vl.shape[0] - 2)
@@ -352,8 +353,8 @@ def smooth_plan(
     Va, Vy, Sa, Sy = (jnp.asarray(m[k], f) for k in ("Va", "Vy", "Sa", "Sy"))
     y = jnp.stack([a0, v0])
 
-    def solve(v_lim, warm):
-        q, l, u, slack = qp_problem(s_ref, v_ref, lower, upper, v_lim[0], a0, v0, config, w, v_lim[1])
+    def solve(lim, warm):
+        q, l, u, slack = qp_problem(s_ref, v_ref, lower, upper, lim[0], a0, v0, config, w, lim[1])
         # the QP, and the QP without the corridor's lower sides (its last n rows), as one
         # vmapped solve: the second where the first's iterate does not keep its bounds (no
         # profile keeps them) and the second is solved
@@ -367,14 +368,15 @@ def smooth_plan(
         # the limit is also taken where the last solution is: the executed profile lags the DP
         # where it cannot follow it (the jerk limit, braking when the cycle starts), and a bend
         # the DP has passed at that time is still ahead of the car
-        v_lim, x, *_ = carry
+        lim, x, *_ = carry
         good = jnp.all(jnp.isfinite(x))
-        at = jnp.where(good, Sa @ jnp.clip(x, config.a_brake, config.a_max) + Sy @ y, s_ref)
-        v_lim = jnp.where(r > 0, jnp.minimum(v_lim, limit(jnp.minimum(at, s_ref), jnp.maximum(at, s_ref))), v_lim)
-        return (v_lim, *solve(v_lim, a_ref))
+        s_last = jnp.where(good, Sa @ jnp.clip(x, config.a_brake, config.a_max) + Sy @ y, s_ref)
+        lo, hi = jnp.minimum(s_last, s_ref), jnp.maximum(s_last, s_ref)
+        lim = jnp.where(r > 0, jnp.minimum(lim, limits(lo, hi)), lim)
+        return (lim, *solve(lim, a_ref))
 
     zero = jnp.zeros((), f)
-    init = (limit(s_ref, s_ref), a_ref, zero, zero, jnp.asarray(False), zero)
+    init = (limits(s_ref, s_ref), a_ref, zero, zero, jnp.asarray(False), zero)
     _, x, rp, rd, ok, slack = jax.lax.fori_loop(0, LIMIT_ROUNDS, rounds, init)
     acc = jnp.clip(x, config.a_brake, config.a_max)
     v = Va @ acc + Vy @ y
