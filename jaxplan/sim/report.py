@@ -7,6 +7,10 @@ from __future__ import annotations
 import math
 import os
 
+from jaxplan.planner import EMERGENCY_DECEL, EMERGENCY_LAT_ACCEL
+
+LAT_OVER = f"lat accel > {EMERGENCY_LAT_ACCEL:g} where the road allows <= {EMERGENCY_LAT_ACCEL:g}"
+
 HEADLINE = (  # column, figure, format
     ("success", "success_share", "{:.1%}"),
     ("goal reached", "goal_share", "{:.1%}"),
@@ -17,7 +21,7 @@ HEADLINE = (  # column, figure, format
     ("goal off map", "goal_off_map", "{:.0f}"),
     ("max abs accel (m/s^2)", "max_abs_accel", "{:.1f}"),
     ("max abs lat accel (m/s^2)", "max_abs_lat_accel", "{:.1f}"),
-    ("lat accel > 6 where the road allows <= 6", "lat_accel_over_limit_avoidable", "{:.0f}"),
+    (LAT_OVER, "lat_accel_over_limit_avoidable", "{:.0f}"),
     ("in blind zones (s)", "blind_zone_s", "{:.1f}"),
     ("plan not ok", "plan_not_ok_share", "{:.1%}"),
 )
@@ -32,7 +36,7 @@ GROUP_COLUMNS = (  # the per-folder / per-location tables
     ("goal off map", "goal_off_map", "{:.0f}"),
 )
 
-DEFINITIONS = """\
+DEFINITIONS = f"""\
 - **success**: the goal reached (CommonRoad's rule: at one step the box centre in the goal region,
   the time in the goal's interval, speed and heading in their ranges), no collision at any step and
   never off road: what makes a CommonRoad solution valid.
@@ -45,9 +49,9 @@ DEFINITIONS = """\
 - **goal off map**: drives whose goal region lies off the lanelets (reaching it means leaving the road);
   counted in the other columns too, and shown here apart.
 - **max abs accel / lat accel**: largest |dv/dt| and |v dtheta/dt| of the driven states.
-- **lat accel > 6 where the road allows <= 6**: drives whose lateral acceleration passed the
-  emergency limit (6 m/s^2) although braking at 8 m/s^2 from the start keeps v^2 |kappa| along the
-  route's centre line within it (``comfort.lat_accel_floor``).
+- **{LAT_OVER}**: drives whose lateral acceleration passed the emergency limit
+  ({EMERGENCY_LAT_ACCEL:g} m/s^2) although braking at {EMERGENCY_DECEL:g} m/s^2 from the start keeps v^2 |kappa| along
+  the route's centre line within it (``comfort.lat_accel_floor``).
 - **plan not ok**: share of planning cycles in which the planner reported no good plan.
 """
 
