@@ -4,7 +4,7 @@ import os
 # persistent compilation cache (the CLI turns it on for users; child processes inherit this): with
 # jaxlib 0.10.2 one full run lost a worker aborting inside XLA while it serialised an executable for
 # the cache. Workers also crashed compiling without it (a segmentation fault inside XLA's CPU
-# compiler, a different test each time): `make test` then runs the suite once more.
+# compiler, a different test each time): see `pytest_handlecrashitem` below.
 os.environ["JAX_ENABLE_COMPILATION_CACHE"] = "false"
 
 import numpy as np  # noqa: E402
@@ -37,6 +37,29 @@ SLOW_FIRST = (
 def pytest_collection_modifyitems(session, config, items):
     rank = {name: i for i, name in enumerate(SLOW_FIRST)}
     items.sort(key=lambda it: rank.get(os.path.basename(str(it.path)), len(rank)))  # stable: files stay whole
+
+
+# A worker that crashes is replaced (`--max-worker-restart` in the Makefile) and the test it was
+# running runs again on the new worker, once: the crash is reported as a rerun, and the test's second
+# run decides. A test that crashes twice, or a third crash in one run, fails the run.
+CRASH_RERUNS = 2
+_crashed: list = []
+_config: list = []
+
+
+def pytest_configure(config):
+    _config.append(config)
+
+
+@pytest.hookimpl(optionalhook=True)
+def pytest_handlecrashitem(crashitem, report, sched):
+    first = crashitem not in _crashed
+    _crashed.append(crashitem)
+    if first and len(_crashed) <= CRASH_RERUNS:
+        report.outcome = "rerun"  # xdist's load-file scheduler queues the unfinished test again
+        _config[-1].pluginmanager.get_plugin("terminalreporter").write_line(
+            f"{report.longrepr}: it runs again on a new worker"
+        )
 
 
 def cpu_devices_env(devices: int) -> dict:
