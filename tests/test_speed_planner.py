@@ -434,3 +434,38 @@ def test_a_join_begun_while_moving_over_fast_stays_in_the_target_lane(slope):
         assert got < longest
     else:
         assert got == pytest.approx(longest)
+
+
+@pytest.mark.parametrize("kappa", [0.0, 1.0 / 250.0])
+def test_the_lane_the_car_is_in_is_followed_where_the_route_changes_lanes(kappa):
+    """Three lanes, the car in the right one, the goal in the middle one: the route changes lanes
+    ahead of the car. ``car_lane`` follows the car's lane across the change: every point at its
+    offset lies on the right lane's centre line (the road's own geometry, within 5 cm), while the
+    route's own line ends a lane to the left; the route path joined to it stays in that lane too."""
+    from test_sim import _record, _road_dict
+
+    from jaxplan.geometry.frenet import to_cartesian
+    from jaxplan.speed.planner import car_lane, path_stations
+
+    far = ((builtin.START_S - 80.0, 2 * builtin.LANE, "static"),)  # one obstacle, well behind
+    rec = _record(_road_dict(far, n_lanes=3, start_lane=0, kappa=kappa, v0=15.0))
+    sc, planner = rec.scene, PathSpeedPlanner()
+    ego = EgoState.from_box_centre(jnp.asarray(sc.start), planner.vehicle)
+    ego = dataclasses.replace(ego, kappa=jnp.float32(kappa))  # driving along its lane
+    ctx = road_context(sc, ego, 0, planner.horizon_steps, planner.vehicle)
+    u = path_stations(120, 20.0, planner.path_ahead, jnp.float32)  # the stations of planner.route_path
+    l_car, near = car_lane(sc, ctx, ctx.s + u)
+    assert bool(jnp.all(near))
+    assert float(l_car[-1]) == pytest.approx(-builtin.LANE, abs=0.05)  # the route ends in the middle lane
+    assert float(jnp.max(jnp.abs(l_car[u <= 0]))) < 0.05  # where the car is, the route is in its lane
+    lane0 = sg.LineString([builtin._Road(kappa, 0.3).pose(s, 0.0)[0] for s in np.linspace(0.0, 400.0, 801)])
+    # the scene's coordinates are relative to the car's start (the loader's origin)
+    origin = np.asarray(builtin._Road(kappa, 0.3).pose(builtin.START_S, 0.0)[0])
+    xy = np.asarray(to_cartesian(sc.route, ctx.s + u, l_car)) + origin
+    gap = max(lane0.distance(sg.Point(p)) for p in xy)
+    assert gap < 0.05, gap
+    # the path joins it from the car's own heading and curvature (lane offsets are stored at route
+    # points, to a centimetre or two): ahead of the car within 10 cm of the lane's centre
+    path = planner.route_path(sc, ctx, ego, 120, l_car)
+    gap = max(lane0.distance(sg.Point(p)) for p in np.asarray(path.xy)[np.asarray(path.s) >= 0] + origin)
+    assert gap < 0.1, gap

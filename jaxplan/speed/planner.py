@@ -11,14 +11,16 @@ Each cycle (one scene, jittable; the simulator batches it with ``jax.vmap``):
    from the car's pose (``route_path``) instead, with a stop before the bounds path's
    blockage. The speed is planned on both paths, and the route path is also taken when the
    bounds path's speed plan cannot avoid the moving obstacles while the route path's can
-   (a bypass into a lane with traffic beside the car); ``info["path_bounds"]`` says which
-   path was used (and ``path_qp_ok``, ``path_clear``, ``path_blocked`` why). With
-   ``lane_change`` a third path joins the neighbour lane (``neighbour_lane``: the left one,
-   else the right, running the same way ahead, not away from a goal region ahead); the car
-   takes it when its speed plan is collision-free and cheaper than the lane's by the lane
-   change's cost (the speed plan sees that lane's traffic over the whole horizon: a gap that
-   closes, or a car from behind that would have to brake, makes it collide or cost more),
-   and stays in it while that holds (``info["lane_change"]``). With ``tight`` the first path
+   (a bypass into a lane with traffic beside the car), or costs more by ``BOUNDS_YIELD`` lane
+   changes; ``info["path_bounds"]`` says which path was used (and ``path_qp_ok``,
+   ``path_clear``, ``path_blocked`` why). With ``lane_change`` a third path joins another
+   lane: the lane the car is in where the route leaves it within reach (``car_lane``: the route
+   changes lanes ahead, or the car is beside it), else the neighbour lane (``neighbour_lane``:
+   the left one, else the right, running the same way ahead, not away from a goal region
+   ahead); the car takes it when its speed plan is collision-free and cheaper than the lane's
+   by the lane change's cost (the speed plan sees that lane's traffic over the whole horizon: a
+   gap that closes, or a car from behind that would have to brake, makes it collide or cost
+   more), and stays in it while that holds (``info["lane_change"]``). With ``tight`` the first path
    is planned once more without the clearance buffer around obstacles, a way past that only
    the exact overlap leaves open, taken when the buffered plan collides or is hit from behind
    (``info["tight"]``);
@@ -89,11 +91,35 @@ def _quintic(p0, p1, length, u):
     return jnp.where(behind, l0 + d0 * u, l), jnp.where(behind, d0, dl), jnp.where(behind, 0.0, ddl)
 
 
+def _target(target_l, u):
+    """The target offset ``target_l`` (``()``, or ``(N,)`` at ``u (N,)``, ascending) and its
+    first and second derivatives in ``u`` (finite differences), each ``(N,)``."""
+    t = jnp.broadcast_to(jnp.asarray(target_l, u.dtype), u.shape)
+    if jnp.ndim(target_l) == 0:
+        z = jnp.zeros_like(u)
+        return t, z, z
+
+    def slope(y):
+        d = jnp.diff(y) / jnp.maximum(jnp.diff(u), 1e-6)
+        return jnp.concatenate([d[:1], 0.5 * (d[1:] + d[:-1]), d[-1:]])
+
+    dt = slope(t)
+    return t, dt, slope(dt)
+
+
+def _target_start(start, target, u):
+    """``start`` less the target's ``(l, dl, ddl)`` at ``u = 0`` (``_target``'s triple)."""
+    return tuple(x - jnp.interp(0.0, u, y) for x, y in zip(start, target))
+
+
 def _join_route(ref, sr, start, target_l, length, u):
-    """Points on the route at stations ``sr (N,)`` whose offset is a quintic in ``u (N,)``
-    (``sr = sr_0 + u``) from ``start = (l, dl/ds, d2l/ds2)`` at ``u = 0`` to ``target_l``
-    at ``u = length``: ``(xy (N, 2), theta (N,), kappa (N,), l (N,))``."""
-    l, dl, ddl = _quintic(start, target_l, length, u)
+    """Points on the route at stations ``sr (N,)`` whose offset is the target ``target_l`` (``()``,
+    or ``(N,)`` at the stations) plus a quintic in ``u (N,)`` (``sr = sr_0 + u``) from ``start =
+    (l, dl/ds, d2l/ds2)`` less the target's at ``u = 0`` to zero at ``u = length``: ``(xy (N, 2),
+    theta (N,), kappa (N,), l (N,))``."""
+    target = _target(target_l, u)
+    e, de, dde = _quintic(_target_start(start, target, u), 0.0, length, u)
+    l, dl, ddl = target[0] + e, target[1] + de, target[2] + dde
     xy, _, kappa = frenet_to_cartesian_state(ref, sr, l, dl, ddl)
     _, th_r, kr, _ = ref_state(ref, sr)
     return xy, th_r + jnp.arctan2(dl, 1.0 - kr * l), kappa, l
@@ -154,6 +180,15 @@ def join_length(start, target_l, v, a_lat, room):
     return jnp.where(ok[0] | ~jnp.any(ok), longest, lengths[jnp.argmax(ok)])
 
 
+def path_stations(n: int, back: float, ahead: float, dtype) -> Any:
+    """``(n,)`` the stations of an ``n``-point ``route_path`` from the car (``-back`` to ``ahead``
+    metres; ``_n_behind(n)`` of them behind it)."""
+    nb = _n_behind(n) + 1
+    return jnp.concatenate(
+        [jnp.linspace(-back, 0.0, nb, dtype=dtype)[:-1], jnp.linspace(0.0, ahead, n - nb + 1, dtype=dtype)]
+    )
+
+
 def route_path(
     scene,
     ctx: RoadContext,
@@ -165,21 +200,21 @@ def route_path(
     a_lat: float = 3.0,
     width: float = SIM_VEHICLE.width,
 ) -> RoutePath:
-    """The route's centre line (offset ``target_l``) joined from the car's pose: ``l(s)`` a
-    quintic in the route station from the car's offset, heading and curvature to
-    ``target_l`` over ``join_length`` (its lateral acceleration ``a_lat``; the room past the
-    target what a lane as wide as the car's own leaves a car ``width`` wide, less
-    ``JOIN_MARGIN``); ``n`` points from ``back`` metres behind the car to ``ahead`` metres ahead
-    of it (the path when the bounds path is off or fails)."""
+    """The route's centre line (offset ``target_l``: ``()``, or ``(n,)`` at ``path_stations``)
+    joined from the car's pose: ``l(s)`` the target plus a quintic in the route station from the
+    car's offset, heading and curvature less the target's to zero over ``join_length`` (its
+    lateral acceleration ``a_lat``; the room past the target what a lane as wide as the car's own
+    leaves a car ``width`` wide, less ``JOIN_MARGIN``); ``n`` points from ``back`` metres behind
+    the car to ``ahead`` metres ahead of it (the path when the bounds path is off or fails)."""
     ref = scene.route
     f = ref.xy.dtype
-    nb = _n_behind(n) + 1
-    u = jnp.concatenate([jnp.linspace(-back, 0.0, nb, dtype=f)[:-1], jnp.linspace(0.0, ahead, n - nb + 1, dtype=f)])
+    u = path_stations(n, back, ahead, f)
     sr = ctx.s + u
     start = _frenet_start(ref, ctx.s, ctx.l, ego.heading, ego.kappa)
     target_l = jnp.asarray(target_l, f)
     room = 0.5 * (ctx.lane_width[scene.own_lane] - width) - JOIN_MARGIN
-    length = join_length(start, target_l, jnp.asarray(ego.v, f), a_lat, jnp.maximum(room, 0.0))
+    e0 = _target_start(start, _target(target_l, u), u)
+    length = join_length(e0, jnp.zeros((), f), jnp.asarray(ego.v, f), a_lat, jnp.maximum(room, 0.0))
     xy, theta, kappa, l = _join_route(ref, sr, start, target_l, length, u)
     ones = jnp.ones_like(u, dtype=bool)
     return RoutePath(u, xy, theta, kappa, l, sr, ones, jnp.asarray(jnp.inf, f), jnp.asarray(True))
@@ -208,6 +243,58 @@ def neighbour_lane(scene, ctx: RoadContext, ahead) -> tuple[Any, Any, Any]:
     goal_near = ctx.goal_s[0] - ctx.s < ahead
     in_goal = (l_lane >= ctx.goal_l[0]) & (l_lane <= ctx.goal_l[1])
     return l_lane.astype(f), left | right, ~goal_near | in_goal
+
+
+LANE_ID_JUMP = 1.0  # m: a lane offset that changes more than this between route points is another lane
+
+
+def car_lane(scene, ctx: RoadContext, sr) -> tuple[Any, Any]:
+    """The lane the car is in, followed along the route: ``(offset (N,), near (N,))`` at the
+    route stations ``sr (N,)`` (ascending). From the centre of the same-direction lane nearest
+    the car at ``ctx.s``, each station ahead takes the centre offset of the same-direction lane
+    nearest the one before, where it is within half that lane's width (``near``; elsewhere the
+    offset goes on straight: the lane ends there, or the route's own lane changes between two
+    route points, ``LANE_ID_JUMP``); stations behind the car take that lane's offset under its
+    index at the car. Where the route changes lanes, this is the lane it leaves."""
+    f = scene.route.xy.dtype
+    rs, offset = jnp.asarray(scene.route.s), jnp.asarray(scene.lane_offset)
+    R = rs.shape[0]
+    j = jnp.clip(jnp.searchsorted(rs, sr, side="right") - 1, 0, R - 2)
+    w = jnp.clip((sr - rs[j]) / jnp.maximum(rs[j + 1] - rs[j], 1e-6), 0.0, 1.0)
+    same = jnp.asarray(scene.lane_valid) & jnp.asarray(scene.lane_same_dir)
+    # a lane at the route point before a station is the same lane at the point after it under its
+    # own index, or the next one where the route's own lane changes between the two points
+    a, ok_a = offset[:, j], same[:, j]  # (L, N)
+    L = offset.shape[0]
+
+    def shifted(x, d):  # row i of x[:, j + 1] is lane i + d there (False/0 off the lanes)
+        return jnp.where(((jnp.arange(L) + d >= 0) & (jnp.arange(L) + d < L))[:, None], jnp.roll(x, -d, axis=0), 0)
+
+    b = jnp.concatenate([shifted(offset[:, j + 1], d) for d in (-1, 0, 1)])  # (3L, N)
+    ok_b = jnp.concatenate([shifted(same[:, j + 1], d) for d in (-1, 0, 1)]).astype(bool)
+    a, ok_a = jnp.tile(a, (3, 1)), jnp.tile(ok_a, (3, 1))
+    ok = ok_a & ok_b & (jnp.abs(b - a) < LANE_ID_JUMP)
+    offs = a + w * (b - a)
+    half = 0.5 * jnp.tile(jnp.asarray(scene.lane_width)[:, j], (3, 1))
+    d0 = jnp.where(ctx.lane_valid & ctx.lane_same_dir, jnp.abs(ctx.lane_offset - ctx.l), jnp.inf)
+    i0 = jnp.argmin(d0)
+    start = ctx.lane_offset[i0].astype(f)
+    behind = offs[L + i0]  # that lane under its own index (rows L..2L-1 keep the index)
+
+    def step(carry, k):
+        prev, slope = carry
+        d = jnp.where(ok[:, k], jnp.abs(offs[:, k] - prev), jnp.inf)
+        i = jnp.argmin(d)
+        near = d[i] < half[i, k]
+        ahead = sr[k] > ctx.s
+        du = sr[k] - sr[jnp.maximum(k - 1, 0)]
+        new = jnp.where(ahead, jnp.where(near, offs[i, k], prev + slope * du), behind[k])
+        slope = jnp.where(ahead & (du > 0), (new - prev) / jnp.maximum(du, 1e-6), slope)
+        return (new, slope), (new, near | ~ahead)
+
+    _, (track, near) = jax.lax.scan(step, (start, jnp.zeros((), f)), jnp.arange(sr.shape[0]))
+    track = jnp.where(sr > ctx.s, track, behind)
+    return track, near
 
 
 def bounds_route_path(scene, ctx: RoadContext, pp, back: RoutePath, n_ext: int, ahead: float) -> RoutePath:
@@ -280,6 +367,7 @@ def speed_road(scene, ctx: RoadContext, path, v_max: float, vehicle: VehiclePara
     )
 
 
+BOUNDS_YIELD = 1.0  # lane changes' costs by which the route path's plan must be cheaper than the bounds path's
 LANE_SHIFT = 1.0  # m: a path that moves further sideways than this from the car leaves its lane
 LANE_RETURN_MARGIN = 0.1  # lane changes' cost share that staying in the neighbour lane costs
 LANE_GO_V = 1.0  # m/s: a lane change's plan must end faster than this
@@ -313,8 +401,9 @@ class PathSpeedPlanner:
             to plan the speed on the route path (``route_path``) only.
         path_points: points of the route path (the fallback, and the points behind the car).
         ext_points: points after the bounds path's end that join the route's lane again.
-        lane_change: also plan the speed on a path into the neighbour lane (``neighbour_lane``)
-            and take it when it is collision-free and cheaper by the lane change's cost
+        lane_change: also plan the speed on a path into the neighbour lane (``neighbour_lane``),
+            or along the car's own lane where the route leaves it (``car_lane``), and take it
+            when it is collision-free and cheaper by the lane change's cost
             (``CostWeights.w_lane_change``).
         tight: also plan the speed on the first path with no clearance buffer around the
             obstacles (``speed.buffer`` 0: only the exact overlap blocks), and take that plan
@@ -424,6 +513,19 @@ class PathSpeedPlanner:
         if self.lane_change:
             ahead_lane = jnp.maximum(v0, ctx.v_set) * self.horizon + 20.0
             l_nb, runs, goal_ok = neighbour_lane(scene, ctx, ahead_lane)
+            # where the route leaves the car's lane within reach (it changes lanes, or the car is
+            # beside it), the other path stays in the car's lane instead, while that lane runs on
+            u = path_stations(rp.s.shape[0], 20.0, self.path_ahead, f)
+            l_car, near = car_lane(scene, ctx, ctx.s + u)
+            reach = (u >= 0) & (u <= ahead_lane)
+            width = jnp.maximum(ctx.lane_width[scene.own_lane], 1.0)
+            leaves = jnp.any(reach & (jnp.abs(l_car) > 0.5 * width)) & jnp.all(near | ~reach)
+            l_goal = jnp.interp(ctx.goal_s[0] - ctx.s, u, l_car)
+            goal_near = ctx.goal_s[0] - ctx.s < ahead_lane
+            goal_car = ~goal_near | ((l_goal >= ctx.goal_l[0]) & (l_goal <= ctx.goal_l[1]))
+            l_nb = jnp.where(leaves, l_car, l_nb)  # (N,)
+            runs = leaves | runs
+            goal_ok = jnp.where(leaves, goal_car, goal_ok)
             paths.append(self.route_path(scene, ctx, ego, rp.s.shape[0], l_nb))
         nb = len(paths) - 1  # the neighbour lane's path (with lane_change)
         buffers = [self.speed.buffer] * len(paths)
@@ -437,11 +539,14 @@ class PathSpeedPlanner:
             keep = jnp.asarray(0)
         else:
             # the path decision sees blocking obstacles only; the speed plan on each path sees
-            # the moving ones too: the bounds path is taken when its speed plan is collision-free,
-            # or when neither is and it costs less (a bypass into a lane where traffic already
-            # is would be hit whatever the speed; then the car stays in its lane and stops).
+            # the moving ones too: the bounds path is taken when its speed plan is collision-free
+            # and the route path's is not cheaper by BOUNDS_YIELD lane changes (a bounds path
+            # that keeps behind a slow car while the route moves over into a free lane), or when
+            # neither is collision-free and it costs less (a bypass into a lane where traffic
+            # already is would be hit whatever the speed; then the car stays in its lane and stops).
             bp_ok = use  # the bounds path itself is usable (its QP solved, clear, not blocked)
-            use = use & (plans.feasible[0] | (~plans.feasible[1] & (plans.cost[0] <= plans.cost[1])))
+            route_cheaper = plans.feasible[1] & (plans.cost[1] + BOUNDS_YIELD * w.w_lane_change < plans.cost[0])
+            use = use & ((plans.feasible[0] & ~route_cheaper) | (~plans.feasible[1] & (plans.cost[0] <= plans.cost[1])))
             keep = jnp.where(use, 0, 1)
         change = jnp.asarray(False)
         costs = jnp.full((2,), jnp.inf, f)  # the lane's and the lane change's, as compared
@@ -450,12 +555,12 @@ class PathSpeedPlanner:
             # share of a lane still to move over (plus a margin: with nothing to gain the car goes
             # back to the route's lane); not toward a goal region ahead in another lane unless the
             # lane's own plan collides
-            width = jnp.maximum(ctx.lane_width[scene.own_lane], 1.0)
-            shift = jnp.abs(l_nb - ctx.l) / width
+            shift = jnp.abs(jnp.interp(0.0, u, l_nb) - ctx.l) / width
             # hysteresis from the car's own motion: a move under way (the car's slope to the route
             # toward one lane) costs LANE_HOLD lane changes to turn back
             _, slope, _ = _frenet_start(scene.route, ctx.s, ctx.l, ego.heading, ego.kappa)
-            toward = slope * jnp.sign(l_nb)  # > 0: moving over to the neighbour lane's side
+            side = jnp.sign(jnp.interp(ahead_lane, u, l_nb))  # the other lane's side of the route
+            toward = slope * side  # > 0: moving over to the other lane's side
             hold = w.w_lane_change * LANE_HOLD
             c_nb = (
                 plans.cost[nb]
