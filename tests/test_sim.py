@@ -14,7 +14,8 @@ from shapely.ops import unary_union
 
 from jaxplan.baselines import BrakePlanner, IDMPlanner
 from jaxplan.compile_options import NO_YNN, _supported, options_key
-from jaxplan.planner import EgoState
+from jaxplan.plan_context import road_context
+from jaxplan.planner import SIM_VEHICLE, EgoState
 from jaxplan.scenarios import builtin
 from jaxplan.scenarios.batch import stack_scenes
 from jaxplan.scenarios.build import build_scene
@@ -64,6 +65,19 @@ def test_scene_lanes_route_and_goal():
     np.testing.assert_allclose(sc.start[:4], [0.0, 0.0, d["planning_problems"][0]["initial_state"]["orientation"],
                                               12.0], atol=1e-9)
     sc.validate()
+
+
+def test_a_scene_without_obstacles_has_one_invalid_one():
+    """A scenario with no other road user: the scene holds one obstacle that is never valid (no
+    zero-size arrays for the kernels), and a planning cycle's context finds no leader."""
+    rec = _record(_road_dict())
+    sc = rec.scene
+    assert sc.obstacles.boxes.shape[0] == 1 and not sc.obstacles.valid.any()
+    assert sc.obstacle_sl.shape[:2] == sc.obstacles.boxes.shape[:2] and sc.obstacle_type.shape == (1,)
+    sc.validate()
+    ego = EgoState.from_box_centre(jnp.asarray(sc.start), SIM_VEHICLE)
+    ctx = road_context(sc, ego, 0, 71, SIM_VEHICLE)
+    assert int(ctx.leader_index) == -1
 
 
 def test_route_smoothing_keeps_lines_and_arcs_and_removes_kinks():

@@ -25,6 +25,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxplan.geometry.frenet import ReferenceLine, to_frenet
+from jaxplan.scenarios.batch import pad_scene, scene_sizes
 from jaxplan.scenarios.lane_paths import lane_paths
 from jaxplan.scenarios.lights import route_lights
 from jaxplan.scenarios.polylines import (
@@ -272,6 +273,8 @@ def build_scene(scenario, config: SceneConfig = SceneConfig(), route: Route | No
     )
     paths, paths_ok = lane_paths(scenario.lanes)
     scene = dataclasses.replace(scene, lane_paths=paths, lane_path_valid=paths_ok)
+    if boxes.shape[0] == 0:  # one invalid obstacle at least: no zero-size arrays in the kernels
+        scene = pad_scene(scene, **dict(scene_sizes(scene), K=1))
     return scene, route
 
 
