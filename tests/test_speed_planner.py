@@ -21,7 +21,8 @@ from jaxplan.plan_context import road_context
 from jaxplan.planner import EgoState, make_planner
 from jaxplan.scenarios import builtin
 from jaxplan.speed import SpeedConfig
-from jaxplan.speed.planner import PathSpeedPlanner, route_path
+from jaxplan.speed.paths import route_path
+from jaxplan.speed.planner import PathSpeedPlanner
 
 KINDS = ("stopped_car", "slow_leader", "cut_in", "dense_next_lane")
 SQUEEZE_L = 0.5 * 1.61 + 0.5 * 1.8 + 0.15  # the oncoming car's offset: 0.15 m between the boxes
@@ -422,7 +423,7 @@ def test_a_join_begun_while_moving_over_fast_stays_in_the_target_lane(slope):
     the centre, out of a 3.5 m lane for a 1.8 m car; the join taken is shorter and stays within
     the room (0.65 m) at a comfortable lateral acceleration. A car moving over slowly keeps the
     usual length."""
-    from jaxplan.speed.planner import join_length
+    from jaxplan.speed.paths import join_length
 
     v, room, a_lat, start = 7.16, 0.65, 3.0, (2.417, slope, -0.00275)
     longest = float(np.clip(10.0 + 2.5 * v, 15.0, 60.0))
@@ -445,7 +446,7 @@ def test_the_lane_the_car_is_in_is_followed_where_the_route_changes_lanes(kappa)
     from test_sim import _record, _road_dict
 
     from jaxplan.geometry.frenet import to_cartesian
-    from jaxplan.speed.planner import car_lane, path_stations
+    from jaxplan.speed.paths import car_lane, path_stations
 
     far = ((builtin.START_S - 80.0, 2 * builtin.LANE, "static"),)  # one obstacle, well behind
     rec = _record(_road_dict(far, n_lanes=3, start_lane=0, kappa=kappa, v0=15.0))
