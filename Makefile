@@ -28,8 +28,9 @@ check: $(BIN)/jaxplan
 	$(BIN)/ruff format --check jaxplan
 	$(BIN)/mypy
 
-# The suite on two workers. jaxlib's CPU compiler has crashed a worker now and then inside XLA, in
-# different tests each time: a crashed worker is replaced and its test runs once more (tests/conftest.py).
+# The suite on two workers. A worker frees its compiled programs before it reaches the kernel's limit
+# on memory maps (XLA aborted there, in a different test each time); should a worker still crash, it is
+# replaced and its test runs once more (tests/conftest.py).
 SUITE ?= tests
 PYTEST_ARGS := -n 2 --max-worker-restart=2 --dist loadfile --no-loadscope-reorder --durations=15
 test: $(BIN)/jaxplan

@@ -14,11 +14,15 @@ first call, never at import): on other JAX versions or backends ``jit`` is plain
 ``jax.jit``. Inside a user's own ``jax.jit`` or ``grad``, where JAX refuses compiler options
 (they are taken only at the top level, and the user's apply), it is plain ``jax.jit``, inlined
 there; under a top-level ``vmap`` the options apply.
+
+``release_compiled`` frees the compiled programs a long-running process has accumulated before
+the kernel's limit on memory maps is reached (see there).
 """
 
 from __future__ import annotations
 
 import functools
+import gc
 
 import jax
 
@@ -86,3 +90,36 @@ def jit(fun=None, *, options: dict | None = None, **kwargs):
     if fun is None:
         return lambda f: jit(f, options=options, **kwargs)
     return _LazyJit(fun, options or {}, kwargs)
+
+
+MAP_SHARE = 0.5  # of the kernel's limit on a process's memory maps: release compiled programs above it
+
+
+def memory_maps() -> tuple[int, int] | None:
+    """``(memory regions this process maps, the most the kernel allows)`` where ``/proc`` says
+    (Linux: ``/proc/self/maps``, ``vm.max_map_count``); None elsewhere."""
+    try:
+        with open("/proc/self/maps", "rb") as f:
+            n = sum(1 for _ in f)
+        with open("/proc/sys/vm/max_map_count") as f:
+            limit = int(f.read())
+    except (OSError, ValueError):
+        return None
+    return n, limit
+
+
+def release_compiled(share: float = MAP_SHARE) -> bool:
+    """Free JAX's compiled programs (``jax.clear_caches``) when this process maps more than
+    ``share`` of the memory regions the kernel allows; returns whether it did.
+
+    XLA's CPU backend maps each executable's code in regions of its own, and JAX keeps every
+    program a process compiled: a process that compiles thousands (a test run, a drive of several
+    planners over many scene sizes) reaches the kernel's limit (65,530 by default) and XLA aborts
+    ("LLVM ERROR: Unable to allocate section memory"). Programs freed are compiled again when
+    next called (from the persistent compilation cache where it is on)."""
+    m = memory_maps()
+    if m is None or m[0] <= share * m[1]:
+        return False
+    jax.clear_caches()
+    gc.collect()
+    return True

@@ -3,12 +3,15 @@ import os
 # The suite compiles with XLA's default options, as users and the benchmarks do, and without JAX's
 # persistent compilation cache (the CLI turns it on for users; child processes inherit this): with
 # jaxlib 0.10.2 one full run lost a worker aborting inside XLA while it serialised an executable for
-# the cache. Workers also crashed compiling without it (a segmentation fault inside XLA's CPU
-# compiler, a different test each time): see `pytest_handlecrashitem` below.
+# the cache. Workers also crashed compiling without it, a different test each time: a worker that has
+# compiled a few thousand programs reaches the kernel's limit on memory maps and XLA aborts
+# (`_release_compiled_programs` below); `pytest_handlecrashitem` reruns a crashed worker's test.
 os.environ["JAX_ENABLE_COMPILATION_CACHE"] = "false"
 
 import numpy as np  # noqa: E402
 import pytest
+
+from jaxplan.compile_options import release_compiled  # noqa: E402
 
 # ../shared beside the repository; JAXPLAN_SHARED points elsewhere (a git worktree has no ../shared)
 SHARED = os.environ.get("JAXPLAN_SHARED") or os.path.join(os.path.dirname(__file__), "..", "..", "shared")
@@ -60,6 +63,15 @@ def pytest_handlecrashitem(crashitem, report, sched):
         _config[-1].pluginmanager.get_plugin("terminalreporter").write_line(
             f"{report.longrepr}: it runs again on a new worker"
         )
+
+
+@pytest.fixture(autouse=True)
+def _release_compiled_programs():
+    """After each test: free JAX's compiled programs once the worker maps half the memory regions
+    the kernel allows (``jaxplan.compile_options.release_compiled``): a worker that had compiled
+    a few thousand programs aborted inside XLA when it reached the limit."""
+    yield
+    release_compiled()
 
 
 def cpu_devices_env(devices: int) -> dict:

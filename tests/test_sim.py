@@ -368,6 +368,25 @@ class _BrakeWithOptions(BrakePlanner):
     compiler_options: ClassVar[dict] = NO_YNN
 
 
+def test_release_compiled_frees_the_memory_maps_of_compiled_programs():
+    """Every compiled program maps memory regions of its own; ``release_compiled`` frees them once
+    the process maps more than its share of the kernel's limit, and does nothing below it."""
+    from jaxplan.compile_options import memory_maps, release_compiled
+
+    if memory_maps() is None:
+        pytest.skip("no /proc/self/maps on this system")
+    fs = [jax.jit(lambda x, i=i: jnp.sin(x) * i + jnp.cumsum(x) @ x) for i in range(60)]
+    before = memory_maps()[0]
+    for i, f in enumerate(fs):
+        f(jnp.ones(8 + i)).block_until_ready()
+    grown = memory_maps()[0]
+    assert grown > before + 60, (before, grown)
+    assert not release_compiled(share=1.0)  # below the kernel's limit: nothing is released
+    assert memory_maps()[0] >= grown - 5
+    assert release_compiled(share=0.0)
+    assert memory_maps()[0] < grown - 60, (grown, memory_maps())
+
+
 def test_the_drive_is_compiled_with_the_planners_xla_options():
     """A planner's ``compiler_options`` reach the program its drive runs (and the one that times its
     plan); a planner without them drives in the plain program. The options change no result."""

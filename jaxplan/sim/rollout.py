@@ -29,7 +29,7 @@ import jax
 import jax.numpy as jnp
 from jax import lax
 
-from jaxplan.compile_options import jit, options_key
+from jaxplan.compile_options import jit, options_key, release_compiled
 from jaxplan.geometry.frenet import to_frenet
 from jaxplan.models.braking import braking_profile
 from jaxplan.planner import EgoState, Planner, check_params, planner_compiler_options
@@ -533,6 +533,8 @@ class ChunkedRollout:
         key = self._key(scenes)
         if key in self._programs:
             return 0.0
+        if release_compiled():  # many programs compiled in this process: start afresh
+            self._programs.clear()
         t = time.perf_counter()
         p, w, cfg = self.planner, self.params, self.config
         start = planner_program(p, _starts, ("planner", "config")).lower(p, w, scenes, config=cfg).compile()
