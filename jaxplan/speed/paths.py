@@ -1,7 +1,8 @@
 """The paths the ``pathspeed`` planner plans its speed on (``jaxplan.speed.planner``), as
 ``RoutePath``s of one shape: the route's centre line (or an offset of it, fixed or per station)
 joined from the car's pose (``route_path``, its join's length ``join_length``), the lane the car is
-in followed along the route (``car_lane``), the neighbour lane to pass in (``neighbour_lane``), the
+in followed along the route (``car_lane``), the neighbour lane to pass in (``neighbour_lane``; which
+of the two the planner's other path joins: ``other_lane``), the
 bounds path with the route's points behind the car and a join back to the route's lane after it
 (``bounds_route_path``), and a path as a reference line for the speed plan (``path_reference``)."""
 
@@ -30,10 +31,12 @@ __all__ = [
     "frenet_start",
     "join_length",
     "neighbour_lane",
+    "other_lane",
     "path_reference",
     "path_stations",
     "route_path",
     "total_points",
+    "toward_goal",
 ]
 
 
@@ -215,9 +218,14 @@ def neighbour_lane(scene, ctx: RoadContext, ahead) -> tuple[Any, Any, Any]:
     left, right = runs(c + 1), runs(c - 1)
     i = jnp.where(left, min(c + 1, L - 1), max(c - 1, 0))
     l_lane = ctx.lane_offset[i]
+    return l_lane.astype(f), left | right, toward_goal(ctx, l_lane, ahead)
+
+
+def toward_goal(ctx: RoadContext, l, ahead) -> Any:
+    """``()`` whether a lane at offset ``l`` (``()``) where the goal is does not lead the car away
+    from it: the goal region is not within ``ahead`` metres, or ``l`` is inside its offsets."""
     goal_near = ctx.goal_s[0] - ctx.s < ahead
-    in_goal = (l_lane >= ctx.goal_l[0]) & (l_lane <= ctx.goal_l[1])
-    return l_lane.astype(f), left | right, ~goal_near | in_goal
+    return ~goal_near | ((l >= ctx.goal_l[0]) & (l <= ctx.goal_l[1]))
 
 
 LANE_ID_JUMP = 1.0  # m: a lane offset that changes more than this between route points is another lane
@@ -270,6 +278,22 @@ def car_lane(scene, ctx: RoadContext, sr) -> tuple[Any, Any]:
     _, (track, near) = jax.lax.scan(step, (start, jnp.zeros((), f)), jnp.arange(sr.shape[0]))
     track = jnp.where(sr > ctx.s, track, behind)
     return track, near
+
+
+def other_lane(scene, ctx: RoadContext, u, ahead) -> tuple[Any, Any, Any]:
+    """The lane of the planner's other path, at the route path's stations ``u (N,)`` from the car:
+    ``(offset (N,), runs (), goal_ok ())``. Where the route leaves the car's lane within ``ahead``
+    metres (it changes lanes there, or the car is beside it: ``car_lane`` more than half the own
+    lane's width off the route) and that lane runs on that far, the car's lane (the car may stay
+    in it instead of moving over); else ``neighbour_lane``'s. ``goal_ok`` as ``neighbour_lane``'s,
+    for the offset where the goal region begins."""
+    l_nb, runs, goal_ok = neighbour_lane(scene, ctx, ahead)
+    l_car, near = car_lane(scene, ctx, ctx.s + u)
+    reach = (u >= 0) & (u <= ahead)
+    width = jnp.maximum(ctx.lane_width[scene.own_lane], 1.0)
+    leaves = jnp.any(reach & (jnp.abs(l_car) > 0.5 * width)) & jnp.all(near | ~reach)
+    goal_car = toward_goal(ctx, jnp.interp(ctx.goal_s[0] - ctx.s, u, l_car), ahead)
+    return jnp.where(leaves, l_car, l_nb), leaves | runs, jnp.where(leaves, goal_car, goal_ok)
 
 
 def bounds_route_path(scene, ctx: RoadContext, pp, back: RoutePath, n_ext: int, ahead: float) -> RoutePath:

@@ -58,11 +58,9 @@ from jaxplan.speed.dp import plan_one
 from jaxplan.speed.paths import (
     RoutePath,
     bounds_route_path,
-    car_lane,
     frenet_start,
-    neighbour_lane,
+    other_lane,
     path_reference,
-    path_stations,
     route_path,
     total_points,
 )
@@ -244,20 +242,9 @@ class PathSpeedPlanner:
         paths = [rp] if bp is None else [bp, rp]
         if self.lane_change:
             ahead_lane = jnp.maximum(v0, ctx.v_set) * self.horizon + 20.0
-            l_nb, runs, goal_ok = neighbour_lane(scene, ctx, ahead_lane)
-            # where the route leaves the car's lane within reach (it changes lanes, or the car is
-            # beside it), the other path stays in the car's lane instead, while that lane runs on
-            u = path_stations(rp.s.shape[0], 20.0, self.path_ahead, f)
-            l_car, near = car_lane(scene, ctx, ctx.s + u)
-            reach = (u >= 0) & (u <= ahead_lane)
+            u = rp.s  # the route path's stations, the other lane's path's too
+            l_nb, runs, goal_ok = other_lane(scene, ctx, u, ahead_lane)  # (N,), (), ()
             width = jnp.maximum(ctx.lane_width[scene.own_lane], 1.0)
-            leaves = jnp.any(reach & (jnp.abs(l_car) > 0.5 * width)) & jnp.all(near | ~reach)
-            l_goal = jnp.interp(ctx.goal_s[0] - ctx.s, u, l_car)
-            goal_near = ctx.goal_s[0] - ctx.s < ahead_lane
-            goal_car = ~goal_near | ((l_goal >= ctx.goal_l[0]) & (l_goal <= ctx.goal_l[1]))
-            l_nb = jnp.where(leaves, l_car, l_nb)  # (N,)
-            runs = leaves | runs
-            goal_ok = jnp.where(leaves, goal_car, goal_ok)
             paths.append(self.route_path(scene, ctx, ego, rp.s.shape[0], l_nb))
         nb = len(paths) - 1  # the neighbour lane's path (with lane_change)
         buffers = [self.speed.buffer] * len(paths)
