@@ -457,6 +457,8 @@ def test_the_lane_the_car_is_in_is_followed_where_the_route_changes_lanes(kappa)
     u = path_stations(120, 20.0, planner.path_ahead, jnp.float32)  # the stations of planner.route_path
     l_car, near = car_lane(sc, ctx, ctx.s + u)
     assert bool(jnp.all(near))
+    with pytest.raises(ValueError, match="n must be at least 3"):
+        path_stations(2, 20.0, 100.0, jnp.float32)
     assert float(l_car[-1]) == pytest.approx(-builtin.LANE, abs=0.05)  # the route ends in the middle lane
     assert float(jnp.max(jnp.abs(l_car[u <= 0]))) < 0.05  # where the car is, the route is in its lane
     lane0 = sg.LineString([builtin._Road(kappa, 0.3).pose(s, 0.0)[0] for s in np.linspace(0.0, 400.0, 801)])

@@ -160,7 +160,9 @@ def join_length(start, target_l, v, a_lat, room):
 
 def path_stations(n: int, back: float, ahead: float, dtype) -> Any:
     """``(n,)`` the stations of an ``n``-point ``route_path`` from the car (``-back`` to ``ahead``
-    metres; ``_n_behind(n)`` of them behind it)."""
+    metres; ``_n_behind(n)`` of them behind it, one at the car, at least one ahead of it)."""
+    if n < 3:
+        raise ValueError(f"path_stations: n must be at least 3 (behind, at and ahead of the car), got {n}")
     nb = _n_behind(n) + 1
     return jnp.concatenate(
         [jnp.linspace(-back, 0.0, nb, dtype=dtype)[:-1], jnp.linspace(0.0, ahead, n - nb + 1, dtype=dtype)]
