@@ -675,7 +675,7 @@ def test_a_vehicle_behind_and_a_lower_limit_ahead_still_give_an_executable_profi
     converges, keeps the acceleration and jerk limits, and runs at that stretched limit past
     the limit's start (as far ahead of the car behind as it may)."""
     from jaxplan.planner import EMERGENCY_LAT_ACCEL
-    from jaxplan.speed.smooth import smooth_plan
+    from jaxplan.speed.smooth import LAT_TRACKING_MARGIN, smooth_plan
 
     cfg = SpeedConfig()
     obs = _moving([[-11.0, 0.0, 4.5, 1.8, 0.0]], [21.0])
@@ -690,7 +690,7 @@ def test_a_vehicle_behind_and_a_lower_limit_ahead_still_give_an_executable_profi
     a, v, s = np.asarray(prof.a), np.asarray(prof.v), np.asarray(prof.s)
     assert np.all(a >= cfg.a_brake - 1e-3) and np.all(a <= cfg.a_max + 1e-3)
     assert np.all(np.abs(np.asarray(prof.jerk)) <= cfg.jerk_max + 1e-2)
-    stretched = 11.0 * np.sqrt(EMERGENCY_LAT_ACCEL / cfg.a_lat_max)
+    stretched = 11.0 * np.sqrt((EMERGENCY_LAT_ACCEL - LAT_TRACKING_MARGIN) / cfg.a_lat_max)
     past = s > 20.5
     assert past.sum() > 40
     assert np.all(v[past] <= stretched + 0.05), v[past].max()
@@ -708,13 +708,13 @@ def test_a_bend_the_executed_profile_reaches_after_the_dp_still_limits_it(v0, a0
     within the limit stretched to the emergency lateral acceleration (taken at the DP's
     stations alone, the limit had left the bend behind: 9.1 and 8.9 m/s here)."""
     from jaxplan.planner import EMERGENCY_LAT_ACCEL
-    from jaxplan.speed.smooth import smooth_plan
+    from jaxplan.speed.smooth import LAT_TRACKING_MARGIN, smooth_plan
 
     cfg = SpeedConfig()
     obs = _moving([[-17.5, 0.0, 4.5, 1.8, 0.0]], [16.1])
     road = _road(limit_s=(0.0, start - 0.1, start, end, end + 0.1, 300.0), limit_v=(INF, INF, 5.5, 5.5, INF, INF))
     p = plan_speed(REF, obs, cfg, W, v0=v0, a0=a0, s0=10.0, keep_clear=NO_KC, vehicle=CAR, road=road)
-    stretched = 5.5 * np.sqrt(EMERGENCY_LAT_ACCEL / cfg.a_lat_max)
+    stretched = 5.5 * np.sqrt((EMERGENCY_LAT_ACCEL - LAT_TRACKING_MARGIN) / cfg.a_lat_max)
     t = jnp.arange(1, int(round(cfg.horizon / cfg.qp_dt)) + 1, dtype=jnp.float32) * cfg.qp_dt
     s_dp, v_dp, _ = (np.asarray(x) for x in profile_at(p, t))
     bend = (s_dp >= start) & (s_dp <= end)

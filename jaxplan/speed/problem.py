@@ -201,7 +201,7 @@ class CostWeights:
     w_keep_clear: Any = 500.0
     follow_headway: Any = 1.0
     w_limit: Any = 20.0
-    w_goal: Any = 5.0
+    w_goal: Any = 50.0
     w_goal_v: Any = 5.0
     w_rear: Any = 20.0
     rear_gap: Any = 2.0

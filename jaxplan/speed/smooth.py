@@ -20,9 +20,9 @@ hardest braking the limits allow reaches (``hardest_braking``: the jerk-limited 
 (``hardest_acceleration``, less ``LOWER_MARGIN``) and below the upper side, and the speed limit
 relaxed to what braking at ``LIMIT_DECEL`` reaches and, where the DP's profile runs above it
 (the DP weighs the limit against its other costs), raised to the DP's speed, up to
-``sqrt(EMERGENCY_LAT_ACCEL / a_lat_max)`` times the limit (in a bend: the curvature limit at
-``EMERGENCY_LAT_ACCEL`` instead of ``SpeedConfig.a_lat_max``); that stretched limit is relaxed
-only to what the hardest braking reaches. The limit is a bound per time, read at the stations
+``sqrt((EMERGENCY_LAT_ACCEL - LAT_TRACKING_MARGIN) / a_lat_max)`` times the limit (in a bend: the
+curvature limit at the emergency lateral acceleration instead of ``SpeedConfig.a_lat_max``); that
+stretched limit is relaxed only to what the hardest braking reaches. The limit is a bound per time, read at the stations
 the car is at then: first the DP's, then (``LIMIT_ROUNDS`` solves in all) the least limit
 between the DP's station and the last solution's, since the executed profile lags the DP where
 it cannot follow it (the jerk limit, braking when the cycle starts) and meets a bend later.
@@ -64,6 +64,9 @@ V_TOL = 0.01  # m/s: speeds down to -V_TOL are feasible in the QP (the output is
 LOWER_MARGIN = 0.1  # m: the corridor's lower side stays this far below the most the limits reach
 LIMIT_ROUNDS = 3  # QP solves: the speed limit at the DP's stations, then also where the last solution is
 HARD_MARGIN = 0.2  # m/s: the stretched limit stays this far above the hardest braking (0.02 stalled the ADMM)
+# m/s^2: the stretched limit is taken this far below EMERGENCY_LAT_ACCEL: the simulated car, tracking
+# a profile at that limit through a bend, ran up to 0.03 m/s^2 above it
+LAT_TRACKING_MARGIN = 0.1
 
 
 @dataclasses.dataclass(frozen=True)
@@ -332,7 +335,7 @@ def smooth_plan(
     s_ref, v_ref, a_ref = profile_at(plan, t[1:])
     lower, upper = corridor(plan, config, t[1:])
     vl = plan.scene.v_limit
-    stretch = math.sqrt(max(EMERGENCY_LAT_ACCEL / config.a_lat_max, 1.0))
+    stretch = math.sqrt(max((EMERGENCY_LAT_ACCEL - LAT_TRACKING_MARGIN) / config.a_lat_max, 1.0))
 
     def limits(lo, hi):
         # ``(2, n)``: from the least speed limit over the stations ``[lo, hi] (n,)`` (where the car
