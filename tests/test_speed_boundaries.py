@@ -215,9 +215,6 @@ def test_classification_hand_built_scenes():
     assert int(c.side_of[11]) == LEFT
     assert list(np.asarray(c.no_bypass)) == [False, True] + [False] * 10
     assert list(np.asarray(c.blind_zone)) == [False, True, True] + [False] * 5 + [True, True, True, False]
-    # driving the car's way: the moving vehicles but the oncoming one; not the parked car, the far
-    # one standing, the crossing pedestrian
-    assert list(np.asarray(c.same_way)) == [True, True, True, False, False, True, False] + [True] * 4 + [False]
     assert float(c.size[2]) == pytest.approx(30.0)
     # the side strips reach behind the car: the far neighbour's range at t = 0 is its own extent
     assert float(c.side.lower[9, 0]) == pytest.approx(-25 - 2.25, abs=0.01)

@@ -32,11 +32,11 @@ def speed_envelope(v_lim, ds, decel, accel):
     return jnp.sqrt(jnp.maximum(w, 0.0))
 
 
-def time_margin(b: STBoundary, m: int, which=None) -> STBoundary:
+def time_margin(b: STBoundary, m: int) -> STBoundary:
     """Each boundary ``(K, F)`` at check time ``f`` widened to its union over ``f .. f + m``:
     passing ahead of an obstacle must clear where it will be ``m`` check times later (a
     crossing car is passed with a time margin, not by a hair); following behind one that
-    drives on is unchanged. ``which (K,)``: the obstacles widened (default all)."""
+    drives on is unchanged."""
     if m <= 0:
         return b
     big = jnp.asarray(BIG, b.lower.dtype)
@@ -48,9 +48,6 @@ def time_margin(b: STBoundary, m: int, which=None) -> STBoundary:
     inf = jnp.asarray(jnp.inf, lo.dtype)
     L, H = win(lo, inf, jax.lax.min), win(hi, -inf, jax.lax.max)
     X = win(hit.astype(jnp.int32), jnp.asarray(np.iinfo(np.int32).min, jnp.int32), jax.lax.max) > 0
-    if which is not None:
-        X = jnp.where(which[..., None], X, hit)
-        L, H = jnp.where(which[..., None], L, b.lower), jnp.where(which[..., None], H, b.upper)
     return STBoundary(jnp.where(X, L, b.lower), jnp.where(X, H, b.upper), X)
 
 
@@ -97,9 +94,7 @@ def build_speed_scene(
         v_moving=config.v_moving,
     )
     held = int(round(config.pass_margin * config.n_sub / config.dt))  # check times in pass_margin
-    # a vehicle driving the car's way is passed when the car is ahead of it (it follows, then):
-    # the margin is for crossing and oncoming traffic
-    c = dataclasses.replace(c, blocking=time_margin(c.blocking, held, ~c.same_way))
+    c = dataclasses.replace(c, blocking=time_margin(c.blocking, held))
     front, rear = car_extent(vehicle, dtype)
     stop = jnp.asarray(road.stop_s, dtype)
     has = jnp.isfinite(stop)
