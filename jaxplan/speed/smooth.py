@@ -22,10 +22,11 @@ relaxed to what braking at ``LIMIT_DECEL`` reaches and, where the DP's profile r
 (the DP weighs the limit against its other costs), raised to the DP's speed, up to
 ``sqrt((EMERGENCY_LAT_ACCEL - LAT_TRACKING_MARGIN) / a_lat_max)`` times the limit (in a bend: the
 curvature limit at the emergency lateral acceleration instead of ``SpeedConfig.a_lat_max``); that
-stretched limit is relaxed only to what the hardest braking reaches. The limit is a bound per time, read at the stations
-the car is at then: first the DP's, then (``LIMIT_ROUNDS`` solves in all) the least limit
-between the DP's station and the last solution's, since the executed profile lags the DP where
-it cannot follow it (the jerk limit, braking when the cycle starts) and meets a bend later.
+stretched limit is relaxed only to what the hardest braking reaches. The limit is a bound per
+time, read at the stations the car is at then: first the DP's, then (``LIMIT_ROUNDS`` solves in
+all) the least limit between the DP's station and the last solution's, since the executed profile
+lags the DP where it cannot follow it (the jerk limit, braking when the cycle starts) and meets a
+bend later.
 Where the DP could not avoid a boundary,
 only the hardest braking is left there, and ``slack`` (how far the corridor had to be widened)
 says so. The references are clipped into the corridor, so the QP tracks the boundary, not the
