@@ -32,6 +32,7 @@ __all__ = [
     "join_length",
     "neighbour_lane",
     "other_lane",
+    "own_lane_width",
     "path_reference",
     "path_stations",
     "route_path",
@@ -282,6 +283,11 @@ def car_lane(scene, ctx: RoadContext, sr) -> tuple[Any, Any]:
     return track, near
 
 
+def own_lane_width(scene, ctx: RoadContext) -> Any:
+    """``()`` the width of the car's own lane (m), at least 1 m (the unit of a lane's share)."""
+    return jnp.maximum(ctx.lane_width[scene.own_lane], 1.0)
+
+
 def other_lane(scene, ctx: RoadContext, u, ahead) -> tuple[Any, Any, Any]:
     """The lane of the planner's other path, at the route path's stations ``u (N,)`` from the car:
     ``(offset (N,), runs (), goal_ok ())``. Where the route leaves the car's lane within ``ahead``
@@ -292,8 +298,7 @@ def other_lane(scene, ctx: RoadContext, u, ahead) -> tuple[Any, Any, Any]:
     l_nb, runs, goal_ok = neighbour_lane(scene, ctx, ahead)
     l_car, near = car_lane(scene, ctx, ctx.s + u)
     reach = (u >= 0) & (u <= ahead)
-    width = jnp.maximum(ctx.lane_width[scene.own_lane], 1.0)
-    leaves = jnp.any(reach & (jnp.abs(l_car) > 0.5 * width)) & jnp.all(near | ~reach)
+    leaves = jnp.any(reach & (jnp.abs(l_car) > 0.5 * own_lane_width(scene, ctx))) & jnp.all(near | ~reach)
     goal_car = toward_goal(ctx, jnp.interp(ctx.goal_s[0] - ctx.s, u, l_car), ahead)
     return jnp.where(leaves, l_car, l_nb), leaves | runs, jnp.where(leaves, goal_car, goal_ok)
 

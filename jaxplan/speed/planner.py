@@ -60,6 +60,7 @@ from jaxplan.speed.paths import (
     bounds_route_path,
     frenet_start,
     other_lane,
+    own_lane_width,
     path_reference,
     route_path,
     total_points,
@@ -244,7 +245,6 @@ class PathSpeedPlanner:
             ahead_lane = jnp.maximum(v0, ctx.v_set) * self.horizon + 20.0
             u = rp.s  # the route path's stations, the other lane's path's too
             l_nb, runs, goal_ok = other_lane(scene, ctx, u, ahead_lane)  # (N,), (), ()
-            width = jnp.maximum(ctx.lane_width[scene.own_lane], 1.0)
             paths.append(self.route_path(scene, ctx, ego, rp.s.shape[0], l_nb))
         nb = len(paths) - 1  # the neighbour lane's path (with lane_change)
         buffers = [self.speed.buffer] * len(paths)
@@ -274,7 +274,7 @@ class PathSpeedPlanner:
             # share of a lane still to move over (plus a margin: with nothing to gain the car goes
             # back to the route's lane); not toward a goal region ahead in another lane unless the
             # lane's own plan collides
-            shift = jnp.abs(jnp.interp(0.0, u, l_nb) - ctx.l) / width
+            shift = jnp.abs(jnp.interp(0.0, u, l_nb) - ctx.l) / own_lane_width(scene, ctx)
             # hysteresis from the car's own motion: a move under way (the car's slope to the route
             # toward one lane) costs LANE_HOLD lane changes to turn back
             _, slope, _ = frenet_start(scene.route, ctx.s, ctx.l, ego.heading, ego.kappa)
