@@ -215,6 +215,9 @@ def test_classification_hand_built_scenes():
     assert int(c.side_of[11]) == LEFT
     assert list(np.asarray(c.no_bypass)) == [False, True] + [False] * 10
     assert list(np.asarray(c.blind_zone)) == [False, True, True] + [False] * 5 + [True, True, True, False]
+    # driving the car's way: the moving vehicles but the oncoming one; not the parked car, the far
+    # one standing, the crossing pedestrian
+    assert list(np.asarray(c.same_way)) == [True, True, True, False, False, True, False] + [True] * 4 + [False]
     assert float(c.size[2]) == pytest.approx(30.0)
     # the side strips reach behind the car: the far neighbour's range at t = 0 is its own extent
     assert float(c.side.lower[9, 0]) == pytest.approx(-25 - 2.25, abs=0.01)
@@ -369,3 +372,60 @@ def test_a_car_the_path_moves_over_to_from_behind_is_blocking():
     centre = 0.5 * (float(c.blocking.lower[0, f]) + float(c.blocking.upper[0, f]))
     t = float(obs.t[f])
     assert centre < 10.0 * min(t, 2.0) - 2.5 * min(t, 2.0) ** 2
+
+
+def test_vehicles_moving_over_into_the_cars_lane_are_passed_without_the_crossing_margin():
+    """``merging_in`` on a route along the x axis (the car at x = 0 in the lane at l = 0): the
+    obstacles whose distance to the car's lane centre shrinks by more than MERGE_SHIFT; in the
+    ST graph only those of them that drive the car's way lose the crossing margin. Where the
+    route moves over to the next lane (its frame shifts under the lanes), a vehicle keeping its
+    lane is not merging."""
+    from types import SimpleNamespace
+
+    from jaxplan.speed import SpeedConfig, make_scene
+    from jaxplan.speed.paths import merging_in
+
+    def boxes(t):
+        return np.array([
+            [30 + 5 * t, 0.0, 4.5, 1.8, 0.0],              # 0 leader in the lane
+            [10 + 8 * t, 3.5, 4.5, 1.8, 0.0],              # 1 beside in the next lane (the car may move over)
+            [25 + 6 * t, 3.5 - 0.7 * t, 4.5, 1.8, -0.2],   # 2 cuts in from the left ahead
+            [-2 + 12 * t, -3.5 + 0.6 * t, 4.5, 1.8, 0.05],  # 3 merges in from the right, faster
+            [35.0, -6 + 1.2 * t, 0.6, 0.6, np.pi / 2],     # 4 pedestrian crossing ahead
+            [20 + 6 * t, 0.3 * t, 4.5, 1.8, 0.05],         # 5 leaves the lane to the left
+        ])
+
+    obs = _scene(boxes)
+    b = np.asarray(obs.boxes)
+    ctx = SimpleNamespace(s=jnp.float32(0.0), obstacles=obs, obstacle_s=jnp.asarray(b[..., 0]),
+                          obstacle_l=jnp.asarray(b[..., 1]))
+    u = jnp.linspace(-40.0, 120.0, 161)
+    lane = jnp.zeros_like(u)
+    assert list(np.asarray(merging_in(ctx, u, lane))) == [False, False, True, True, True, False]
+    # not valid now: not judged
+    late = Obstacles(obs.boxes, obs.valid.at[2, 0].set(False), obs.t)
+    assert not bool(merging_in(SimpleNamespace(**{**vars(ctx), "obstacles": late}), u, lane)[2])
+    # the route moves over to the left lane from x = 20 to 60: its frame shifts 3.5 m under the
+    # lanes, and the car's lane lies at l = -3.5 beyond; the neighbour on the left keeps its lane
+    shift = np.clip((b[..., 0] - 20.0) / 40.0, 0.0, 1.0) * 3.5
+    moved = SimpleNamespace(**{**vars(ctx), "obstacle_l": jnp.asarray(b[..., 1] - shift)})
+    lane_moved = -jnp.clip((u - 20.0) / 40.0, 0.0, 1.0) * 3.5
+    assert not bool(merging_in(moved, u, lane_moved)[1])
+    assert bool(merging_in(moved, u, jnp.zeros_like(u))[1])  # seen from the route's frame alone it would be
+
+    ref = ReferenceLine.from_polyline(np.array([[-60.0, 0.0], [300.0, 0.0]]))
+    cfg = SpeedConfig()
+    moving = merging_in(ctx, u, lane)
+    _, plain = make_scene(ref, obs, cfg, CAR, 60.0, v0=10.0)
+    _, merge = make_scene(ref, obs, cfg, CAR, 60.0, v0=10.0, merging=moving)
+    c = plain.classified
+    same = np.asarray(c.same_way)
+    assert list(same[[2, 3, 4]]) == [True, True, False]
+    without = [k for k in range(6) if not np.array_equal(np.asarray(plain.classified.blocking.upper[k]),
+                                                         np.asarray(merge.classified.blocking.upper[k]))]
+    # the two blocking vehicles that drive the car's way and move over into its lane lose the
+    # margin; the crossing pedestrian and the leader keep it
+    assert without == [2, 3]
+    up_p, up_m = np.asarray(plain.classified.blocking.upper[2]), np.asarray(merge.classified.blocking.upper[2])
+    hit = np.asarray(merge.classified.blocking.hit[2])
+    assert np.all(up_m[hit] <= up_p[hit] + 1e-4) and np.any(up_m[hit] < up_p[hit] - 1.0)

@@ -477,11 +477,14 @@ def test_time_margin_matches_brute_force(rng):
     lo = rng.uniform(0, 50, (K, F))
     hi = lo + rng.uniform(0, 10, (K, F))
     hit = rng.random((K, F)) < 0.5
-    for m in (0, 1, 3):
-        b = time_margin(STBoundary(jnp.asarray(lo), jnp.asarray(hi), jnp.asarray(hit)), m)
+    which = np.array([True, False, True, False])  # the obstacles widened (the others kept as they are)
+    for m, only in itertools.product((0, 1, 3), (None, which)):
+        b = time_margin(STBoundary(jnp.asarray(lo), jnp.asarray(hi), jnp.asarray(hit)), m,
+                        None if only is None else jnp.asarray(only))
         for k in range(K):
             for f in range(F):
-                w = [g for g in range(f, min(F, f + m + 1)) if hit[k, g]]
+                mk = m if only is None or only[k] else 0
+                w = [g for g in range(f, min(F, f + mk + 1)) if hit[k, g]]
                 assert bool(b.hit[k, f]) == bool(w)
                 if w:
                     assert float(b.lower[k, f]) == pytest.approx(min(lo[k, g] for g in w))

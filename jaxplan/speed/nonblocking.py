@@ -70,6 +70,8 @@ class Classified:
             station over time).
         rear: ``STBoundary`` ``(K, T)``: the band boundary of the obstacles behind (``hit``
             only for those).
+        same_way: ``(K,)`` bool: it drives the car's way (moving faster than ``v_moving``, along
+            the path at least ``SAME_WAY_SHARE`` of its speed).
     """
 
     blocking: Any
@@ -83,6 +85,7 @@ class Classified:
     size: Any
     v_along: Any
     rear: Any
+    same_way: Any
 
 
 def obstacle_speed(obstacles: Obstacles):
@@ -173,7 +176,7 @@ def classify(
     blind = is_nb & moving
     b0 = jnp.max(jnp.where(obstacles.valid[..., None], obstacles.boxes, 0.0), axis=-2)
     size = b0[..., 2] * b0[..., 3]
-    return Classified(blk, side, is_blk, is_nb, behind, side_of, no_bypass, blind, size, along, rear)
+    return Classified(blk, side, is_blk, is_nb, behind, side_of, no_bypass, blind, size, along, rear, moving)
 
 
 def keep_clear_intervals(profile: PathProfile, vehicle: VehicleParams, vertices, valid=None, active=None):

@@ -25,11 +25,13 @@ __all__ = [
     "LANE_ID_JUMP",
     "MAX_START_ANGLE",
     "MAX_START_DDL",
+    "MERGE_SHIFT",
     "RoutePath",
     "bounds_route_path",
     "car_lane",
     "frenet_start",
     "join_length",
+    "merging_in",
     "neighbour_lane",
     "other_lane",
     "own_lane_width",
@@ -344,3 +346,25 @@ def path_reference(path) -> tuple[ReferenceLine, Any]:
     s = jnp.concatenate([jnp.zeros((1,), xy.dtype), jnp.cumsum(jnp.maximum(seg, 1e-6))])
     ref = ReferenceLine(xy, s, path.theta, path.kappa)
     return ref, jnp.interp(jnp.zeros((), xy.dtype), path.s, s)
+
+
+MERGE_SHIFT = 1.0  # m: an obstacle whose distance to the car's lane shrinks by more than this moves over into it
+
+
+def merging_in(ctx: RoadContext, u, lane_l) -> Any:
+    """``(K,)`` bool: the obstacles that move over into the car's lane.
+
+    Args:
+        ctx: the cycle's context (its obstacles' route-frame centres ``obstacle_s``,
+            ``obstacle_l`` ``(K, H)``).
+        u: ``(N,)`` ascending stations from the car; lane_l: ``(N,)`` the centre offset of the
+            car's lane there (``car_lane``: it follows the lane where the route changes lanes).
+
+    Over its prediction, an obstacle's sideways distance to the car's lane centre at its own
+    station shrinks by more than ``MERGE_SHIFT`` from now. A vehicle in its own lane, beside a car
+    (or a route) that moves over to it, keeps its distance: it is not merging in."""
+    valid = ctx.obstacles.valid
+    lane = jnp.interp(ctx.obstacle_s - ctx.s, u, lane_l)  # (K, H)
+    d = jnp.abs(ctx.obstacle_l - lane)
+    closest = jnp.min(jnp.where(valid, d, jnp.inf), -1)
+    return valid[:, 0] & (d[:, 0] - closest > MERGE_SHIFT)

@@ -58,7 +58,9 @@ from jaxplan.speed.dp import plan_one
 from jaxplan.speed.paths import (
     RoutePath,
     bounds_route_path,
+    car_lane,
     frenet_start,
+    merging_in,
     other_lane,
     own_lane_width,
     path_reference,
@@ -233,11 +235,15 @@ class PathSpeedPlanner:
         w = self.cost_weights(params, v_set)
         obs = ctx.obstacles
         obs = Obstacles(obs.boxes, obs.valid, obs.t - obs.t[0], obs.static)
+        # vehicles moving over into the car's lane: passed without the crossing margin when they
+        # drive the car's way
+        merging = merging_in(ctx, rp.s, car_lane(scene, ctx, ctx.s + rp.s)[0])
 
         def on(path, buffer):
             ref, s0 = path_reference(path)
             road = speed_road(scene, ctx, path, self.speed.v_max, self.vehicle, v_set)
-            return path, ref, s0, plan_one(ref, obs, v0, a0, s0, None, road, self.vehicle, self.speed, w, buffer)
+            plan = plan_one(ref, obs, v0, a0, s0, None, road, self.vehicle, self.speed, w, buffer, merging)
+            return path, ref, s0, plan
 
         # every path has one shape: one vmapped speed plan (the DP is traced once)
         paths = [rp] if bp is None else [bp, rp]

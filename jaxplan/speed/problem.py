@@ -41,7 +41,8 @@ class SpeedConfig:
             deceleration (m/s^2).
         pass_margin: s; a blocking boundary at time t also covers where the obstacle is up to
             this later (``time_margin``): the car passes ahead of a crossing car with that much
-            time to spare or yields.
+            time to spare or yields. Not for a vehicle driving the car's way that moves over into
+            its lane (``build_speed_scene``'s ``merging``): that one is passed when the car is ahead.
         big: cost of a collision.
         qp_dt, a_brake, jerk_max: the smoothing QP (``smooth.py``): its step (s, must divide
             ``dt / n_sub``), its hardest braking (m/s^2, <= a_min) and jerk bound (m/s^3).

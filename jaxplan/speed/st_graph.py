@@ -32,11 +32,11 @@ def speed_envelope(v_lim, ds, decel, accel):
     return jnp.sqrt(jnp.maximum(w, 0.0))
 
 
-def time_margin(b: STBoundary, m: int) -> STBoundary:
+def time_margin(b: STBoundary, m: int, which=None) -> STBoundary:
     """Each boundary ``(K, F)`` at check time ``f`` widened to its union over ``f .. f + m``:
     passing ahead of an obstacle must clear where it will be ``m`` check times later (a
     crossing car is passed with a time margin, not by a hair); following behind one that
-    drives on is unchanged."""
+    drives on is unchanged. ``which (K,)``: the obstacles widened (default all)."""
     if m <= 0:
         return b
     big = jnp.asarray(BIG, b.lower.dtype)
@@ -48,6 +48,9 @@ def time_margin(b: STBoundary, m: int) -> STBoundary:
     inf = jnp.asarray(jnp.inf, lo.dtype)
     L, H = win(lo, inf, jax.lax.min), win(hi, -inf, jax.lax.max)
     X = win(hit.astype(jnp.int32), jnp.asarray(np.iinfo(np.int32).min, jnp.int32), jax.lax.max) > 0
+    if which is not None:
+        X = jnp.where(which[..., None], X, hit)
+        L, H = jnp.where(which[..., None], L, b.lower), jnp.where(which[..., None], H, b.upper)
     return STBoundary(jnp.where(X, L, b.lower), jnp.where(X, H, b.upper), X)
 
 
@@ -60,6 +63,7 @@ def build_speed_scene(
     v0=0.0,
     road: SpeedRoad | None = None,
     buffer=None,
+    merging=None,
 ) -> SpeedScene:
     """Resample obstacles to the check times, project them to the path once per time,
     classify them, project keep-clear regions, sample the speed limit.
@@ -72,6 +76,8 @@ def build_speed_scene(
         road: ``SpeedRoad`` or None (no limit but curvature and ``v_max``, no stop, no goal).
         buffer: ``()`` the clearance around obstacles and before a stop (m), traced; None:
             ``config.buffer``.
+        merging: ``(K,)`` bool, the obstacles moving over into the car's lane
+            (``jaxplan.speed.paths.merging_in``); None: none.
     """
     dtype = profile.s.dtype
     road = SpeedRoad.free(dtype) if road is None else road
@@ -94,7 +100,14 @@ def build_speed_scene(
         v_moving=config.v_moving,
     )
     held = int(round(config.pass_margin * config.n_sub / config.dt))  # check times in pass_margin
-    c = dataclasses.replace(c, blocking=time_margin(c.blocking, held))
+    # a vehicle driving the car's way that moves over into the car's lane is passed when the car is
+    # ahead of it (it follows, then); the margin is for crossing and oncoming traffic, and for a
+    # vehicle whose lane the car moves over to (it may not brake for the car)
+    if merging is None:
+        c = dataclasses.replace(c, blocking=time_margin(c.blocking, held))
+    else:
+        joins = c.same_way & jnp.asarray(merging, bool)
+        c = dataclasses.replace(c, blocking=time_margin(c.blocking, held, ~joins))
     front, rear = car_extent(vehicle, dtype)
     stop = jnp.asarray(road.stop_s, dtype)
     has = jnp.isfinite(stop)
@@ -142,9 +155,10 @@ def make_scene(
     v0=0.0,
     road=None,
     buffer=None,
+    merging=None,
 ) -> tuple[PathProfile, SpeedScene]:
-    """Path profile on the DP station grid and the scene boundaries (``buffer``: as
+    """Path profile on the DP station grid and the scene boundaries (``buffer``, ``merging``: as
     ``build_speed_scene``'s)."""
     vehicle = VehicleParams() if vehicle is None else vehicle
     profile = path_profile(path, s0, config.n_s, config.ds)
-    return profile, build_speed_scene(profile, obstacles, vehicle, config, keep_clear, v0, road, buffer)
+    return profile, build_speed_scene(profile, obstacles, vehicle, config, keep_clear, v0, road, buffer, merging)
