@@ -54,13 +54,21 @@ def _load(path: str) -> dict:
 
 
 def _drive_summary(folder: str) -> dict:
+    """A run's settings, timing and tables. Its CommonRoad scenes and its built-in ones (``--builtin``)
+    are summed apart (``summary``, ``builtin``): the development set's figures are its files'."""
     m = _load(os.path.join(folder, "metrics.json"))
     planners = m["run"]["planners"]
-    summary = {p: {k[len(f"drive.{p}."):]: v for k, v in m.items() if k.startswith(f"drive.{p}.")} for p in planners}
-    return {"planners": planners, "summary": summary, "by_folder": m.get("by_folder", {}),
-            "by_location": m.get("by_location", {}), "timing": m.get("timing", {}),
+    rows = _rows(folder)
+    files = [r for r in rows if r.get("folder") != BUILTIN]
+    built = [r for r in rows if r.get("folder") == BUILTIN]
+    if built:
+        summary = _summary_of(files)
+    else:  # the run's own summary (it holds the timing-free figures of every drive)
+        summary = {p: {k[len(f"drive.{p}."):]: v for k, v in m.items() if k.startswith(f"drive.{p}.")} for p in planners}
+    return {"planners": planners, "summary": summary, "builtin": _summary_of(built),
+            "by_folder": m.get("by_folder", {}), "by_location": m.get("by_location", {}), "timing": m.get("timing", {}),
             "settings": {k: m["run"].get(k) for k in ("agents", "prediction", "n_steps", "replan_every", "tracking")},
-            "scenes": len(m["run"].get("scenarios", []))}
+            "scenes": len({r["scenario"] for r in files}) if built else len(m["run"].get("scenarios", []))}
 
 
 def _rows(folder: str) -> list:
@@ -71,35 +79,51 @@ def _rows(folder: str) -> list:
         return [json.loads(line) for line in f]
 
 
+BUILTIN = "builtin"  # the folder name of the built-in scenes' rows
+
+
+def _summary_of(rows: list) -> dict:
+    """``{planner: summary}`` of drive rows (the keys of a run's own ``drive.PLANNER.*`` figures)."""
+    groups: dict = {}
+    for r in rows:
+        groups.setdefault(r["planner"], []).append(r)
+    out: dict = {}
+    for p, rs in groups.items():
+        n = len(rs)
+        out[p] = {
+            "scenes": n, "success_share": sum(r["success"] for r in rs) / n,
+            "goal_share": sum(r["goal.reached"] for r in rs) / n,
+            "collisions": sum(r["overlap.collided"] for r in rs),
+            "at_fault_collisions": sum(r["overlap.at_fault"] for r in rs),
+            "offroad_share": sum(r["offroad.offroad"] for r in rs) / n,
+            "red_light_crossings": sum(r["redlight.crossings"] for r in rs),
+            "goal_off_map": sum(r["goal.off_map"] for r in rs)}
+    return out
+
+
 def _split_summary(folder: str) -> dict:
-    """``{planner: {split: summary}}`` of a run's drives over the location split (``files.split_of``)."""
+    """``{planner: {split: summary}}`` of a run's drives of scenario files over the location split
+    (``files.split_of``; the built-in scenes are not part of it)."""
     import sys
 
     sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
     from jaxplan.scenarios.files import split_of
 
-    groups: dict = {}
+    splits: dict = {}
     for r in _rows(folder):
-        groups.setdefault(r["planner"], {}).setdefault(split_of(r["location"]), []).append(r)
+        if r.get("folder") != BUILTIN:
+            splits.setdefault(split_of(r["location"]), []).append(r)
     out: dict = {}
-    for p, splits in groups.items():
-        for name, rs in sorted(splits.items()):
-            n = len(rs)
-            out.setdefault(p, {})[name] = {
-                "scenes": n, "success_share": sum(r["success"] for r in rs) / n,
-                "goal_share": sum(r["goal.reached"] for r in rs) / n,
-                "collisions": sum(r["overlap.collided"] for r in rs),
-                "at_fault_collisions": sum(r["overlap.at_fault"] for r in rs),
-                "offroad_share": sum(r["offroad.offroad"] for r in rs) / n,
-                "red_light_crossings": sum(r["redlight.crossings"] for r in rs),
-                "goal_off_map": sum(r["goal.off_map"] for r in rs)}
+    for name, rs in sorted(splits.items()):
+        for p, summary in _summary_of(rs).items():
+            out.setdefault(p, {})[name] = summary
     return out
 
 
 def _brake_survivable(dev: str, brake: str) -> dict:
     """The scenes of ``brake``'s drives without a collision, and per planner of ``dev`` its drives,
     successes, collisions and at-fault collisions on them."""
-    braked = [r for r in _rows(brake) if r["planner"] == "brake"]
+    braked = [r for r in _rows(brake) if r["planner"] == "brake" and r.get("folder") != BUILTIN]
     safe = {r["scenario"] for r in braked if not r["overlap.collided"]}
     out: dict = {"brake_drives": len(braked), "survivable": len(safe), "planners": {}}
     for r in _rows(dev):
@@ -156,6 +180,10 @@ def render(d: dict) -> str:
                   f"{s.get('prediction')}`), re-plan every {s.get('replan_every')} steps, {s.get('tracking')} tracking, "
                   f"each scene to the end of its goal's window, at most {s.get('n_steps')} steps.", ""]
         lines += _table(dev["summary"], "planner") + [""]
+        if dev.get("builtin"):
+            n_b = max(v["scenes"] for v in dev["builtin"].values())
+            lines += [f"The same run's {n_b} built-in scenes (`--builtin --quick`: synthetic scenes that braking "
+                      "survives):", ""] + _table(dev["builtin"], "planner") + [""]
         for p in dev["planners"]:
             lines += [f"Per folder, `{p}`:", ""] + _table(dev["by_folder"].get(p, {}), "folder") + [""]
             if dev.get("by_location", {}).get(p):

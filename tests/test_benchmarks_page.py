@@ -47,3 +47,29 @@ def test_a_missing_run_folder_is_one_line(tmp_path):
 
     with pytest.raises(SystemExit, match="rows.jsonl not found"):
         _page()._brake_survivable(str(tmp_path / "dev"), str(tmp_path / "nowhere"))
+
+
+def test_built_in_scenes_are_summed_apart_from_the_scenario_files(tmp_path):
+    """A run with ``--builtin``: the development set's table, its location split and the brake
+    survivable scenes count the scenario files only; the built-in drives get a table of their own."""
+    def row(planner, scenario, folder, success=True, collided=False):
+        return {**_row(planner, scenario, collided=collided, success=success), "folder": folder, "location": scenario,
+                "goal.reached": success, "offroad.offroad": False, "redlight.crossings": 0, "goal.off_map": 0}
+
+    rows = [row("lattice", "DEU_A-1", "sumo"), row("lattice", "DEU_B-1", "sumo", success=False, collided=True),
+            row("lattice", "JAXPLAN_x-0", "builtin"), row("brake", "DEU_A-1", "sumo"),
+            row("brake", "DEU_B-1", "sumo", success=False), row("brake", "JAXPLAN_x-0", "builtin", success=False)]
+    _write(tmp_path / "dev", rows)
+    with open(tmp_path / "dev" / "metrics.json", "w") as f:
+        json.dump({"run": {"planners": ["lattice", "brake"], "scenarios": ["DEU_A-1", "DEU_B-1", "JAXPLAN_x-0"]}}, f)
+    page = _page()
+    d = page._drive_summary(str(tmp_path / "dev"))
+    assert d["scenes"] == 2
+    assert d["summary"]["lattice"]["scenes"] == 2 and d["summary"]["lattice"]["success_share"] == 0.5
+    assert d["summary"]["lattice"]["collisions"] == 1
+    assert d["builtin"]["lattice"] == {**d["builtin"]["lattice"], "scenes": 1, "success_share": 1.0}
+    assert d["builtin"]["brake"]["success_share"] == 0.0
+    split = page._split_summary(str(tmp_path / "dev"))
+    assert sum(v["scenes"] for v in split["lattice"].values()) == 2
+    bs = page._brake_survivable(str(tmp_path / "dev"), str(tmp_path / "dev"))
+    assert bs["brake_drives"] == 2 and bs["survivable"] == 2 and bs["planners"]["lattice"]["scenes"] == 2
