@@ -246,6 +246,22 @@ def test_fault_is_judged_at_every_obstacles_first_contact():
     xy = np.repeat(stand[None], 60, 0)
     m = overlap(_log(xy, np.full(60, fb[0, 4]), np.zeros(60)), fscene, CAR)
     assert bool(m["collided"]) and not bool(m["at_fault"]) and int(m["first_step"]) <= 40
+    # the same contact as the drive's last step, and as the last step of the other car's recording: its
+    # motion is then its step before's (it was judged standing, and the car at fault)
+    k = int(m["first_step"])
+    m = overlap(_log(xy[: k + 1], np.full(k + 1, fb[0, 4]), np.zeros(k + 1)), fscene, CAR)
+    assert bool(m["collided"]) and int(m["first_step"]) == k and not bool(m["at_fault"])
+    ended = dataclasses.replace(fscene, obstacles=dataclasses.replace(
+        fscene.obstacles, valid=fscene.obstacles.valid.at[0, k + 1:].set(False)))
+    m = overlap(_log(xy, np.full(60, fb[0, 4]), np.zeros(60)), ended, CAR)
+    assert bool(m["collided"]) and int(m["first_step"]) == k and not bool(m["at_fault"])
+    # a car standing squarely behind, whose recording ends as the car backs into it: the car's fault
+    still = dataclasses.replace(ended, obstacles=dataclasses.replace(
+        ended.obstacles, boxes=jnp.broadcast_to(ended.obstacles.boxes[:, k:k + 1], ended.obstacles.boxes.shape)))
+    back = stand[None] + np.linspace(2.0, 0.0, k + 1)[:, None] * np.array([np.cos(fb[0, 4]), np.sin(fb[0, 4])])
+    back = np.concatenate([back, np.repeat(stand[None], 59 - k, 0)])
+    m = overlap(_log(back, np.full(60, fb[0, 4]), np.zeros(60)), still, CAR)
+    assert bool(m["collided"]) and 0 < int(m["first_step"]) <= k and bool(m["at_fault"])
     # hit from behind, then pushed on into a parked car ahead: the second contact is the car's fault
     both = _record(_road_dict(obstacles=[(30.0 + 1.0 * t, np.zeros(60)), (0.0, 0.0, "static")]))
     bscene = jax.tree_util.tree_map(jnp.asarray, both.scene)

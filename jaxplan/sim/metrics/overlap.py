@@ -8,7 +8,8 @@ Fault is decided for every obstacle at its own first contact with the car (a dri
 touch several): the car is **not** at fault only when a moving obstacle hits it squarely
 from behind, i.e. at that step
 
-- the obstacle moves (faster than ``MOVING`` m/s, from its boxes one step apart),
+- the obstacle moves (faster than ``MOVING`` m/s, from its boxes one step apart: its next
+  step's, or, where the contact is its last step or the drive's, its step before),
 - its centre lies behind the car's rear bumper (more than half the car's length behind the
   car's centre, along the car's heading) and within the car's width across it,
 - it drives the car's way (headings within ``SAME_WAY`` rad).
@@ -78,9 +79,13 @@ def overlap(log, scene, vehicle):
     car = car_boxes(log, vehicle)[first]  # (K, 5)
     idx = jnp.arange(K)
     box = obs.boxes[idx, first]  # (K, 5)
-    nxt_step = jnp.minimum(first + 1, N - 1)
+    nxt_step, prv_step = jnp.minimum(first + 1, N - 1), jnp.maximum(first - 1, 0)
     nxt_ok = obs.valid[idx, nxt_step] & (first + 1 < N) & ~obs.static
-    nxt = jnp.where(nxt_ok[:, None], obs.boxes[idx, nxt_step], box)
+    # where the contact is the obstacle's last recorded step or the drive's last, its motion is the
+    # step before's carried on (a vehicle that rear-ends the car as its recording ends still moves)
+    prv_ok = obs.valid[idx, prv_step] & (first > 0) & ~obs.static
+    carried = box.at[:, :2].set(2.0 * box[:, :2] - obs.boxes[idx, prv_step, :2])
+    nxt = jnp.where(nxt_ok[:, None], obs.boxes[idx, nxt_step], jnp.where(prv_ok[:, None], carried, box))
     excused = hit_from_behind(car, box, nxt, jnp.asarray(scene.dt, box.dtype)) & ~obs.static
     fault = touched & ~excused  # (K,)
     collided = jnp.any(touched)
