@@ -290,15 +290,16 @@ def own_lane_width(scene, ctx: RoadContext) -> Any:
     return jnp.maximum(ctx.lane_width[scene.own_lane], 1.0)
 
 
-def other_lane(scene, ctx: RoadContext, u, ahead) -> tuple[Any, Any, Any]:
+def other_lane(scene, ctx: RoadContext, u, ahead, lane=None) -> tuple[Any, Any, Any]:
     """The lane of the planner's other path, at the route path's stations ``u (N,)`` from the car:
     ``(offset (N,), runs (), goal_ok ())``. Where the route leaves the car's lane within ``ahead``
     metres (it changes lanes there, or the car is beside it: ``car_lane`` more than half the own
     lane's width off the route) and that lane runs on that far, the car's lane (the car may stay
     in it instead of moving over); else ``neighbour_lane``'s. ``goal_ok`` as ``neighbour_lane``'s,
-    for the offset where the goal region begins."""
+    for the offset where the goal region begins. ``lane``: ``car_lane(scene, ctx, ctx.s + u)``
+    where the caller has it (None: computed here)."""
     l_nb, runs, goal_ok = neighbour_lane(scene, ctx, ahead)
-    l_car, near = car_lane(scene, ctx, ctx.s + u)
+    l_car, near = car_lane(scene, ctx, ctx.s + u) if lane is None else lane
     reach = (u >= 0) & (u <= ahead)
     leaves = jnp.any(reach & (jnp.abs(l_car) > 0.5 * own_lane_width(scene, ctx))) & jnp.all(near | ~reach)
     goal_car = toward_goal(ctx, jnp.interp(ctx.goal_s[0] - ctx.s, u, l_car), ahead)

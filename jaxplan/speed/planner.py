@@ -237,7 +237,8 @@ class PathSpeedPlanner:
         obs = Obstacles(obs.boxes, obs.valid, obs.t - obs.t[0], obs.static)
         # vehicles moving over into the car's lane: passed without the crossing margin when they
         # drive the car's way
-        merging = merging_in(ctx, rp.s, car_lane(scene, ctx, ctx.s + rp.s)[0])
+        lane = car_lane(scene, ctx, ctx.s + rp.s)  # the car's lane at the route path's stations
+        merging = merging_in(ctx, rp.s, lane[0])
 
         def on(path, buffer):
             ref, s0 = path_reference(path)
@@ -250,7 +251,7 @@ class PathSpeedPlanner:
         if self.lane_change:
             ahead_lane = jnp.maximum(v0, ctx.v_set) * self.horizon + 20.0
             u = rp.s  # the route path's stations, the other lane's path's too
-            l_nb, runs, goal_ok = other_lane(scene, ctx, u, ahead_lane)  # (N,), (), ()
+            l_nb, runs, goal_ok = other_lane(scene, ctx, u, ahead_lane, lane)  # (N,), (), ()
             paths.append(self.route_path(scene, ctx, ego, rp.s.shape[0], l_nb))
         nb = len(paths) - 1  # the neighbour lane's path (with lane_change)
         buffers = [self.speed.buffer] * len(paths)

@@ -103,11 +103,8 @@ def build_speed_scene(
     # a vehicle driving the car's way that moves over into the car's lane is passed when the car is
     # ahead of it (it follows, then); the margin is for crossing and oncoming traffic, and for a
     # vehicle whose lane the car moves over to (it may not brake for the car)
-    if merging is None:
-        c = dataclasses.replace(c, blocking=time_margin(c.blocking, held))
-    else:
-        joins = c.same_way & jnp.asarray(merging, bool)
-        c = dataclasses.replace(c, blocking=time_margin(c.blocking, held, ~joins))
+    which = None if merging is None else ~(c.same_way & jnp.asarray(merging, bool))
+    c = dataclasses.replace(c, blocking=time_margin(c.blocking, held, which))
     front, rear = car_extent(vehicle, dtype)
     stop = jnp.asarray(road.stop_s, dtype)
     has = jnp.isfinite(stop)
