@@ -429,3 +429,5 @@ def test_vehicles_moving_over_into_the_cars_lane_are_passed_without_the_crossing
     up_p, up_m = np.asarray(plain.classified.blocking.upper[2]), np.asarray(merge.classified.blocking.upper[2])
     hit = np.asarray(merge.classified.blocking.hit[2])
     assert np.all(up_m[hit] <= up_p[hit] + 1e-4) and np.any(up_m[hit] < up_p[hit] - 1.0)
+    with pytest.raises(ValueError, match="merging has shape"):
+        make_scene(ref, obs, cfg, CAR, 60.0, v0=10.0, merging=jnp.zeros(5, bool))

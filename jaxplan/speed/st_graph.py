@@ -79,6 +79,11 @@ def build_speed_scene(
         merging: ``(K,)`` bool, the obstacles moving over into the car's lane
             (``jaxplan.speed.paths.merging_in``); None: none.
     """
+    if merging is not None and jnp.shape(merging) != obstacles.valid.shape[:1]:
+        raise ValueError(
+            f"build_speed_scene: merging has shape {jnp.shape(merging)}; one flag per obstacle, "
+            f"{obstacles.valid.shape[:1]}, expected"
+        )
     dtype = profile.s.dtype
     road = SpeedRoad.free(dtype) if road is None else road
     buffer = config.buffer if buffer is None else buffer
