@@ -1,6 +1,8 @@
 """Speed planning geometry: projected ST boundaries vs shapely, strip clipping, classification
 (blocking, behind, non-blocking with decisions beside and behind the car), resampling,
 keep-clear regions, composition."""
+import dataclasses
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -431,3 +433,19 @@ def test_vehicles_moving_over_into_the_cars_lane_are_passed_without_the_crossing
     assert np.all(up_m[hit] <= up_p[hit] + 1e-4) and np.any(up_m[hit] < up_p[hit] - 1.0)
     with pytest.raises(ValueError, match="merging has shape"):
         make_scene(ref, obs, cfg, CAR, 60.0, v0=10.0, merging=jnp.zeros(5, bool))
+    # margin=False (the plan without the comfort clearances): every boundary is the plain overlap
+    # (time_margin's input), the margin is kept otherwise; a car coming towards the car in its lane
+    # (its near side sweeps closer) and the crossing pedestrian show the difference
+    sweep = _scene(lambda t: np.concatenate([boxes(t), [[70 - 8 * t, 0.2, 4.5, 1.8, np.pi]]]))
+    moving6 = jnp.concatenate([moving, jnp.zeros(1, bool)])
+    kept, bare = (make_scene(ref, sweep, cfg, CAR, 60.0, v0=10.0, merging=moving6, margin=jnp.asarray(m))[1]
+                  for m in (True, False))
+    _, overlap = make_scene(ref, sweep, dataclasses.replace(cfg, pass_margin=0.0), CAR, 60.0, v0=10.0)
+    _, margined = make_scene(ref, sweep, cfg, CAR, 60.0, v0=10.0, merging=moving6)
+    kb, bb, ob = kept.classified.blocking, bare.classified.blocking, overlap.classified.blocking
+    for f in ("lower", "upper", "hit"):
+        np.testing.assert_array_equal(getattr(bb, f), getattr(ob, f))
+        np.testing.assert_array_equal(getattr(kb, f), getattr(margined.classified.blocking, f))
+    hit = np.asarray(ob.hit)
+    assert np.any(np.asarray(kb.lower[6])[hit[6]] < np.asarray(bb.lower[6])[hit[6]] - 3.0)
+    assert np.asarray(kb.hit[4]).sum() > hit[4].sum()

@@ -17,7 +17,7 @@ import pytest
 import shapely.geometry as sg
 from test_sim import _record, _road_dict
 
-from jaxplan.plan_context import road_context
+from jaxplan.plan_context import CURVE_DECEL, road_context
 from jaxplan.planner import EgoState, make_planner
 from jaxplan.scenarios import builtin
 from jaxplan.speed import SpeedConfig
@@ -41,7 +41,8 @@ def _synthetic():
     m/s, an oncoming car passing 0.15 m clear of it (inside the speed plan's 0.3 m buffer, outside
     the car) and a car 14 m behind at 12 m/s (stopping for the oncoming car gets the car hit);
     MAPEND: one lane that ends 120 m ahead of the car (15 m/s), a goal region 75-95 m ahead to be
-    met at 13-20 m/s (the drive ends there: the end of the map beyond it is no reason to slow)."""
+    met at 13-20 m/s (the drive ends there: the end of the map beyond it is no reason to slow);
+    DEADEND: one lane that ends 100 m ahead of the car (15 m/s), a goal of time only (11-12 s)."""
     lane0 = np.zeros(251)
     slow = (START + 25.0 + 4.0 * TT, lane0)
     roads = {"SLOW": _road_dict(obstacles=[slow]),
@@ -51,7 +52,8 @@ def _synthetic():
                                   n_lanes=1, v0=10.0, goal_t=(0.0, 8.0)),
              "SQUEEZE": _road_dict(obstacles=[(START + 70.0 - 10.0 * TT, np.full(251, SQUEEZE_L)),
                                               (START - 14.0 + 12.0 * TT, lane0)], n_lanes=1, v0=10.0, goal_t=(0.0, 8.0)),
-             "MAPEND": _road_dict(n_lanes=1, v0=15.0, goal_t=(0.0, 10.0))}
+             "MAPEND": _road_dict(n_lanes=1, v0=15.0, goal_t=(0.0, 10.0)),
+             "DEADEND": _road_dict(n_lanes=1, v0=15.0, goal_t=(11.0, 12.0))}
     mapend = roads["MAPEND"]
     for lane in mapend["lanelets"]:
         lane["left"], lane["right"] = lane["left"][:76], lane["right"][:76]  # 150 m of road from s = 0
@@ -59,6 +61,9 @@ def _synthetic():
     cx, cy = goal["rectangle"]["center"]  # 120 m ahead on the straight road (heading 0.3): 35 m back
     goal["rectangle"]["center"] = [cx - 35.0 * np.cos(0.3), cy - 35.0 * np.sin(0.3)]
     goal["velocity"] = [13.0, 20.0]
+    for lane in roads["DEADEND"]["lanelets"]:
+        lane["left"], lane["right"] = lane["left"][:66], lane["right"][:66]  # 130 m of road from s = 0
+    del roads["DEADEND"]["planning_problems"][0]["goals"][0]["rectangle"]
     return {k: dataclasses.replace(_record(d), name=k) for k, d in roads.items()}
 
 
@@ -404,6 +409,21 @@ def test_a_goal_before_the_end_of_the_map_is_met_at_speed():
     log, m, _ = _synthetic_drive("MAPEND")
     assert m["goal.reached"] and not m["overlap.collided"] and not m["offroad.offroad"], m
     assert log.v[int(log.end_step)] >= 13.0
+
+
+def test_a_dead_end_is_approached_as_gently_as_the_set_speed_slows():
+    """DEADEND: the car stands before the end of the road without braking harder than the set
+    speed's CURVE_DECEL (the DP kept the speed and braked late at its own limits, and a car
+    following close behind hit it)."""
+    log, m, rec = _synthetic_drive("DEADEND")
+    n = int(log.end_step) + 1
+    assert m["goal.reached"] and not m["overlap.collided"] and not m["offroad.offroad"], m
+    assert log.v[n - 1] < 0.5  # it stands ...
+    ahead = np.cos(rec.scenario.ego.heading) * (log.x[n - 1] - log.x[0]) + np.sin(rec.scenario.ego.heading) * (
+        log.y[n - 1] - log.y[0]
+    )
+    assert 60.0 < ahead < 100.0 - 0.5 * PathSpeedPlanner().vehicle.length  # ... before the end
+    assert np.diff(log.v[:n]).min() / 0.1 >= -(CURVE_DECEL + 0.5), np.diff(log.v[:n]).min() / 0.1
 
 
 def _numpy_quintic(l0, m, k, d, length, n=2001):

@@ -286,13 +286,14 @@ def profile_cost(d: DPCosts, config: SpeedConfig, j_seq):
 
 
 def plan_one(
-    path, obstacles, v0, a0, s0, keep_clear, road, vehicle, config, weights, buffer=None, merging=None
+    path, obstacles, v0, a0, s0, keep_clear, road, vehicle, config, weights, buffer=None, merging=None, margin=None
 ) -> SpeedPlan:
     """The exact DP plan of one scene (unbatched, traceable: ``plan_speed`` checks, batches
     and jits it; a planner calls it inside its own program). Arguments as ``plan_speed``'s;
     ``buffer``: a traced clearance instead of ``config.buffer``; ``merging``: ``(K,)`` the
-    obstacles moving over into the car's lane (both: ``st_graph.build_speed_scene``)."""
-    _, scene = make_scene(path, obstacles, config, vehicle, s0, keep_clear, v0, road, buffer, merging)
+    obstacles moving over into the car's lane; ``margin``: ``()`` bool, keep the crossing margin
+    (all three: ``st_graph.build_speed_scene``)."""
+    _, scene = make_scene(path, obstacles, config, vehicle, s0, keep_clear, v0, road, buffer, merging, margin)
     d = stage_costs(scene, config, weights, v0, a0)
     ii, jj, cost = dp_from_costs(d, config)
     return _plan_from_indices(ii, jj, cost, d, v0, config, scene)

@@ -50,7 +50,14 @@ import jax
 import jax.numpy as jnp
 
 from jaxplan.bounds.path_planner import PathConfig, plan_path
-from jaxplan.plan_context import RoadContext, goal_region_ahead, road_context, route_sample, set_speed
+from jaxplan.plan_context import (
+    CURVE_DECEL,
+    RoadContext,
+    goal_region_ahead,
+    road_context,
+    route_sample,
+    set_speed,
+)
 from jaxplan.planner import SIM_VEHICLE, EgoState, PlanOutput
 from jaxplan.speed.compose import compose_profile
 from jaxplan.speed.costs import REAR_CONTACT
@@ -78,7 +85,8 @@ def speed_road(scene, ctx: RoadContext, path, v_max: float, vehicle: VehiclePara
     (read at its route station; raised to the set speed ``v_set`` where that is higher: a goal
     that cannot be met at the limit, ``set_speed``), a stop before the path's blockage (the car's reference point
     before ``path.blocked_s``) and, without a goal region ahead (the drive ends there; the map
-    often ends just past it), before the end of the mapped road (the car's front), the
+    often ends just past it), before the end of the mapped road (the car's front; the limit
+    falls as the set speed's does, slowing at ``CURVE_DECEL`` to stand there), the
     goal's stations (box centre, along the route), time window and speeds, where the path
     leaves the car's lane (``lane_leave_s``)."""
     f = path.xy.dtype
@@ -88,10 +96,13 @@ def speed_road(scene, ctx: RoadContext, path, v_max: float, vehicle: VehiclePara
     goal_ahead = goal_region_ahead(ctx.goal_s, ctx.s + jnp.asarray(vehicle.center_offset, f))
     end = jnp.where(jnp.isfinite(end) & ~goal_ahead, end, jnp.inf)
     stop = jnp.minimum(path.blocked_s + front, end)
+    # a dead end is approached as gently as the set speed does (CURVE_DECEL), not at the DP's limits
+    to_end = jnp.where(jnp.isfinite(end), jnp.maximum(end - front - path.s, 0.0), jnp.inf)
+    v_end = jnp.sqrt(2.0 * CURVE_DECEL * to_end)
     goal_s = ctx.goal_s - ctx.s
     return SpeedRoad(
         path.s,
-        jnp.minimum(jnp.maximum(lim, v_set), v_max),
+        jnp.minimum(jnp.minimum(jnp.maximum(lim, v_set), v_end), v_max),
         stop,
         goal_s.astype(f),
         ctx.goal_t.astype(f),
@@ -240,10 +251,10 @@ class PathSpeedPlanner:
         lane = car_lane(scene, ctx, ctx.s + rp.s)  # the car's lane at the route path's stations
         merging = merging_in(ctx, rp.s, lane[0])
 
-        def on(path, buffer):
+        def on(path, buffer, margin):
             ref, s0 = path_reference(path)
             road = speed_road(scene, ctx, path, self.speed.v_max, self.vehicle, v_set)
-            plan = plan_one(ref, obs, v0, a0, s0, None, road, self.vehicle, self.speed, w, buffer, merging)
+            plan = plan_one(ref, obs, v0, a0, s0, None, road, self.vehicle, self.speed, w, buffer, merging, margin)
             return path, ref, s0, plan
 
         # every path has one shape: one vmapped speed plan (the DP is traced once)
@@ -255,11 +266,13 @@ class PathSpeedPlanner:
             paths.append(self.route_path(scene, ctx, ego, rp.s.shape[0], l_nb))
         nb = len(paths) - 1  # the neighbour lane's path (with lane_change)
         buffers = [self.speed.buffer] * len(paths)
-        if self.tight:  # the first path again, without the clearance buffer
+        margins = [True] * len(paths)
+        if self.tight:  # the first path again, without the clearance buffer and the crossing margin
             paths.append(paths[0])
             buffers.append(0.0)
+            margins.append(False)
         stacked = jax.tree_util.tree_map(lambda *a: jnp.stack(a), *paths)
-        every = jax.vmap(on)(stacked, jnp.asarray(buffers, f))
+        every = jax.vmap(on)(stacked, jnp.asarray(buffers, f), jnp.asarray(margins))
         plans = every[3]
         if bp is None:
             keep = jnp.asarray(0)

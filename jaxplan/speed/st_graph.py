@@ -64,6 +64,7 @@ def build_speed_scene(
     road: SpeedRoad | None = None,
     buffer=None,
     merging=None,
+    margin=None,
 ) -> SpeedScene:
     """Resample obstacles to the check times, project them to the path once per time,
     classify them, project keep-clear regions, sample the speed limit.
@@ -78,6 +79,8 @@ def build_speed_scene(
             ``config.buffer``.
         merging: ``(K,)`` bool, the obstacles moving over into the car's lane
             (``jaxplan.speed.paths.merging_in``); None: none.
+        margin: ``()`` bool, traced: blocking boundaries keep ``config.pass_margin`` (None: True;
+            False: the plain overlap, for a plan without the comfort clearances).
     """
     if merging is not None and jnp.shape(merging) != obstacles.valid.shape[:1]:
         raise ValueError(
@@ -109,6 +112,9 @@ def build_speed_scene(
     # ahead of it (it follows, then); the margin is for crossing and oncoming traffic, and for a
     # vehicle whose lane the car moves over to (it may not brake for the car)
     which = None if merging is None else ~(c.same_way & jnp.asarray(merging, bool))
+    if margin is not None:  # a plan without the comfort clearances: the plain overlap
+        keep = jnp.broadcast_to(jnp.asarray(margin, bool), c.same_way.shape)
+        which = keep if which is None else keep & which
     c = dataclasses.replace(c, blocking=time_margin(c.blocking, held, which))
     front, rear = car_extent(vehicle, dtype)
     stop = jnp.asarray(road.stop_s, dtype)
@@ -158,9 +164,12 @@ def make_scene(
     road=None,
     buffer=None,
     merging=None,
+    margin=None,
 ) -> tuple[PathProfile, SpeedScene]:
     """Path profile on the DP station grid and the scene boundaries (``buffer``, ``merging``: as
     ``build_speed_scene``'s)."""
     vehicle = VehicleParams() if vehicle is None else vehicle
     profile = path_profile(path, s0, config.n_s, config.ds)
-    return profile, build_speed_scene(profile, obstacles, vehicle, config, keep_clear, v0, road, buffer, merging)
+    return profile, build_speed_scene(
+        profile, obstacles, vehicle, config, keep_clear, v0, road, buffer, merging, margin
+    )
