@@ -2,9 +2,11 @@
 
 Reads what the runs wrote and nothing else:
 
-- ``--dev DIR``: a ``jaxplan drive`` folder over the development set (``metrics.json``: every
+- ``--dev DIR [DIR ...]``: ``jaxplan drive`` folders over the development set (``metrics.json``: every
   planner's summary, per-folder and per-location tables, the timing split; ``rows.jsonl``: the
-  drives, split into the location split's train and validation parts, ``files.split_of``);
+  drives, split into the location split's train and validation parts, ``files.split_of``); several
+  folders are runs of the same scenes and settings with different planners (each planner from one
+  run), e.g. one planner's new version beside a run of the others at the same code;
 - ``--sample DIR``: a ``jaxplan drive`` folder of every planner on a seeded sample of it;
 - ``--combo LABEL=DIR``: more ``jaxplan drive`` folders of the same scenes with other
   ``--agents`` / ``--prediction`` settings (their ``metrics.json``);
@@ -69,6 +71,36 @@ def _drive_summary(folder: str) -> dict:
             "by_folder": m.get("by_folder", {}), "by_location": m.get("by_location", {}), "timing": m.get("timing", {}),
             "settings": {k: m["run"].get(k) for k in ("agents", "prediction", "n_steps", "replan_every", "tracking")},
             "scenes": len({r["scenario"] for r in files}) if built else len(m["run"].get("scenarios", []))}
+
+
+def _dev_summary(folders: list) -> dict:
+    """``_drive_summary`` of the runs in ``folders`` merged: the same scenes and settings in each,
+    every planner from one run; ``runs`` names each run's planners and timing."""
+    parts = [_drive_summary(f) for f in folders]
+    out = {**parts[0], "runs": [{"folder": os.path.basename(os.path.normpath(f)), "planners": list(p["planners"]),
+                                 "timing": p["timing"]} for f, p in zip(folders, parts)]}
+    out = {**out, **{k: dict(out[k]) for k in ("summary", "builtin", "by_folder", "by_location")}}
+    out["planners"] = list(out["planners"])
+    for f, p in zip(folders[1:], parts[1:]):
+        if p["settings"] != out["settings"] or p["scenes"] != out["scenes"]:
+            raise SystemExit(f"benchmarks_page: --dev {f} drove other scenes or settings than {folders[0]}")
+        twice = set(p["planners"]) & set(out["planners"])
+        if twice:
+            raise SystemExit(f"benchmarks_page: --dev {f}: planner {sorted(twice)[0]} is in an earlier --dev run too")
+        out["planners"] += p["planners"]
+        for k in ("summary", "builtin", "by_folder", "by_location"):
+            out[k].update(p[k])
+    if len(parts) > 1:
+        out["timing"] = {}
+    return out
+
+
+def _merged(fn, folders: list) -> dict:
+    """``fn(folder)`` (``{planner: ...}``) of each of ``folders``, merged."""
+    out: dict = {}
+    for f in folders:
+        out.update(fn(f))
+    return out
 
 
 def _rows(folder: str) -> list:
@@ -142,10 +174,11 @@ def _brake_survivable(dev: str, brake: str) -> dict:
 def collect(args) -> dict:
     out: dict = {}
     if args.dev:
-        out["dev"] = _drive_summary(args.dev)
-        out["dev"]["by_split"] = _split_summary(args.dev)
+        out["dev"] = _dev_summary(args.dev)
+        out["dev"]["by_split"] = _merged(_split_summary, args.dev)
         if args.brake:
-            out["dev"]["brake_survivable"] = _brake_survivable(args.dev, args.brake)
+            parts = [_brake_survivable(f, args.brake) for f in args.dev]
+            out["dev"]["brake_survivable"] = {**parts[0], "planners": _merged(lambda b: b["planners"], parts)}
     if args.sample:
         out["sample"] = _drive_summary(args.sample)
         out["sample"]["caveat"] = args.sample_caveat
@@ -202,6 +235,10 @@ def render(d: dict) -> str:
             lines += [f"| {p} | {v['scenes']} | {v['success'] / max(v['scenes'], 1):.1%} | {v['collisions']} | "
                       f"{v['at_fault']} | {', '.join(v['at_fault_scenarios']) or '-'} |" for p, v in bs["planners"].items()]
             lines.append("")
+        if len(dev.get("runs", [])) > 1:
+            lines += ["These figures come from " + str(len(dev["runs"])) + " runs of the same scenes and settings: " +
+                      "; ".join(f"{', '.join(r['planners'])} (run `{r['folder']}`, wall time "
+                                f"{r['timing'].get('wall_s', 0):.0f} s)" for r in dev["runs"]) + ".", ""]
         t = dev.get("timing", {})
         if t and t.get("drives"):
             lines += [f"Wall time of that run ({', '.join(dev['planners'])}, one after another): {t.get('wall_s', 0):.0f} s "
@@ -283,7 +320,7 @@ def render(d: dict) -> str:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--dev")
+    ap.add_argument("--dev", nargs="+")
     ap.add_argument("--sample")
     ap.add_argument("--combo", nargs="*")
     ap.add_argument("--peers")

@@ -73,3 +73,43 @@ def test_built_in_scenes_are_summed_apart_from_the_scenario_files(tmp_path):
     assert sum(v["scenes"] for v in split["lattice"].values()) == 2
     bs = page._brake_survivable(str(tmp_path / "dev"), str(tmp_path / "dev"))
     assert bs["brake_drives"] == 2 and bs["survivable"] == 2 and bs["planners"]["lattice"]["scenes"] == 2
+
+
+def test_development_runs_of_different_planners_are_merged_and_a_planner_twice_is_refused(tmp_path):
+    """``--dev A B``: one planner's run beside a run of the others (same scenes, same settings) gives
+    one table with every planner, each planner's split and brake figures from its own run; a planner
+    in both runs, or runs of other settings, are refused."""
+    import pytest
+
+    def row(planner, scenario, success=True, collided=False):
+        return {**_row(planner, scenario, collided=collided, success=success), "folder": "sumo", "location": scenario,
+                "goal.reached": success, "offroad.offroad": False, "redlight.crossings": 0, "goal.off_map": 0}
+
+    def run(name, rows, planners, settings=None):
+        _write(tmp_path / name, rows + [{**r, "folder": "builtin", "scenario": "JAXPLAN_x-0"} for r in rows[:1]])
+        with open(tmp_path / name / "metrics.json", "w") as f:
+            json.dump({"run": {"planners": planners, "agents": "log", **(settings or {})},
+                       "timing": {"wall_s": 10.0, "drives": len(rows)}}, f)
+        return str(tmp_path / name)
+
+    a = run("a", [row("pathspeed", "DEU_A-1"), row("pathspeed", "DEU_B-1", success=False, collided=True)], ["pathspeed"])
+    b = run("b", [row("lattice", "DEU_A-1", success=False), row("lattice", "DEU_B-1"), row("brake", "DEU_A-1"),
+                  row("brake", "DEU_B-1", success=False, collided=True)], ["lattice", "brake"])
+    page = _page()
+    d = page._dev_summary([a, b])
+    assert d["planners"] == ["pathspeed", "lattice", "brake"]
+    assert d["summary"]["pathspeed"]["success_share"] == 0.5 and d["summary"]["lattice"]["success_share"] == 0.5
+    assert d["summary"]["pathspeed"]["collisions"] == 1 and d["summary"]["lattice"]["collisions"] == 0
+    assert [r["planners"] for r in d["runs"]] == [["pathspeed"], ["lattice", "brake"]]
+    args = page.argparse.Namespace(dev=[a, b], brake=b, sample=None, combo=None, peers=None, bench=None)
+    got = page.collect(args)["dev"]
+    assert set(got["by_split"]) == {"pathspeed", "lattice", "brake"}
+    bs = got["brake_survivable"]
+    assert bs["survivable"] == 1 and bs["planners"]["pathspeed"]["scenes"] == 1
+    assert bs["planners"]["pathspeed"]["success"] == 1 and bs["planners"]["lattice"]["success"] == 0
+    assert "from 2 runs of the same scenes" in page.render(page.collect(args))
+    with pytest.raises(SystemExit, match="planner pathspeed is in an earlier"):
+        page._dev_summary([a, a])
+    c = run("c", [row("idm", "DEU_A-1"), row("idm", "DEU_B-1")], ["idm"], {"agents": "idm"})
+    with pytest.raises(SystemExit, match="other scenes or settings"):
+        page._dev_summary([a, c])
