@@ -22,8 +22,8 @@ Each cycle (one scene, jittable; the simulator batches it with ``jax.vmap``):
    by the lane change's cost (the speed plan sees that lane's traffic over the whole horizon: a
    gap that closes, or a car from behind that would have to brake, makes it collide or cost
    more), and stays in it while that holds (``info["lane_change"]``). With ``tight`` the first path
-   is planned once more without the clearance buffer around obstacles, a way past that only
-   the exact overlap leaves open, taken when the buffered plan collides or is hit from behind
+   is planned once more without the clearance buffer around obstacles and the crossing margin,
+   a way past that only the exact overlap leaves open, taken when the buffered plan collides or is hit from behind
    (``info["tight"]``);
 3. the **speed**: the ST boundaries of the predictions on that path (blocking,
    non-blocking with decisions, a wall before the path's blockage and the end of the
@@ -150,7 +150,8 @@ class PathSpeedPlanner:
             when it is collision-free and cheaper by the lane change's cost
             (``CostWeights.w_lane_change``).
         tight: also plan the speed on the first path with no clearance buffer around the
-            obstacles (``speed.buffer`` 0: only the exact overlap blocks), and take that plan
+            obstacles and no crossing margin (``speed.buffer`` and ``speed.pass_margin`` 0: only
+            the exact overlap blocks), and take that plan
             where the lane-keeping plan (the first path's, or the route path's where the first
             is a usable bounds path) collides, or costs more by ``TIGHT_GAIN_S`` seconds of
             contact with a vehicle behind (stopping for an oncoming car that passes 0.1 m clear,

@@ -166,8 +166,8 @@ def make_scene(
     merging=None,
     margin=None,
 ) -> tuple[PathProfile, SpeedScene]:
-    """Path profile on the DP station grid and the scene boundaries (``buffer``, ``merging``: as
-    ``build_speed_scene``'s)."""
+    """Path profile on the DP station grid and the scene boundaries (``buffer``, ``merging``,
+    ``margin``: as ``build_speed_scene``'s)."""
     vehicle = VehicleParams() if vehicle is None else vehicle
     profile = path_profile(path, s0, config.n_s, config.ds)
     return profile, build_speed_scene(
