@@ -215,7 +215,8 @@ def render(d: dict) -> str:
         lines += _table(dev["summary"], "planner") + [""]
         if dev.get("builtin"):
             n_b = max(v["scenes"] for v in dev["builtin"].values())
-            lines += [f"The same run's {n_b} built-in scenes (`--builtin --quick`: synthetic scenes that braking "
+            whose = "runs'" if len(dev.get("runs", [])) > 1 else "run's"
+            lines += [f"The same {whose} {n_b} built-in scenes (`--builtin --quick`: synthetic scenes that braking "
                       "survives):", ""] + _table(dev["builtin"], "planner") + [""]
         for p in dev["planners"]:
             lines += [f"Per folder, `{p}`:", ""] + _table(dev["by_folder"].get(p, {}), "folder") + [""]
