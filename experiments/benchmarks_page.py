@@ -77,17 +77,16 @@ def _dev_summary(folders: list) -> dict:
     """``_drive_summary`` of the runs in ``folders`` merged: the same scenes and settings in each,
     every planner from one run; ``runs`` names each run's planners and timing."""
     parts = [_drive_summary(f) for f in folders]
-    out = {**parts[0], "runs": [{"folder": os.path.basename(os.path.normpath(f)), "planners": list(p["planners"]),
-                                 "timing": p["timing"]} for f, p in zip(folders, parts)]}
-    out = {**out, **{k: dict(out[k]) for k in ("summary", "builtin", "by_folder", "by_location")}}
-    out["planners"] = list(out["planners"])
+    runs = [{"folder": os.path.basename(os.path.normpath(f)), "planners": list(p["planners"]), "timing": p["timing"]}
+            for f, p in zip(folders, parts)]
+    out = {**parts[0], "runs": runs}  # the first run's summary, extended in place by the others'
     for f, p in zip(folders[1:], parts[1:]):
         if p["settings"] != out["settings"] or p["scenes"] != out["scenes"]:
             raise SystemExit(f"benchmarks_page: --dev {f} drove other scenes or settings than {folders[0]}")
         twice = set(p["planners"]) & set(out["planners"])
         if twice:
             raise SystemExit(f"benchmarks_page: --dev {f}: planner {sorted(twice)[0]} is in an earlier --dev run too")
-        out["planners"] += p["planners"]
+        out["planners"] = out["planners"] + p["planners"]
         for k in ("summary", "builtin", "by_folder", "by_location"):
             out[k].update(p[k])
     if len(parts) > 1:
@@ -95,11 +94,11 @@ def _dev_summary(folders: list) -> dict:
     return out
 
 
-def _merged(fn, folders: list) -> dict:
-    """``fn(folder)`` (``{planner: ...}``) of each of ``folders``, merged."""
+def _merged(fn, items: list) -> dict:
+    """``fn(item)`` (``{planner: ...}``) of each of ``items`` (run folders, their summaries), merged."""
     out: dict = {}
-    for f in folders:
-        out.update(fn(f))
+    for item in items:
+        out.update(fn(item))
     return out
 
 

@@ -122,8 +122,14 @@ def set_speed(scene, ctx: RoadContext, ego: EgoState, vehicle: VehicleParams, ho
     v = jnp.minimum(v, curve_speed(scene, ctx.s, reach, CURVE_LAT_ACC * lat_acc, CURVE_DECEL))
     d_end = ctx.route_end_s - (ctx.s + front_offset(vehicle, f))
     dead_end = ~goal_region_ahead(ctx.goal_s, s_centre) & jnp.isfinite(d_end)
-    v_end = jnp.sqrt(2.0 * CURVE_DECEL * jnp.maximum(jnp.where(jnp.isfinite(d_end), d_end, 0.0), 0.0))
+    v_end = gentle_stop_speed(jnp.where(jnp.isfinite(d_end), d_end, 0.0))
     return jnp.where(dead_end, jnp.minimum(v, v_end), v)
+
+
+def gentle_stop_speed(distance):
+    """``(...)`` the speed from which the car stands after ``distance (...)`` metres, slowing at
+    ``CURVE_DECEL`` (0 where ``distance <= 0``; ``inf`` where it is ``inf``)."""
+    return jnp.sqrt(2.0 * CURVE_DECEL * jnp.maximum(distance, 0.0))
 
 
 def route_sample(scene, values, s):

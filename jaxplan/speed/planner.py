@@ -51,8 +51,8 @@ import jax.numpy as jnp
 
 from jaxplan.bounds.path_planner import PathConfig, plan_path
 from jaxplan.plan_context import (
-    CURVE_DECEL,
     RoadContext,
+    gentle_stop_speed,
     goal_region_ahead,
     road_context,
     route_sample,
@@ -96,9 +96,8 @@ def speed_road(scene, ctx: RoadContext, path, v_max: float, vehicle: VehiclePara
     goal_ahead = goal_region_ahead(ctx.goal_s, ctx.s + jnp.asarray(vehicle.center_offset, f))
     end = jnp.where(jnp.isfinite(end) & ~goal_ahead, end, jnp.inf)
     stop = jnp.minimum(path.blocked_s + front, end)
-    # a dead end is approached as gently as the set speed does (CURVE_DECEL), not at the DP's limits
-    to_end = jnp.where(jnp.isfinite(end), jnp.maximum(end - front - path.s, 0.0), jnp.inf)
-    v_end = jnp.sqrt(2.0 * CURVE_DECEL * to_end)
+    # a dead end is approached as gently as the set speed does, not at the DP's limits
+    v_end = gentle_stop_speed(jnp.where(jnp.isfinite(end), end - front - path.s, jnp.inf))
     goal_s = ctx.goal_s - ctx.s
     return SpeedRoad(
         path.s,
