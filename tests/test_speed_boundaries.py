@@ -449,3 +449,5 @@ def test_vehicles_moving_over_into_the_cars_lane_are_passed_without_the_crossing
     hit = np.asarray(ob.hit)
     assert np.any(np.asarray(kb.lower[6])[hit[6]] < np.asarray(bb.lower[6])[hit[6]] - 3.0)
     assert np.asarray(kb.hit[4]).sum() > hit[4].sum()
+    with pytest.raises(ValueError, match="margin has shape"):
+        make_scene(ref, obs, cfg, CAR, 60.0, v0=10.0, margin=jnp.zeros(6, bool))

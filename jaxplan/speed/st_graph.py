@@ -87,6 +87,8 @@ def build_speed_scene(
             f"build_speed_scene: merging has shape {jnp.shape(merging)}; one flag per obstacle, "
             f"{obstacles.valid.shape[:1]}, expected"
         )
+    if margin is not None and jnp.ndim(margin) != 0:
+        raise ValueError(f"build_speed_scene: margin has shape {jnp.shape(margin)}; one flag, (), expected")
     dtype = profile.s.dtype
     road = SpeedRoad.free(dtype) if road is None else road
     buffer = config.buffer if buffer is None else buffer
