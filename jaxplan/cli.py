@@ -123,6 +123,10 @@ def main(argv=None) -> int:
     import matplotlib
 
     matplotlib.use("Agg")  # the command only writes picture files; library calls keep the user's backend
+    if args.cmd != "report":  # every other command compiles: with XLA CPU's loop emitters
+        from jaxplan.compile_options import use_fast_compile
+
+        use_fast_compile()
     if args.cmd == "drive":
         from jaxplan.sim import cli as drive_cli
 

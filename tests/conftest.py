@@ -1,17 +1,20 @@
 import os
 
-# The suite compiles with XLA's default options, as users and the benchmarks do, and without JAX's
-# persistent compilation cache (the CLI turns it on for users; child processes inherit this): with
-# jaxlib 0.10.2 one full run lost a worker aborting inside XLA while it serialised an executable for
-# the cache. Workers also crashed compiling without it, a different test each time: a worker that has
-# compiled a few thousand programs reaches the kernel's limit on memory maps and XLA aborts
-# (`_release_compiled_programs` below); `pytest_handlecrashitem` reruns a crashed worker's test.
+# The suite compiles as jaxplan's commands do: with XLA's default options but for the CPU loop emitters
+# (`jaxplan.compile_options.use_fast_compile`; the workers and child processes inherit XLA_FLAGS), and
+# without JAX's persistent compilation cache (the CLI turns it on for users; child processes inherit
+# this): with jaxlib 0.10.2 one full run lost a worker aborting inside XLA while it serialised an
+# executable for the cache. Workers also crashed compiling without it, a different test each time: a
+# worker that has compiled a few thousand programs reaches the kernel's limit on memory maps and XLA
+# aborts (`_release_compiled_programs` below); `pytest_handlecrashitem` reruns a crashed worker's test.
 os.environ["JAX_ENABLE_COMPILATION_CACHE"] = "false"
 
-import numpy as np  # noqa: E402
-import pytest
+from jaxplan.compile_options import release_compiled, use_fast_compile  # noqa: E402
 
-from jaxplan.compile_options import release_compiled  # noqa: E402
+use_fast_compile()
+
+import numpy as np  # noqa: E402
+import pytest  # noqa: E402
 
 # ../shared beside the repository; JAXPLAN_SHARED points elsewhere (a git worktree has no ../shared)
 SHARED = os.environ.get("JAXPLAN_SHARED") or os.path.join(os.path.dirname(__file__), "..", "..", "shared")

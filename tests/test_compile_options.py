@@ -1,4 +1,8 @@
 """jaxplan.compile_options.jit: jax.jit with per-kernel XLA options, plain jax.jit where refused."""
+import os
+import subprocess
+import sys
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -56,3 +60,58 @@ def test_vmap_and_the_function_s_own_errors_pass_through():
     for call in (b, jax.jit(b)):
         with pytest.raises(ValueError, match="bad input y"):
             call(x)
+
+
+FLAG = "--xla_cpu_use_fusion_emitters=false"
+
+
+def _child(code: str, xla_flags: str | None) -> list[str]:
+    """Run ``code`` in a fresh interpreter with ``XLA_FLAGS`` set to ``xla_flags`` (unset: None);
+    the words it printed."""
+    env = {k: v for k, v in os.environ.items() if k != "XLA_FLAGS"}
+    if xla_flags is not None:
+        env["XLA_FLAGS"] = xla_flags
+    r = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr[-2000:]
+    return r.stdout.split()
+
+
+def _use(flags: str = "", before: str = "pass") -> str:
+    """A child's code: ``before``, then ``use_fast_compile(flags)`` twice, then a computation;
+    prints the two results and XLA_FLAGS."""
+    arg = f"({flags!r},)" if flags else ""
+    return (f"import os, jax.numpy as jnp, jaxplan.compile_options as co; {before}; "
+            f"a = co.use_fast_compile({arg}); b = co.use_fast_compile({arg}); jnp.zeros(1).block_until_ready(); "
+            f"print(a, b, '|', os.environ.get('XLA_FLAGS', ''))")
+
+
+def test_fast_compile_flags_are_added_once_and_kept_by_child_processes():
+    out = _child(_use(), None)
+    assert out[:3] == ["True", "True", "|"] and out[3:] == [FLAG]  # added once, not twice
+    out = _child(_use(), "--xla_force_host_platform_device_count=2")
+    assert out[3:] == ["--xla_force_host_platform_device_count=2", FLAG]  # the user's flags kept
+
+
+def test_fast_compile_leaves_the_users_choice_a_started_backend_and_unknown_flags():
+    assert _child(_use(), "--xla_cpu_use_fusion_emitters=true")[:2] == ["False", "False"]
+    out = _child(_use(before="jnp.ones(2).sum()"), None)  # XLA has read XLA_FLAGS already
+    assert out == ["False", "False", "|"]
+    # XLA ends a process whose XLA_FLAGS names an unknown flag: this one is tried in a child first
+    out = _child(_use("--xla_cpu_no_such_flag_in_any_jaxlib=1"), None)
+    assert out == ["False", "False", "|"]
+
+
+def test_commands_that_compile_ask_for_fast_compile_first(monkeypatch, tmp_path):
+    import jaxplan.compile_options as co
+    from jaxplan import cli
+
+    class Asked(Exception):
+        pass
+
+    def asked():
+        raise Asked
+
+    monkeypatch.setattr(co, "use_fast_compile", asked)
+    with pytest.raises(Asked):
+        cli.main(["drive", "--builtin", "--quick", "--planner", "idm", "--out", str(tmp_path / "d")])
+    assert not (tmp_path / "d").exists()
