@@ -1,4 +1,5 @@
-"""jaxplan.compile_options.jit: jax.jit with per-kernel XLA options, plain jax.jit where refused."""
+"""jaxplan.compile_options: ``jit`` is jax.jit with per-kernel XLA options, plain jax.jit where refused;
+``use_fast_compile`` adds the loop-emitter flag to XLA_FLAGS where it can, and the commands call it."""
 import os
 import subprocess
 import sys
@@ -85,7 +86,7 @@ def _use(flags: str = "", before: str = "pass") -> str:
             f"print(a, b, '|', os.environ.get('XLA_FLAGS', ''))")
 
 
-def test_fast_compile_flags_are_added_once_and_kept_by_child_processes():
+def test_fast_compile_flags_are_added_once_beside_the_users_flags():
     out = _child(_use(), None)
     assert out[:3] == ["True", "True", "|"] and out[3:] == [FLAG]  # added once, not twice
     out = _child(_use(), "--xla_force_host_platform_device_count=2")
