@@ -30,13 +30,14 @@ def rng():
 # first. `make test` runs `--dist loadfile --no-loadscope-reorder`: the two workers take files in
 # this order, so the long ones start first and the workers finish close together (xdist's own
 # order, by the number of tests, started the longest file last). Files not named keep their order.
-# seconds per file in a full run with ../shared, backend optimisations off (2026-12-04):
-# 126 118 83 79 66 59 59 57 42 42 36 28 24 23 18 18 17 16 15
+# seconds per file in a full run with ../shared, compiled as the commands compile (2026-12-07):
+# 146 143 137 112 99 81 68 64 64 61 52 48 45 36 34 33 30 29 27 26 26 23 21
 SLOW_FIRST = (
-    "test_bounds_path.py", "test_speed_planner.py", "test_sim.py", "test_speed_dp.py", "test_lattice_road.py",
-    "test_lattice_core.py", "test_notebooks.py", "test_bounds_core.py", "test_parking_core.py", "test_inputs.py",
-    "test_replan_sim.py", "test_referee.py", "test_geometry_core.py", "test_speed_boundaries.py", "test_cli.py",
-    "test_parking_planner.py", "test_robustness_planners.py", "test_replan_planner.py", "test_tuning_lattice.py",
+    "test_speed_planner.py", "test_notebooks.py", "test_bounds_path.py", "test_sim.py", "test_speed_dp.py",
+    "test_closed_loop.py", "test_agents.py", "test_referee.py", "test_drive_runner.py", "test_lattice_road.py",
+    "test_bounds_core.py", "test_lattice_core.py", "test_speed_boundaries.py", "test_parking_core.py",
+    "test_traffic_lights.py", "test_lattice_drives.py", "test_readme_example.py", "test_inputs.py",
+    "test_replan_sim.py", "test_public_api.py", "test_cli.py", "test_tuning_lattice.py", "test_geometry_core.py",
 )
 
 
