@@ -163,8 +163,12 @@ def use_fast_compile(flags: tuple[str, ...] = FAST_COMPILE_FLAGS) -> bool:
     Changes nothing where ``XLA_FLAGS`` names any of the flags already (the user's choice), where
     JAX has started its backends (XLA reads ``XLA_FLAGS`` once, then), or where this jaxlib does
     not know a flag: XLA ends a process whose ``XLA_FLAGS`` names an unknown flag, so the flags
-    are first tried in a child process (about a second).
+    are first tried in a child process (about a second). Anything but ``--xla_name=value`` strings
+    in ``flags`` is refused with a ``ValueError``.
     """
+    bad = [f for f in flags if not (isinstance(f, str) and f.startswith("--xla_") and "=" in f and " " not in f)]
+    if isinstance(flags, str) or bad:
+        raise ValueError(f"use_fast_compile: flags must be a sequence of '--xla_name=value' strings, got {flags!r}")
     current = os.environ.get("XLA_FLAGS", "")
     if set(flags) <= set(current.split()):
         return True  # set already (by an earlier call, or the parent process's)

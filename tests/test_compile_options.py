@@ -92,6 +92,15 @@ def test_fast_compile_adds_its_flags_once_where_it_can_and_leaves_them_where_it_
     assert _child(code, "--xla_cpu_use_fusion_emitters=true") == ["False", "|", "--xla_cpu_use_fusion_emitters=true"]
 
 
+@pytest.mark.parametrize("flags", ["--xla_cpu_use_fusion_emitters=false", ("xla_cpu_x=1",), ("--xla_a=1 --xla_b=2",),
+                                   ("--xla_cpu_x",), (1,)])
+def test_fast_compile_refuses_what_is_not_a_sequence_of_xla_flags(flags):
+    from jaxplan.compile_options import use_fast_compile
+
+    with pytest.raises(ValueError, match="use_fast_compile: flags must be"):
+        use_fast_compile(flags)
+
+
 def test_commands_that_compile_ask_for_fast_compile_first(monkeypatch, tmp_path):
     import jaxplan.compile_options as co
     from jaxplan import cli
