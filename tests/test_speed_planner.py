@@ -9,6 +9,7 @@ to a car closing in from behind."""
 import dataclasses
 import functools
 import os
+import re
 
 import jax
 import jax.numpy as jnp
@@ -401,6 +402,29 @@ def test_passes_an_oncoming_car_inside_the_buffer_rather_than_be_hit_from_behind
     assert not m["overlap.collided"] and not m["offroad.offroad"]
     assert np.asarray(log.info["tight"]).any()
     assert log.v[: int(m["goal.step"]) + 1].min() > 5.0
+
+
+def test_the_drive_report_names_the_paths_taken_and_what_blocked():
+    """``describe`` (the report's words for a drive's last plans): the lane change past the slow car,
+    the plan without clearances past the oncoming car, and in hand-made ``info`` the plans with no
+    collision-free profile and the blocking obstacles and stop lines of the last plan."""
+    planner = PathSpeedPlanner()
+    for name, word in (("SLOW", "lane change"), ("SQUEEZE", "no clearance")):
+        log, _, _ = _synthetic_drive(name)
+        c = int(log.end_step) // 3 + 1
+        text = planner.describe({k: np.asarray(v)[:c] for k, v in log.info.items()})
+        assert text.startswith(f"paths of the last {c} plans: ") and f"{word} x" in text, text
+        counted = sum(int(x) for x in re.findall(r" x(\d+)", text))
+        assert counted == c, text
+    C = 3
+    info = {"lane_change": np.zeros(C, bool), "tight": np.zeros(C, bool), "path_bounds": np.array([True, True, False]),
+            "dp_feasible": np.array([True, False, False]), "n_obstacles": np.full(C, 2),
+            "blocking": np.array([[False] * 3, [True, False, False], [False, True, True]])}
+    assert planner.describe(info) == ("paths of the last 3 plans: bounds path x2, route path x1; 2 with no "
+                                      "collision-free speed profile; blocking the last: obstacle 1, a stop line")
+    info["dp_feasible"][:] = True
+    info["blocking"][-1] = False
+    assert planner.describe(info) == "paths of the last 3 plans: bounds path x2, route path x1"
 
 
 def test_a_goal_before_the_end_of_the_map_is_met_at_speed():

@@ -34,6 +34,9 @@ Each cycle (one scene, jittable; the simulator batches it with ``jax.vmap``):
 4. the **composed trajectory**: the profile along the path, ``horizon_steps`` points every
    ``dt`` from the car.
 
+``describe`` turns the ``info`` of a few cycles into words for the drive report: the paths
+taken and how many plans found no collision-free profile.
+
 ``ok`` is False when the DP found no collision-free profile, the QP needed slack (it could
 not keep the DP's corridor within the acceleration limits) or did not converge, or the
 plan is not finite. ``nonblocking=False`` drops the non-blocking boundaries' costs (the
@@ -48,6 +51,7 @@ from typing import Any
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from jaxplan.bounds.path_planner import PathConfig, plan_path
 from jaxplan.plan_context import (
@@ -229,7 +233,7 @@ class PathSpeedPlanner:
 
     def speed_plan(self, params: CostWeights, scene, ego: EgoState, step) -> dict:
         """One cycle up to the speed profile, as a dict: ``ctx`` (the ``RoadContext``),
-        ``path`` (the ``RoutePath`` the speed is planned on), ``bounds`` (the bounds
+        ``n_obstacles`` (the scene's obstacle count: ``ctx``'s obstacles beyond it are stop lines), ``path`` (the ``RoutePath`` the speed is planned on), ``bounds`` (the bounds
         ``PathPlan`` or None), ``use_bounds`` (``()`` bool, ``path`` is the bounds path),
         ``tight`` (``()`` bool, the plan without the clearance buffer was taken), ``path_plans``
         (every path's ``SpeedPlan``, stacked: the bounds path if any, the route path, the
@@ -337,6 +341,7 @@ class PathSpeedPlanner:
         prof = smooth_plan(plan, v0, a0, self.speed, self.smooth)
         return dict(
             ctx=ctx,
+            n_obstacles=scene.obstacles.boxes.shape[-3],  # the scene's; the stop lines follow in ctx
             path=path,
             bounds=pp,
             use_bounds=use,
@@ -349,6 +354,25 @@ class PathSpeedPlanner:
             plan=plan,
             profile=prof,
         )
+
+    def describe(self, info: dict) -> str:
+        """Words for the ``info`` of a few consecutive plans (numpy ``(C,)`` each, ``blocking``
+        ``(C, K)``): the path each took, the plans with no collision-free speed profile and the
+        obstacles that blocked the last one."""
+        names = [
+            "lane change" if c else "no clearance" if t else "bounds path" if b else "route path"
+            for c, t, b in zip(info["lane_change"], info["tight"], info["path_bounds"])
+        ]
+        counts = {n: names.count(n) for n in dict.fromkeys(names)}
+        words = f"paths of the last {len(names)} plans: " + ", ".join(f"{n} x{c}" for n, c in counts.items())
+        stuck = int(np.sum(~np.asarray(info["dp_feasible"], bool)))
+        if stuck:
+            words += f"; {stuck} with no collision-free speed profile"
+        K = int(np.asarray(info["n_obstacles"])[-1])
+        held = [f"obstacle {k}" if k < K else "a stop line" for k in np.flatnonzero(np.asarray(info["blocking"])[-1])]
+        if held:
+            words += "; blocking the last: " + ", ".join(dict.fromkeys(held))
+        return words
 
     def plan(self, params: CostWeights, scene, ego: EgoState, step) -> PlanOutput:
         return self.output(self.speed_plan(params, scene, ego, step))
@@ -369,7 +393,8 @@ class PathSpeedPlanner:
             "qp_slack": prof.slack,
             "qp_r_prim": prof.r_prim,
             "qp_r_dual": prof.r_dual,
-            "blocking": cl.is_blocking,
+            "blocking": cl.is_blocking,  # the scene's obstacles, then the stop lines (light_targets)
+            "n_obstacles": jnp.asarray(c["n_obstacles"]),
             "behind": cl.behind,
             "no_bypass": cl.no_bypass,
             "blind_zone": cl.blind_zone,
