@@ -15,7 +15,6 @@ from typing import TYPE_CHECKING, Any
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jax import lax
 from jaxtyping import Array, ArrayLike, Bool, Float, Int, Real
 
 REAR_AXLE = "rear_axle"
@@ -369,7 +368,7 @@ class Obstacles:
         st = jnp.asarray(self.static, bool).reshape(self.static.shape + (1,) * (extra + 1))
         return jnp.where(st, held, moving)
 
-    def at_times(self, t: Float[ArrayLike, " T2"], hold: float = 0.0) -> Obstacles:
+    def at_times(self, t: Float[ArrayLike, " T2"]) -> Obstacles:
         """Predictions at times ``t`` ``(T2,)`` (jittable): what the planners see at their own time grid.
 
         Poses and sizes are interpolated linearly between the two neighbouring stamps of
@@ -380,21 +379,14 @@ class Obstacles:
         (the box of its first valid step). Leading batch dimensions of ``self.t`` are
         mapped over.
 
-        With ``hold > 0``, a dynamic obstacle also keeps the box of its last valid stamp for up to
-        ``hold`` seconds after it: a grid coarser than the stamps then still checks a prediction
-        that ends between two of its times (a recording's last step) at its end.
-
         Args:
             t: ``(T2,)`` increasing times, on the same clock as ``self.t`` (seconds from now).
-            hold: static, seconds (>= 0); usually the grid's step.
 
         Returns:
             ``Obstacles`` with boxes ``(..., K, T2, 5)`` and ``t`` broadcast to ``(..., T2)``.
         """
         if jnp.ndim(self.t) > 1:
-            return jax.vmap(lambda o: o.at_times(t, hold))(self)
-        if not hold >= 0.0:
-            raise ValueError(f"Obstacles.at_times: hold is {hold}; seconds >= 0 expected")
+            return jax.vmap(lambda o: o.at_times(t))(self)
         dtype = self.boxes.dtype
         t = jnp.asarray(t, dtype)
         tt = jnp.asarray(self.t, dtype)
@@ -424,16 +416,6 @@ class Obstacles:
             ok = jnp.where(f == 0.0, v0, jnp.where(f == 1.0, v1, v0 & v1))
             pad = SNAP * (tt[1] - tt[0])
             ok = ok & (t >= tt[0] - pad) & (t <= tt[-1] + pad)
-        if hold > 0.0 and K:
-            # the last valid stamp at or before each time, held for ``hold`` seconds after it
-            last = lax.cummax(jnp.where(self.valid, jnp.arange(n), -1), axis=self.valid.ndim - 1)  # (K, n)
-            j = jnp.clip(jnp.searchsorted(tt, t + SNAP, side="right") - 1, 0, n - 1)  # (T2,)
-            lj = jnp.take(last, j, axis=-1)  # (K, T2)
-            lc = jnp.maximum(lj, 0)
-            since = t - tt[lc]
-            keep = ~ok & (lj >= 0) & (since >= -SNAP) & (since <= hold + SNAP)
-            b = jnp.where(keep[..., None], jnp.take_along_axis(self.boxes, lc[..., None], axis=-2), b)
-            ok = ok | keep
         if K:
             first = jnp.argmax(self.valid, axis=-1)  # (..., K) first valid step of each obstacle
             held = jnp.take_along_axis(self.boxes, first[..., None, None], axis=-2)  # (..., K, 1, 5)

@@ -279,54 +279,6 @@ def test_resample_obstacles_matches_numpy(rng):
     assert list(np.asarray(r.valid[1])) == [True, True, False, False, True, True, False]
 
 
-def _held_oracle(boxes, valid, t, tn, hold):
-    """numpy: the interpolated prediction where it exists, else the box of the last valid stamp
-    at most ``hold`` seconds before, else nothing."""
-    K = boxes.shape[0]
-    base = Obstacles(jnp.asarray(boxes), jnp.asarray(valid), jnp.asarray(t, jnp.float32)).at_times(tn)
-    b, ok = np.array(base.boxes), np.array(base.valid)
-    for k in range(K):
-        for q, tq in enumerate(tn):
-            if ok[k, q]:
-                continue
-            before = [j for j in range(len(t)) if valid[k, j] and t[j] <= tq + 1e-6]
-            if before and tq - t[before[-1]] <= hold + 1e-6:
-                b[k, q], ok[k, q] = boxes[k, before[-1]], True
-    return b, ok
-
-
-def test_a_prediction_ending_between_check_times_is_held_until_the_next_check(rng):
-    """``at_times(t, hold)`` against a numpy oracle on random gaps and ends; in the ST graph, an
-    obstacle whose recording ends between two check times blocks at the check after its end."""
-    T, K = 12, 6
-    t = np.arange(T) * 0.1
-    for trial in range(40):
-        boxes = rng.uniform(-5, 5, (K, T, 5)).astype(np.float32)
-        boxes[..., 2:4] = np.abs(boxes[..., 2:4]) + 0.5
-        valid = rng.random((K, T)) < 0.7
-        valid[0, 7:] = False  # ends mid-window
-        valid[1, :4] = False  # starts late
-        tn = np.sort(rng.uniform(-0.1, 1.4, 9)) if trial % 2 else np.arange(8) * 0.2
-        hold = float(rng.choice([0.0, 0.1, 0.2, 0.35]))
-        got = Obstacles(jnp.asarray(boxes), jnp.asarray(valid), jnp.asarray(t, jnp.float32)).at_times(tn, hold)
-        b, ok = _held_oracle(boxes, valid, t, tn, hold)
-        np.testing.assert_array_equal(np.asarray(got.valid), ok)
-        np.testing.assert_allclose(np.asarray(got.boxes)[ok][:, :4], b[ok][:, :4], atol=1e-5)
-    with pytest.raises(ValueError, match="hold is -0.1"):
-        Obstacles(jnp.asarray(boxes), jnp.asarray(valid), jnp.asarray(t, jnp.float32)).at_times(tn, -0.1)
-
-    from jaxplan.speed import SpeedConfig, make_scene
-
-    ref = ReferenceLine.from_polyline(np.array([[-60.0, 0.0], [300.0, 0.0]]))
-    cfg = SpeedConfig()  # checks every dt / n_sub = 0.2 s
-    stopped = _scene(lambda tt: np.array([[20.0, 0.0, 4.5, 1.8, 0.0]]), T=71, dt=0.1)
-    ends = Obstacles(stopped.boxes, stopped.valid.at[:, 8:].set(False), stopped.t)  # last stamp 0.7 s
-    _, sc = make_scene(ref, ends, cfg, CAR, 60.0, v0=10.0)
-    hit = np.asarray(sc.classified.blocking.hit[0])
-    tf = np.asarray(cfg.fine_times())
-    assert list(tf[hit].round(3)) == [0.0, 0.2, 0.4, 0.6, 0.8]
-
-
 def test_keep_clear_region_projection():
     ref = ReferenceLine.from_polyline(np.array([[0.0, 0.0], [100.0, 0.0]]))
     prof = _profile(ref, 0.0, 60, 1.0)

@@ -62,9 +62,8 @@ def first_trajectory(profile: PathProfile, v, t) -> Trajectory:
     return Trajectory(xy[..., 0], xy[..., 1], wrap_angle(theta), kappa, z + v, z, t, s - s[0], z + 1.0)
 
 
-def resample_obstacles(obstacles: Obstacles, t, hold: float = 0.0) -> Obstacles:
+def resample_obstacles(obstacles: Obstacles, t) -> Obstacles:
     """Obstacle predictions at times ``t`` ``(T2,)``: ``Obstacles.at_times`` (linear
     interpolation between stamps, heading along the shorter turn; dynamic obstacles are
-    invalid outside their stamps, but for ``hold`` seconds after their last one; static ones
-    held)."""
-    return obstacles.at_times(t, hold)
+    invalid outside their stamps, static ones held)."""
+    return obstacles.at_times(t)

@@ -93,7 +93,7 @@ def build_speed_scene(
     road = SpeedRoad.free(dtype) if road is None else road
     buffer = config.buffer if buffer is None else buffer
     tf = jnp.asarray(config.fine_times(), dtype)
-    obs = resample_obstacles(obstacles, tf, hold=config.dt / config.n_sub)
+    obs = resample_obstacles(obstacles, tf)
     s0 = profile.s[0]
     osl = project_obstacles(profile.ref, obs, s0)  # stations relative to the car now
     c = classify(
