@@ -18,6 +18,8 @@ switches) with
 
 A planner may also name ``compiler_options``: XLA options (a dict, ``jaxplan.compile_options``)
 that its kernels run faster with; the simulator compiles a drive with them (``planner_compiler_options``).
+It may also have ``describe(info) -> str``: words for the ``info`` of its last few plans (numpy,
+a leading cycle axis), which the drive report gives for each drive that did not succeed.
 
 ``PlanOutput.trajectory`` holds ``horizon_steps`` points at ``t = 0, dt, ...`` from now,
 starting at the ego state; ``ok`` is False when the planner knows its plan is not good
