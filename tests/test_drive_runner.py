@@ -102,6 +102,24 @@ def test_report_tables_strict_json_and_why(tmp_path):
                                                                             for r in recs]))
 
 
+def test_the_report_describes_the_plans_that_drove_the_last_steps():
+    """``describe_last_plans`` hands a planner's ``describe`` the cycles that drove the car up to its
+    last step, at most seven: cycle ``c`` plans at step ``3 c`` and drives steps ``3 c + 1 .. 3 c + 3``,
+    so a plan made at the drive's last step (never driven) is left out; none without ``describe``."""
+
+    class Says:
+        def describe(self, info):
+            return ",".join(str(int(c)) for c in info["cycle"])
+
+    info = {"cycle": np.arange(20)}
+    assert drive_mod.describe_last_plans(Says(), info, 33, 3) == "4,5,6,7,8,9,10"  # step 33 by cycle 10
+    assert drive_mod.describe_last_plans(Says(), info, 34, 3) == "5,6,7,8,9,10,11"
+    assert drive_mod.describe_last_plans(Says(), info, 2, 3) == "0"
+    assert drive_mod.describe_last_plans(Says(), info, 0, 3) == "0"
+    assert drive_mod.describe_last_plans(Says(), info, 300, 3) == "13,14,15,16,17,18,19"
+    assert drive_mod.describe_last_plans(object(), info, 33, 3) == ""
+
+
 def test_goal_off_map_is_flagged():
     """A goal region past the map's end is flagged (shown apart); one on the road is not."""
     from jaxplan.sim.metrics.goal import region_on_road

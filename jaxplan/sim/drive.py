@@ -367,12 +367,14 @@ def _plots_for(policy: str, n_drives: int, row: dict) -> bool:
     return policy == "all" or (policy == "failed" and not row["success"])
 
 
-def _describe(planner, info: dict, end_step: int, every: int) -> str:
-    """What the planner said of its last plans (``planner.describe`` when it has one)."""
+def describe_last_plans(planner, info: dict, end_step: int, every: int) -> str:
+    """What the planner said of its last plans (``planner.describe`` when it has one): the plans
+    that drove the car up to its last step (cycle ``c`` plans at step ``c every`` and drives the
+    steps after it; a plan made at the last step is not driven)."""
     fn = getattr(planner, "describe", None)
     if fn is None or not info:
         return ""
-    c = min(end_step // every, next(iter(info.values())).shape[0] - 1)
+    c = min(max(end_step - 1, 0) // every, next(iter(info.values())).shape[0] - 1)
     lo = max(0, c - 6)
     return fn({k: np.asarray(v)[lo : c + 1] for k, v in info.items()})
 
@@ -486,7 +488,7 @@ def drive(
                             log_i,
                             scene_i,
                             rec.scenario.obstacle_types,
-                            _describe(planner, info_i, int(log_i["end_step"]), config.replan_every),
+                            describe_last_plans(planner, info_i, int(log_i["end_step"]), config.replan_every),
                         )
                         row["obstacle_class"] = k_class
                         write_drive(
