@@ -4,6 +4,7 @@ brute force and shapely), and closed-loop drives of the ``lattice`` planner on s
 import dataclasses
 import functools
 import math
+import re
 
 import jax
 import jax.numpy as jnp
@@ -528,6 +529,24 @@ def test_lattice_drive_compiles_with_the_planners_xla_options():
     key = options_key(NO_YNN)
     assert compiled_with(key)._cache_size() >= 1
     assert compiled_with(key).applied == (NO_YNN if _supported(key) else {})
+
+
+def test_the_drive_report_names_the_modes_the_set_speed_and_the_leader():
+    """``describe``: the modes of the plans, and the last plan's set speed and leader; behind the
+    stopped car (obstacle 0 of TEST_stop) it names that car, standing, at its gap."""
+    from jaxplan.sim.drive import describe_last_plans
+
+    recs, _, log, _, planner = _drives()
+    i = [r.name for r in recs].index("TEST_stop")
+    words = describe_last_plans(planner, {k: np.asarray(v)[i] for k, v in log.info.items()}, int(log.end_step[i]), 3)
+    gap = re.search(r"leader obstacle 0 (\d+) m ahead at 0.0 m/s$", words)
+    assert words.startswith("modes of the last 7 plans: ") and "set speed" in words and gap, words
+    assert 0 < int(gap.group(1)) < 10, words
+    hand = {"mode": np.array([0, 0, 2]), "v_set": np.array([10.0, 10.0, 13.94]), "leader": np.array([1, 1, -1]),
+            "leader_gap": np.array([5.0, 5.0, 1e4]), "leader_v": np.array([1.0, 1.0, 0.0])}
+    assert planner.describe(hand) == "modes of the last 3 plans: free x2, risk x1; the last: set speed 13.9 m/s, no leader"
+    hand["leader"][-1], hand["leader_gap"][-1], hand["leader_v"][-1] = 4, 12.4, 2.04
+    assert planner.describe(hand).endswith("set speed 13.9 m/s, leader obstacle 4 12 m ahead at 2.0 m/s")
 
 
 def test_closed_loop_stops_passes_borrows_and_survives_the_cut_in():

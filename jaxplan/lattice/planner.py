@@ -73,6 +73,10 @@ class LatticePlanner:
     def plan_result(self, params: CostWeights, scene, ego: EgoState, step) -> LatticeResult:
         """The whole ``LatticeResult`` of one plan (every candidate, why each was rejected, the
         choice): what ``plan`` returns the chosen trajectory of; for plots and diagnostics."""
+        return self.plan_in_context(params, scene, ego, step)[0]
+
+    def plan_in_context(self, params: CostWeights, scene, ego: EgoState, step) -> tuple:
+        """``(LatticeResult, RoadContext, set speed ())``: the plan and what it was planned from."""
         cfg = self.scene_config(scene.lane_offset.shape[-2])
         ctx = road_context(scene, ego, step, cfg.n_steps, self.vehicle)
         f = scene.route.xy.dtype
@@ -104,20 +108,32 @@ class LatticePlanner:
             borrow[idx],
             jnp.stack([scene.road_left, scene.road_right], -1),
         )
-        return _plan(state, scene.route, ctx.obstacles, cfg, params, targets)
+        return _plan(state, scene.route, ctx.obstacles, cfg, params, targets), ctx, v_set
 
     def describe(self, info: dict) -> str:
-        """Words for the ``info`` of a few consecutive plans (numpy ``(C,)`` each): their modes."""
+        """Words for the ``info`` of a few consecutive plans (numpy ``(C,)`` each): their modes,
+        and the last one's set speed and leader (the nearest vehicle ahead in the car's lane)."""
         names = [MODE_NAMES[int(m)] if 0 <= int(m) < len(MODE_NAMES) else str(int(m)) for m in info["mode"]]
         counts = {n: names.count(n) for n in dict.fromkeys(names)}
-        return f"modes of the last {len(names)} plans: " + ", ".join(f"{n} x{c}" for n, c in counts.items())
+        words = f"modes of the last {len(names)} plans: " + ", ".join(f"{n} x{c}" for n, c in counts.items())
+        words += f"; the last: set speed {float(info['v_set'][-1]):.1f} m/s, "
+        k = int(info["leader"][-1])
+        if k < 0:
+            return words + "no leader"
+        gap, v = float(info["leader_gap"][-1]), float(info["leader_v"][-1])
+        return words + f"leader obstacle {k} {gap:.0f} m ahead at {v:.1f} m/s"
 
     def plan(self, params: CostWeights, scene, ego: EgoState, step) -> PlanOutput:
-        res = self.plan_result(params, scene, ego, step)
+        res, ctx, v_set = self.plan_in_context(params, scene, ego, step)
         traj = res.chosen_trajectory()
         rejected = jnp.sum(res.candidates.available & ~res.feasible)
-        return PlanOutput(
-            traj,
-            (res.mode != RISK) & (res.mode != INVALID) & res.ok,
-            {"mode": res.mode, "rejected": rejected, "l_target": res.l_target},
-        )
+        info = {
+            "mode": res.mode,
+            "rejected": rejected,
+            "l_target": res.l_target,
+            "v_set": v_set,
+            "leader": ctx.leader_index,
+            "leader_gap": ctx.leader_gap,
+            "leader_v": ctx.leader_v,
+        }
+        return PlanOutput(traj, (res.mode != RISK) & (res.mode != INVALID) & res.ok, info)
