@@ -118,6 +118,15 @@ def test_the_report_describes_the_plans_that_drove_the_last_steps():
     assert drive_mod.describe_last_plans(Says(), info, 0, 3) == "0"
     assert drive_mod.describe_last_plans(Says(), info, 300, 3) == "13,14,15,16,17,18,19"
     assert drive_mod.describe_last_plans(object(), info, 33, 3) == ""
+    # the report describes the plans up to the drive's first collision or step off the road
+    from jaxplan.sim.verdict import first_miss_step
+
+    ok = {"overlap.collided": False, "offroad.offroad": False}
+    assert first_miss_step(ok, 33) == 33
+    assert first_miss_step({**ok, "overlap.collided": True, "overlap.first_step": 21}, 33) == 21
+    assert first_miss_step({**ok, "offroad.offroad": True, "offroad.first_step": 6}, 33) == 6
+    both = {"overlap.collided": True, "overlap.first_step": 21, "offroad.offroad": True, "offroad.first_step": 25}
+    assert first_miss_step(both, 33) == 21
 
 
 def test_goal_off_map_is_flagged():

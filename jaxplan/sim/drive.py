@@ -483,13 +483,12 @@ def drive(
                         }
                         scene_i = jax.tree_util.tree_map(lambda a: np.asarray(a)[i], judged)
                         info_i = jax.tree_util.tree_map(lambda a: np.asarray(a)[i], log.info)
-                        row["why"] = verdict.explain(
-                            row,
-                            log_i,
-                            scene_i,
-                            rec.scenario.obstacle_types,
-                            describe_last_plans(planner, info_i, int(log_i["end_step"]), config.replan_every),
-                        )
+                        # the plans that drove the car into the collision or off the road, else to its end
+                        miss = verdict.first_miss_step(row, int(log_i["end_step"]))
+                        said = describe_last_plans(planner, info_i, miss, config.replan_every)
+                        if said and miss < int(log_i["end_step"]):
+                            said = f"up to t = {float(log_i['t'][miss]):.1f} s, {said}"
+                        row["why"] = verdict.explain(row, log_i, scene_i, rec.scenario.obstacle_types, said)
                         row["obstacle_class"] = k_class
                         write_drive(
                             folder_of(name, rec),

@@ -87,6 +87,17 @@ def _ahead(scene, step: int, xy, heading, types=None) -> str:
     return f"{kind}{ident} {along:.0f} m ahead ({motion})"
 
 
+def first_miss_step(row: dict, end_step: int) -> int:
+    """The step at which a drive first went wrong: its first collision or its first step off the
+    road, whichever came first; else its last step (``end_step``)."""
+    steps = [end_step]
+    if row.get("overlap.collided"):
+        steps.append(int(row["overlap.first_step"]))
+    if row.get("offroad.offroad") and int(row.get("offroad.first_step", -1)) >= 0:
+        steps.append(int(row["offroad.first_step"]))
+    return min(steps)
+
+
 def explain(row: dict, log: dict, scene, types=None, describe: str = "") -> str:
     """Why a drive did not succeed, in one line ("" for a success).
 
