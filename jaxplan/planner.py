@@ -141,6 +141,13 @@ def check_params(planner, params) -> Any:
     return jax.tree_util.tree_map(lambda a, b: jnp.asarray(b, jnp.result_type(a)), want, params)
 
 
+def tally(what: str, names: list[str]) -> str:
+    """Words for a planner's ``describe``: how often each of ``names`` (one per plan) occurs, in
+    order of first appearance: ``"{what} of the last 3 plans: free x2, risk x1"``."""
+    counts = {n: names.count(n) for n in dict.fromkeys(names)}
+    return f"{what} of the last {len(names)} plans: " + ", ".join(f"{n} x{c}" for n, c in counts.items())
+
+
 def planner_compiler_options(planner) -> dict:
     """The XLA options a drive with ``planner`` is compiled with: its ``compiler_options``
     (none when it names none)."""

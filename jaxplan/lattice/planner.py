@@ -32,7 +32,7 @@ from jaxplan.lattice.plan import LatticeResult, _plan
 from jaxplan.lattice.state import PlanState
 from jaxplan.lattice.targets import RoadTargets
 from jaxplan.plan_context import road_context, route_sample, set_speed
-from jaxplan.planner import SIM_VEHICLE, EgoState, PlanOutput
+from jaxplan.planner import SIM_VEHICLE, EgoState, PlanOutput, tally
 from jaxplan.types import VehicleParams, weights_from
 
 LANE_LOOKAHEAD = 2.5  # s: the lanes are read this far ahead (15-60 m)
@@ -114,9 +114,7 @@ class LatticePlanner:
         """Words for the ``info`` of a few consecutive plans (numpy ``(C,)`` each): their modes,
         and the last one's set speed and leader (the nearest vehicle ahead in the car's lane)."""
         names = [MODE_NAMES[int(m)] if 0 <= int(m) < len(MODE_NAMES) else str(int(m)) for m in info["mode"]]
-        counts = {n: names.count(n) for n in dict.fromkeys(names)}
-        words = f"modes of the last {len(names)} plans: " + ", ".join(f"{n} x{c}" for n, c in counts.items())
-        words += f"; the last: set speed {float(info['v_set'][-1]):.1f} m/s, "
+        words = tally("modes", names) + f"; the last: set speed {float(info['v_set'][-1]):.1f} m/s, "
         k = int(info["leader"][-1])
         if k < 0:
             return words + "no leader"

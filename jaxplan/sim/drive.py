@@ -367,14 +367,20 @@ def _plots_for(policy: str, n_drives: int, row: dict) -> bool:
     return policy == "all" or (policy == "failed" and not row["success"])
 
 
-def describe_last_plans(planner, info: dict, end_step: int, every: int) -> str:
-    """What the planner said of its last plans (``planner.describe`` when it has one): the plans
-    that drove the car up to its last step (cycle ``c`` plans at step ``c every`` and drives the
-    steps after it; a plan made at the last step is not driven)."""
+def describe_last_plans(planner, info: dict, step: int, every: int) -> str:
+    """What the planner said (``planner.describe``, "" without one) of the last seven plans that
+    drove the car up to ``step``: cycle ``c`` plans at step ``c every`` and drives the ``every``
+    steps after it, so a plan made at ``step`` itself is left out.
+
+    Args:
+        info: one drive's ``DriveLog.info``, numpy arrays ``(C, ...)`` (C cycles).
+        step: the drive's step to describe up to (its end, or its first collision).
+        every: steps per cycle (``SimConfig.replan_every``).
+    """
     fn = getattr(planner, "describe", None)
     if fn is None or not info:
         return ""
-    c = min(max(end_step - 1, 0) // every, next(iter(info.values())).shape[0] - 1)
+    c = min(max(step - 1, 0) // every, next(iter(info.values())).shape[0] - 1)
     lo = max(0, c - 6)
     return fn({k: np.asarray(v)[lo : c + 1] for k, v in info.items()})
 
@@ -484,9 +490,10 @@ def drive(
                         scene_i = jax.tree_util.tree_map(lambda a: np.asarray(a)[i], judged)
                         info_i = jax.tree_util.tree_map(lambda a: np.asarray(a)[i], log.info)
                         # the plans that drove the car into the collision or off the road, else to its end
-                        miss = verdict.first_miss_step(row, int(log_i["end_step"]))
+                        end = int(log_i["end_step"])
+                        miss = verdict.first_miss_step(row, end)
                         said = describe_last_plans(planner, info_i, miss, config.replan_every)
-                        if said and miss < int(log_i["end_step"]):
+                        if said and miss < end:
                             said = f"up to t = {float(log_i['t'][miss]):.1f} s, {said}"
                         row["why"] = verdict.explain(row, log_i, scene_i, rec.scenario.obstacle_types, said)
                         row["obstacle_class"] = k_class

@@ -35,7 +35,7 @@ Each cycle (one scene, jittable; the simulator batches it with ``jax.vmap``):
    ``dt`` from the car.
 
 ``describe`` turns the ``info`` of a few cycles into words for the drive report: the paths
-taken and how many plans found no collision-free profile.
+taken, how many plans found no collision-free profile, and what blocked the last one.
 
 ``ok`` is False when the DP found no collision-free profile, the QP needed slack (it could
 not keep the DP's corridor within the acceleration limits) or did not converge, or the
@@ -62,7 +62,7 @@ from jaxplan.plan_context import (
     route_sample,
     set_speed,
 )
-from jaxplan.planner import SIM_VEHICLE, EgoState, PlanOutput
+from jaxplan.planner import SIM_VEHICLE, EgoState, PlanOutput, tally
 from jaxplan.speed.compose import compose_profile
 from jaxplan.speed.costs import REAR_CONTACT
 from jaxplan.speed.dp import plan_one
@@ -233,7 +233,8 @@ class PathSpeedPlanner:
 
     def speed_plan(self, params: CostWeights, scene, ego: EgoState, step) -> dict:
         """One cycle up to the speed profile, as a dict: ``ctx`` (the ``RoadContext``),
-        ``n_obstacles`` (the scene's obstacle count: ``ctx``'s obstacles beyond it are stop lines), ``path`` (the ``RoutePath`` the speed is planned on), ``bounds`` (the bounds
+        ``n_obstacles`` (the scene's obstacle count: ``ctx``'s obstacles beyond it are stop
+        lines), ``path`` (the ``RoutePath`` the speed is planned on), ``bounds`` (the bounds
         ``PathPlan`` or None), ``use_bounds`` (``()`` bool, ``path`` is the bounds path),
         ``tight`` (``()`` bool, the plan without the clearance buffer was taken), ``path_plans``
         (every path's ``SpeedPlan``, stacked: the bounds path if any, the route path, the
@@ -363,8 +364,7 @@ class PathSpeedPlanner:
             "lane change" if c else "no clearance" if t else "bounds path" if b else "route path"
             for c, t, b in zip(info["lane_change"], info["tight"], info["path_bounds"])
         ]
-        counts = {n: names.count(n) for n in dict.fromkeys(names)}
-        words = f"paths of the last {len(names)} plans: " + ", ".join(f"{n} x{c}" for n, c in counts.items())
+        words = tally("paths", names)
         stuck = int(np.sum(~np.asarray(info["dp_feasible"], bool)))
         if stuck:
             words += f"; {stuck} with no collision-free speed profile"
