@@ -64,7 +64,7 @@ from jaxplan.cli_args import nonnegative_int, positive_int
 from jaxplan.eval.timing import best_times_interleaved, write_figures
 from jaxplan.geometry import ReferenceLine
 from jaxplan.lattice import CostWeights, LatticeConfig, PlanState
-from jaxplan.lattice.plan import _plan_batch_jit, _plan_jit
+from jaxplan.lattice.plan import _plan_batch_jit, plan_kernel
 from jaxplan.types import Obstacles, VehicleParams
 
 HORIZON, DT, V0 = 3.0, 0.1, 15.0
@@ -134,7 +134,7 @@ def jaxplan_call(n, k, near_k=None, keep_candidates=False, batch=1):
     w = jax.tree_util.tree_map(jnp.asarray, CostWeights())  # on the device once, as a caller's weights are
     if batch == 1:
         st = PlanState.make(0.0, 0.0, 0.0, V0, v_set=V0)
-        run = lambda: jax.block_until_ready(_plan_jit(st, ref, obs, cfg, w, None, keep_candidates))
+        run = lambda: jax.block_until_ready(plan_kernel(st, ref, obs, cfg, w, None, keep_candidates))
     else:
         v = start_speeds(batch)
         st = PlanState.make(0 * v, 0 * v, 0 * v, v, a=0 * v, kappa=0 * v, v_set=0 * v + V0, d_crossroad=0 * v + np.inf)

@@ -210,7 +210,7 @@ def _tune(args) -> int:
 
     folder = None
     if args.scenarios:
-        from jaxplan.scenarios.loader import load_folder
+        from jaxplan.scenarios.files import load_folder
 
         folder = load_folder(args.scenarios)
     train, val, source = demonstrations(folder, seed=args.seed)

@@ -105,13 +105,14 @@ def existing_dir(text) -> str:
 
 
 def scenario_dir(text) -> str:
-    """A folder with at least one scenario file (``*.json``, the shared format) that loads.
+    """A folder with at least one scenario file that loads (the shared JSON or CommonRoad XML,
+    either gzip-compressed; its sub-folders too).
 
     Only the first loadable file is read, so the check stays cheap; the suites load the rest
-    and name every file that fails (``jaxplan.scenarios.loader.load_folder``)."""
+    and name every file that fails (``jaxplan.scenarios.files.load_folder``)."""
     path = existing_dir(text)
     from jaxplan.scenarios.fields import ScenarioError
-    from jaxplan.scenarios.loader import first_loadable
+    from jaxplan.scenarios.files import first_loadable
 
     try:
         first_loadable(path)

@@ -38,12 +38,12 @@ NO_YNN = {"xla_cpu_experimental_ynn_fusion_type": ""}  # XLA CPU: no YNN fusions
 
 def options_key(options: dict) -> tuple:
     """The hashable form of XLA ``options`` (sorted ``(name, value)`` pairs): one key per set of
-    options, whatever order its dict was written in (``_supported``'s and the simulator's caches)."""
+    options, whatever order its dict was written in (``options_supported``'s and the simulator's caches)."""
     return tuple(sorted(options.items()))
 
 
 @functools.cache
-def _supported(items: tuple) -> bool:
+def options_supported(items: tuple) -> bool:
     """Whether this JAX and default backend compile a trivial function with these options."""
     try:
         jax.jit(lambda x: x + 1, compiler_options=dict(items)).lower(1.0).compile()
@@ -64,7 +64,7 @@ class _LazyJit:
     @property
     def jitted(self):
         if self._jitted is None:
-            opts = self._options if self._options and _supported(options_key(self._options)) else {}
+            opts = self._options if self._options and options_supported(options_key(self._options)) else {}
             kw = dict(self._kwargs, compiler_options=opts) if opts else self._kwargs
             self.applied = opts
             self._jitted = jax.jit(self._fun, **kw)

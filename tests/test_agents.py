@@ -34,7 +34,7 @@ def _scene(d):
 
 def _late_car(oid, road, s, l, t_on, t_off):
     """A car recorded only from ``t_on`` to ``t_off`` (s)."""
-    car = builtin._car(oid, road, s, l)
+    car = builtin.road_obstacle(oid, road, s, l)
     car["states"] = [[round(st[0] + t_on, 4)] + st[1:] for st in car["states"] if st[0] + t_on <= t_off + 1e-9]
     return car
 
@@ -48,7 +48,7 @@ def _follow_case():
     v = np.minimum(6.0 + 2.0 * T, 14.0)
     free = _road_dict(obstacles=[(builtin.START_S - 10.0 + np.cumsum(v) * 0.1, np.full(251, 3.5))], v0=0.0,
                       kappa=1 / 150.0)
-    road = builtin._Road(1 / 150.0, 0.3)
+    road = builtin.SyntheticRoad(1 / 150.0, 0.3)
     free["obstacles"].append(_late_car(2, road, builtin.START_S + 30.0 + 8.0 * T, np.zeros(251), 2.0, 6.0))
     recs = [_scene(through), _scene(free)]
     batch = stack_scenes([r.scene for r in recs], min_steps=STEPS + 1)
@@ -115,8 +115,8 @@ def _curve_scene():
     v = np.where(T < 2.0, 10.0, np.maximum(10.0 - 8.0 * (T - 2.0), 0.0))
     d = _road_dict(obstacles=[(builtin.START_S + 20.0 + np.cumsum(v) * 0.1, np.full(251, 3.5))], v0=0.0,
                    kappa=1 / R_CURVE)
-    road = builtin._Road(1 / R_CURVE, 0.3)
-    d["obstacles"].append(builtin._car(2, road, builtin.START_S + 70.0 + 1.5 * T, np.full(251, 3.5), length=0.6,
+    road = builtin.SyntheticRoad(1 / R_CURVE, 0.3)
+    d["obstacles"].append(builtin.road_obstacle(2, road, builtin.START_S + 70.0 + 1.5 * T, np.full(251, 3.5), length=0.6,
                                        width=0.6, kind="pedestrian"))
     return _scene(d), road
 

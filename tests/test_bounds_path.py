@@ -218,14 +218,14 @@ def _scene(kind, seed):
 def _wall_scene():
     """A straight two-lane road with a stopped car in each lane 40 m ahead: no way past."""
     from jaxplan.scenarios.build import build_scene
-    from jaxplan.scenarios.builtin import DT, LANE, START_S, _car, _lanelets, _Road
+    from jaxplan.scenarios.builtin import DT, LANE, START_S, road_obstacle, road_lanelets, SyntheticRoad
     from jaxplan.scenarios.loader import parse_scenario
 
-    road = _Road(0.0, 0.0)
-    obstacles = [_car(1 + i, road, START_S + 40.0, i * LANE, role="static") for i in range(2)]
+    road = SyntheticRoad(0.0, 0.0)
+    obstacles = [road_obstacle(1 + i, road, START_S + 40.0, i * LANE, role="static") for i in range(2)]
     start, th0 = road.pose(START_S, 0.0)
     goal, _ = road.pose(START_S + 120.0, 0.5 * LANE)
-    d = {"id": "WALL", "source": "test", "tags": [], "dt": DT, "lanelets": _lanelets(road, 2, 20.0),
+    d = {"id": "WALL", "source": "test", "tags": [], "dt": DT, "lanelets": road_lanelets(road, 2, 20.0),
          "obstacles": obstacles,
          "planning_problems": [{"id": 1, "initial_state": {"t": 0.0, "position": start.tolist(),
                                                           "orientation": float(th0), "velocity": 10.0,
@@ -376,7 +376,7 @@ def _suite_paths():
 
     refs, S, L, _, _, BOX = bs.make_scenarios(np.random.default_rng(0), 12, 4)
     pick = [2, 5]  # R 12 m, R 80 m
-    one = lambda ref_xy, s, l, b: bs._frame_path(reference_line(ref_xy), s, l, b)
+    one = lambda ref_xy, s, l, b: bs.frame_path(reference_line(ref_xy), s, l, b)
     fn = jax.jit(jax.vmap(jax.vmap(one, (None, 0, 0, 0)), (0, 0, 0, 0)))
     out = fn(*(jnp.asarray(a[pick]) for a in (refs, S, L, BOX)))
     return pick, BOX[pick], jax.tree_util.tree_map(np.asarray, out)
@@ -395,7 +395,7 @@ def test_solved_suite_paths_are_clear_by_shapely():
     ok, xy, th, valid = (out[k] for k in ("qp_ok", "xy", "theta", "valid"))
     corridor = out["corridor_ok"]
     assert (ok & corridor).sum() >= 16  # most frames have a path
-    dense = np.asarray(jax.vmap(jax.vmap(lambda b: bs._densify(b, 1)))(jnp.asarray(boxes)))  # (R, F, K, N, 5)
+    dense = np.asarray(jax.vmap(jax.vmap(lambda b: bs.densify(b, 1)))(jnp.asarray(boxes)))  # (R, F, K, N, 5)
     checked = 0
     for r, f in zip(*np.nonzero(ok & corridor)):
         cars = shapely.polygons(np.asarray(vehicle_corners(jnp.asarray(xy[r, f]), bs.CAR, jnp.asarray(th[r, f]))))
@@ -460,14 +460,14 @@ def _passing_scene(cars):
     """A straight two-lane road, the car in the right lane at 10 m/s, and ``cars``: ``(s (T,), l (T,),
     role)`` each (stations from the car's, offsets from its lane's centre)."""
     from jaxplan.scenarios.build import build_scene
-    from jaxplan.scenarios.builtin import DT, LANE, START_S, _car, _lanelets, _Road
+    from jaxplan.scenarios.builtin import DT, LANE, START_S, road_obstacle, road_lanelets, SyntheticRoad
     from jaxplan.scenarios.loader import parse_scenario
 
-    road = _Road(0.0, 0.0)
+    road = SyntheticRoad(0.0, 0.0)
     start, th0 = road.pose(START_S, 0.0)
     goal, _ = road.pose(START_S + 120.0, 0.5 * LANE)
-    d = {"id": "PASS", "source": "test", "tags": [], "dt": DT, "lanelets": _lanelets(road, 2, 20.0),
-         "obstacles": [_car(i + 1, road, START_S + s, l, role=role) for i, (s, l, role) in enumerate(cars)],
+    d = {"id": "PASS", "source": "test", "tags": [], "dt": DT, "lanelets": road_lanelets(road, 2, 20.0),
+         "obstacles": [road_obstacle(i + 1, road, START_S + s, l, role=role) for i, (s, l, role) in enumerate(cars)],
          "planning_problems": [{"id": 1, "initial_state": {"t": 0.0, "position": start.tolist(),
                                                           "orientation": float(th0), "velocity": 10.0,
                                                           "acceleration": 0.0},

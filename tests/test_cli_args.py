@@ -57,7 +57,11 @@ def paths(tmp_path_factory):
     (nojson / "notes.txt").write_text("hello")
     xml = root / "xmlonly"
     xml.mkdir()
-    (xml / "s.xml").write_text("<commonRoad/>")  # the CLI only checks an XML folder has a file
+    from jaxplan.scenarios.commonroad import write_commonroad  # commonroad-io: a test dependency
+
+    timed = _minimal()
+    timed["planning_problems"][0]["goals"][0]["time"] = [0.0, 10.0]  # CommonRoad goals need a time interval
+    write_commonroad(timed, str(xml / "s.xml"))  # a CommonRoad XML scenario the library wrote
     afile = root / "afile.txt"
     afile.write_text("x")
     weights = root / "w.json"
@@ -254,10 +258,10 @@ def test_fuzzed_command_lines_fail_clearly_or_reach_the_work_with_good_values(ar
     if name == "eval":
         assert args.n is None or args.n >= 1
         assert args.seed >= 0 and (not os.path.exists(args.out) or os.path.isdir(args.out))
-        assert args.scenarios is None or args.scenarios in (paths["good"],)
+        assert args.scenarios is None or args.scenarios in (paths["good"], paths["root"])  # root: good/ inside
         assert args.weights is None or args.weights == paths["weights"]
     elif name == "tune":
-        assert a[0] is None or a[0].directory == paths["good"]  # a loaded folder, skipped files counted
+        assert a[0] is None or a[0].directory in (paths["good"], paths["root"])  # a loaded folder, skipped counted
     else:
         assert os.path.isdir(a[0])
 
@@ -268,14 +272,14 @@ def test_fuzzed_command_lines_fail_clearly_or_reach_the_work_with_good_values(ar
 def test_skipped_files_are_named_and_counted_by_one_helper(paths, monkeypatch, capsys):
     import io
 
-    from jaxplan.scenarios import loader
+    from jaxplan.scenarios import files
 
     err = io.StringIO()
-    folder = loader.load_folder(paths["good"], stderr=err)
+    folder = files.load_folder(paths["good"], stderr=err)
     assert len(folder) == 1 and [os.path.basename(f) for f, _ in folder.skipped] == ["broken.json"]
     assert "broken.json: not valid JSON" in err.getvalue()
-    with pytest.raises(loader.ScenarioError, match="none of its 2 scenario files could be loaded"):
-        loader.load_folder(paths["junk"], stderr=err)
+    with pytest.raises(files.ScenarioError, match="none of its 2 scenario files could be loaded"):
+        files.load_folder(paths["junk"], stderr=err)
 
     # every suite that reads --scenarios goes through it
     class Used(Exception):
@@ -284,14 +288,14 @@ def test_skipped_files_are_named_and_counted_by_one_helper(paths, monkeypatch, c
     def spy(directory, *a, **k):
         raise Used(directory)
 
-    monkeypatch.setattr(loader, "load_folder", spy)
-    from jaxplan.eval.lattice_suite import _run_recorded
+    monkeypatch.setattr(files, "load_folder", spy)
+    from jaxplan.eval.lattice_suite import run_recorded
     from jaxplan.eval.registry import SuiteArgs
     from jaxplan.eval.speed_suite import recorded_scenes
     from jaxplan.eval.tune_suite import tune_suite
     from jaxplan.tuning.run import demonstrations
 
-    for call in (lambda: _run_recorded(paths["good"], 8, 4), lambda: recorded_scenes(paths["good"]),
+    for call in (lambda: run_recorded(paths["good"], 8, 4), lambda: recorded_scenes(paths["good"]),
                  lambda: tune_suite(SuiteArgs(out=paths["root"], scenarios=paths["good"])),
                  lambda: demonstrations(paths["good"])):
         with pytest.raises(Used, match="good"):
@@ -323,9 +327,9 @@ def test_version_and_suite_list(capsys):
     text = capsys.readouterr().out
     listed = text.split("suites:\n", 1)[1].splitlines()
     names = [ln.split()[0] for ln in listed if ln.strip()]
-    from jaxplan.eval.registry import SUITES, _load_builtin_suites
+    from jaxplan.eval.registry import SUITES, load_builtin_suites
 
-    _load_builtin_suites()  # the suites that register themselves when imported: the same list
+    load_builtin_suites()  # the suites that register themselves when imported: the same list
     assert names == sorted(SUITES) and {"lattice", "speed", "tune"} <= set(names)
     assert all(len(ln.split(None, 1)) == 2 for ln in listed if ln.strip())  # a line of text each
     assert any("candidate lattice" in ln for ln in listed)

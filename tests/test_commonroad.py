@@ -157,3 +157,41 @@ def test_dict_to_commonroad_rejects_what_commonroad_cannot_hold():
     for change, message in cases:
         with pytest.raises(ScenarioError, match=message):
             dict_to_commonroad({**base, **change}, "bad.json")
+
+
+def test_load_folder_reads_every_format_in_a_folder_and_its_sub_folders(tmp_path):
+    """``load_folder`` (the loader of every command and suite that reads ``--scenarios DIR``) reads
+    what ``jaxplan drive`` reads: shared JSON and CommonRoad XML, either gzip-compressed, in the
+    folder and its sub-folders, a pattern matching the name without the suffix; a file that does
+    not load is named and counted. ``--scenarios`` takes a folder of XML alone."""
+    import gzip
+    import io
+    import json
+
+    from test_loader import _minimal
+
+    from jaxplan.cli_args import scenario_dir
+    from jaxplan.scenarios.commonroad import write_commonroad
+    from jaxplan.scenarios.files import file_stem, first_loadable, load_folder
+
+    d = _minimal()
+    d["planning_problems"][0]["goals"][0]["time"] = [0.0, 10.0]  # CommonRoad goals need a time interval
+    (tmp_path / "sub").mkdir()
+    (tmp_path / "A_1.json").write_text(json.dumps({**d, "id": "A_1"}))
+    write_commonroad({**d, "id": "B_1"}, str(tmp_path / "sub" / "B_1.xml"))
+    with gzip.open(tmp_path / "C_1.json.gz", "wt") as f:
+        f.write(json.dumps({**d, "id": "C_1"}))
+    with open(tmp_path / "sub" / "B_1.xml", "rb") as f, gzip.open(tmp_path / "sub" / "D_1.xml.gz", "wb") as g:
+        g.write(f.read())
+    (tmp_path / "E_1.xml").write_text("<commonRoad/>")
+    (tmp_path / "notes.txt").write_text("not a scenario")
+    err = io.StringIO()
+    folder = load_folder(str(tmp_path), stderr=err)
+    assert sorted(file_stem(f) for f in folder.files) == ["A_1", "B_1", "C_1", "D_1"]
+    assert [file_stem(f) for f, _ in folder.skipped] == ["E_1"] and "E_1.xml" in err.getvalue()
+    assert [len(sc.obstacle_ids) for sc in folder.scenarios] == [len(d["obstacles"])] * 4
+    assert [file_stem(f) for f in load_folder(str(tmp_path), pattern="B_*").files] == ["B_1"]
+    with pytest.raises(ScenarioError, match="no scenario files named Z_"):
+        load_folder(str(tmp_path), pattern="Z_*")
+    assert file_stem(first_loadable(str(tmp_path / "sub"))) == "B_1"
+    assert scenario_dir(str(tmp_path / "sub")) == str(tmp_path / "sub")  # XML only: taken

@@ -9,7 +9,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxplan.compile_options import NO_YNN, _supported, jit
+from jaxplan.compile_options import NO_YNN, options_supported, jit
 
 
 def _f(x, n):
@@ -21,7 +21,7 @@ def test_options_applied_where_accepted_and_results_equal():
     fast = jit(_f, options=NO_YNN, static_argnames=("n",))
     np.testing.assert_allclose(np.asarray(fast(x, n=2)), np.asarray(jax.jit(_f, static_argnames=("n",))(x, n=2)),
                                rtol=1e-6)
-    assert fast.applied == (NO_YNN if _supported(tuple(NO_YNN.items())) else {})
+    assert fast.applied == (NO_YNN if options_supported(tuple(NO_YNN.items())) else {})
     if jax.default_backend() == "cpu" and jax.__version_info__ >= (0, 10):
         assert fast.applied == NO_YNN  # XLA CPU of JAX 0.10 has the option (measured there)
     assert fast._cache_size() == 1  # attributes of the jitted function pass through
@@ -31,7 +31,7 @@ def test_options_applied_where_accepted_and_results_equal():
 
 def test_refused_option_falls_back_to_plain_jit():
     bogus = {"xla_cpu_experimental_ynn_fusion_type": "no such value"}
-    assert not _supported(tuple(bogus.items()))
+    assert not options_supported(tuple(bogus.items()))
     g = jit(_f, options=bogus, static_argnames=("n",))
     assert float(g(jnp.ones((2, 3)), n=1)[0]) == 3.0
     assert g.applied == {}

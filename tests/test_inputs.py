@@ -180,13 +180,13 @@ def test_plan_refuses_a_reference_line_with_repeated_points():
 
 
 def test_nan_inside_jit_is_never_a_valid_free_plan():
-    from jaxplan.lattice.plan import _plan_jit  # the jitted kernel plan dispatches to: no host checks
+    from jaxplan.lattice.plan import plan_kernel  # the jitted kernel plan dispatches to: no host checks
 
     st = PlanState.make(0.0, 0.0, 0.0, 8.0)
     obs = parse_scenario(_static_only_scene(), "static.json").obstacles  # the static-obstacle test's shapes: no new compile
     nan_obs = Obstacles(obs.boxes.at[0, 0, 0].set(jnp.nan), obs.valid, obs.t, obs.static)
     # called as plan calls it (jit's cache tells explicit arguments from defaults)
-    bad = [_plan_jit(st, ref, o, CFG, CostWeights(), None, True)
+    bad = [plan_kernel(st, ref, o, CFG, CostWeights(), None, True)
            for ref, o in ((reference_line(jnp.asarray(_dup_xy())), obs), (REF, nan_obs))]
     for res in bad:
         assert int(res.mode) != FREE and np.asarray(res.collided).all()  # never a free plan
@@ -194,7 +194,7 @@ def test_nan_inside_jit_is_never_a_valid_free_plan():
 
     for res in bad:
         assert not bool(res.ok) and int(res.mode) == INVALID and not np.asarray(res.finite).any()
-    good = _plan_jit(st, REF, obs, CFG, CostWeights(), None, True)
+    good = plan_kernel(st, REF, obs, CFG, CostWeights(), None, True)
     assert bool(good.ok) and int(good.mode) == FREE and np.asarray(good.finite).all()
 
 
@@ -239,7 +239,7 @@ def test_weights_file_with_a_misspelled_name(tmp_path):
 
 def test_gradients_wrt_state_and_obstacles_are_finite_and_match_finite_differences():
     from jaxplan.lattice.cost import FEATURES
-    from jaxplan.lattice.plan import _plan
+    from jaxplan.lattice.plan import plan_unchecked
 
     cfg = LatticeConfig()  # the default config: jerk profile, escalation, broad-phase collision check
     # one weighted sum of every feature of every candidate, and of where the candidates end (x, y, s,
@@ -254,7 +254,7 @@ def test_gradients_wrt_state_and_obstacles_are_finite_and_match_finite_differenc
 
         def score(x, boxes, ref_xy):
             st = PlanState(x[0], x[1], x[2], x[3], x[4], x[5], x[4], jnp.inf)
-            r = _plan(st, reference_line(ref_xy), Obstacles(boxes, valid, t), cfg, CostWeights())
+            r = plan_unchecked(st, reference_line(ref_xy), Obstacles(boxes, valid, t), cfg, CostWeights())
             tr = r.candidates.traj
             parts = jnp.concatenate([r.features.sum(0), jnp.stack([f[:, -1].sum() for f in (tr.x, tr.y, tr.s, tr.v)])])
             return jnp.sum(parts * mix), parts

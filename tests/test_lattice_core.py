@@ -9,7 +9,7 @@ from jaxplan.lattice import (trajectory_boxes, ESCALATED, FREE, KMH, RISK, CostW
                              jerk_profile, jerk_profile_params, accel_profile, min_separation, plan,
                              quintic_coeffs, cartesian_to_frenet_state, risk_from_separation, select,
                              soft_select, costs)
-from jaxplan.lattice.profiles import _eval_segments
+from jaxplan.lattice.profiles import eval_segments
 from jaxplan.types import Obstacles
 
 CFG = LatticeConfig(n_offsets=3)  # 3 levels x 5 speeds x 1 lane x 3 offsets = 45 candidates, 51 steps
@@ -134,7 +134,7 @@ def test_accel_profile_three_cases():
 
 def test_eval_segments_matches_dense_integration():
     t = np.linspace(0, 6, 6001)
-    s, v, a = (np.asarray(x) for x in _eval_segments(jnp.asarray(t), [jnp.asarray(3.0), jnp.asarray(5.0)],
+    s, v, a = (np.asarray(x) for x in eval_segments(jnp.asarray(t), [jnp.asarray(3.0), jnp.asarray(5.0)],
                                                     [jnp.asarray(1.0), jnp.asarray(2.0)],
                                                     [jnp.asarray(0.5), jnp.asarray(-1.0)],
                                                     [jnp.asarray(2.0), jnp.asarray(2.0)], jnp.asarray(7.0)))
@@ -201,21 +201,21 @@ def test_stations_finite_flags_every_candidate_of_a_bad_profile():
 
 
 def test_generator_chunks_divide_the_profiles_and_do_not_change_the_candidates(monkeypatch):
-    """``candidates._chunk``: a divisor of the profile count below it (a loop, no remainder), the
+    """``candidates.chunk_profiles``: a divisor of the profile count below it (a loop, no remainder), the
     largest that fits ``CHUNK_POINTS`` (brute force); the candidates are the same in any chunking."""
     from jaxplan.lattice import candidates as C
 
     for G in range(1, 41):
         for points in (1, 100, 255, 2201, 5000):
-            c = C._chunk(G, points)
+            c = C.chunk_profiles(G, points)
             fits = [d for d in range(1, G) if G % d == 0 and d * points <= C.CHUNK_POINTS]
             assert c == (max(fits) if fits else 1)
             assert G % c == 0 and (c < G or G == 1)
     st, ref = PlanState.make(0.5, -0.4, 0.03, 12.0, a=0.3, kappa=1 / 150), curved_ref()
     G = CFG.n_profiles
-    assert 1 < C._chunk(G, CFG.n_lateral * T) < G  # this config is cut into several chunks
+    assert 1 < C.chunk_profiles(G, CFG.n_lateral * T) < G  # this config is cut into several chunks
     got = generate(st, ref, CFG)
-    monkeypatch.setattr(C, "_chunk", lambda G, points: 1)  # one profile per chunk
+    monkeypatch.setattr(C, "chunk_profiles", lambda G, points: 1)  # one profile per chunk
     one = generate(st, ref, CFG)
     for a, b in zip(jax.tree_util.tree_leaves(got), jax.tree_util.tree_leaves(one)):
         np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-6, atol=1e-6)
@@ -373,14 +373,14 @@ def test_soft_select_tends_to_exact(rng):
 
 def test_batched_plan_matches_single_and_does_not_recompile():
     from jaxplan.lattice import plan_batch
-    from jaxplan.lattice.plan import _plan_jit
+    from jaxplan.lattice.plan import plan_kernel
     ref = straight_ref()
     states = [PlanState.make(0.0, y, 0.0, v) for y, v in ((0.0, 10.0), (0.3, 15.0))]
     obs = [obstacles([moving(40, 0, 5, 0)]), obstacles([moving(30, 0, 0, 0)])]
     singles = [plan(s, ref, o, CFG) for s, o in zip(states, obs)]
-    n0 = _plan_jit._cache_size()
+    n0 = plan_kernel._cache_size()
     plan(states[0], ref, obs[1], CFG)
-    assert _plan_jit._cache_size() == n0
+    assert plan_kernel._cache_size() == n0
     stack = lambda xs: jax.tree_util.tree_map(lambda *a: jnp.stack(a), *xs)
     refs = stack([ref, ref])
     b = plan_batch(stack(states), refs, stack(obs), CFG)  # weights default like plan's
@@ -469,9 +469,9 @@ def test_a_free_plan_on_the_road_is_taken_before_a_free_plan_off_it():
     """``cost.choose``: when no candidate keeps the buffers, a collision-free candidate on the road
     (``on_road``) is taken before a cheaper collision-free one that leaves it; where every free
     candidate leaves the road, the one that leaves it least counts as on it
-    (``plan._least_off_road``)."""
+    (``plan.least_off_road``)."""
     from jaxplan.lattice.cost import CONSTRAINED, FEATURES, choose
-    from jaxplan.lattice.plan import LEAST_OFF_ROAD_TOL, _least_off_road
+    from jaxplan.lattice.plan import LEAST_OFF_ROAD_TOL, least_off_road
 
     w = CostWeights()
     feats = jnp.zeros((4, len(FEATURES))).at[:, 0].set(jnp.asarray([0.0, 1.0, 2.0, 3.0]))
@@ -488,9 +488,9 @@ def test_a_free_plan_on_the_road_is_taken_before_a_free_plan_off_it():
     # every free candidate leaves the road: those within the tolerance of the least excess count as on it
     off = jnp.asarray([False, True, True, True])
     excess = jnp.asarray([0.0, 0.4, 0.1 + 0.5 * LEAST_OFF_ROAD_TOL, 0.1])
-    got = np.asarray(_least_off_road(off, excess, free))
+    got = np.asarray(least_off_road(off, excess, free))
     assert got.tolist() == [True, False, True, True]
     idx, _, _ = choose(*args, on_road=jnp.asarray(got))
     assert int(idx) == 2
     # nothing free: every candidate counts (the choice then goes by harm)
-    assert np.asarray(_least_off_road(off, excess, jnp.zeros(4, bool))).all()
+    assert np.asarray(least_off_road(off, excess, jnp.zeros(4, bool))).all()

@@ -458,24 +458,24 @@ def _scene(kind):
     """Scenario objects of the shared JSON format, on the built-in scenes' road."""
     from jaxplan.scenarios import builtin as b
 
-    road = b._Road(0.0, 0.3)
+    road = b.SyntheticRoad(0.0, 0.3)
     t = np.arange(b.RECORD_STEPS) * b.DT
     v0 = 12.0
     if kind == "stop":  # one lane, a stopped car 45 m ahead: the only way out is to stop
-        n_lanes, obs = 1, [b._car(1, road, b.START_S + 45.0, 0.0, role="static")]
+        n_lanes, obs = 1, [b.road_obstacle(1, road, b.START_S + 45.0, 0.0, role="static")]
     elif kind == "pass":  # two lanes, a stopped car ahead in the ego lane, the left lane free
-        n_lanes, obs = 2, [b._car(1, road, b.START_S + 40.0, 0.0, role="static")]
+        n_lanes, obs = 2, [b.road_obstacle(1, road, b.START_S + 40.0, 0.0, role="static")]
     elif kind == "borrow":  # one lane each way, a stopped car ahead, an oncoming car that has passed by t = 3 s
         n_lanes = 1
-        obs = [b._car(1, road, b.START_S + 45.0, 0.0, role="static"),
-               b._car(2, road, b.START_S + 80.0 - 15.0 * t, np.full_like(t, b.LANE), length=4.5)]
+        obs = [b.road_obstacle(1, road, b.START_S + 45.0, 0.0, role="static"),
+               b.road_obstacle(2, road, b.START_S + 80.0 - 15.0 * t, np.full_like(t, b.LANE), length=4.5)]
     else:  # cut-in from the left, 3 m/s slower, 14 m ahead
         n_lanes = 2
         u = np.clip((t - 0.8) / 2.0, 0.0, 1.0)
-        obs = [b._car(1, road, b.START_S + 14.0 + (v0 - 3.0) * t, b.LANE * (1.0 - (3 * u ** 2 - 2 * u ** 3)))]
+        obs = [b.road_obstacle(1, road, b.START_S + 14.0 + (v0 - 3.0) * t, b.LANE * (1.0 - (3 * u ** 2 - 2 * u ** 3)))]
     start, th0 = road.pose(b.START_S, 0.0)
     gc, gth = road.pose(b.START_S + 110.0, 0.5 * (n_lanes - 1) * b.LANE)
-    lanelets = b._lanelets(road, n_lanes, 15.0)
+    lanelets = b.road_lanelets(road, n_lanes, 15.0)
     if kind == "borrow":  # the lane on the left runs the other way (its points in its own direction)
         ss = np.arange(0.0, b.ROAD_LENGTH + 1e-6, 2.0)[::-1]
         lanelets[0]["adjacentLeft"] = {"ref": 200, "drivingDir": "opposite"}
@@ -521,14 +521,14 @@ def _drives():
 def test_lattice_drive_compiles_with_the_planners_xla_options():
     """The lattice planner names its XLA options (``NO_YNN``, measured faster for its plan and its
     drives); the drive above ran in the program compiled with them."""
-    from jaxplan.compile_options import NO_YNN, _supported, options_key
+    from jaxplan.compile_options import NO_YNN, options_supported, options_key
     from jaxplan.sim.rollout import compiled_with
 
     planner = _drives()[-1]
     assert planner.compiler_options == NO_YNN
     key = options_key(NO_YNN)
     assert compiled_with(key)._cache_size() >= 1
-    assert compiled_with(key).applied == (NO_YNN if _supported(key) else {})
+    assert compiled_with(key).applied == (NO_YNN if options_supported(key) else {})
 
 
 def test_the_drive_report_names_the_modes_the_set_speed_and_the_leader():

@@ -259,10 +259,10 @@ def test_park_out_loop():
         assert np.allclose(starts[0], np.asarray(scene.start[b]), atol=1e-6)
         assert all(np.allclose(s, e, atol=1e-5) for s, e in zip(starts[1:], ends[:-1]))
     # equal shapes do not recompile
-    from jaxplan.parking.driver import _run_two_curve
-    n = _run_two_curve._cache_size()
+    from jaxplan.parking.driver import run_two_curve
+    n = run_two_curve._cache_size()
     again = pk.park_out(scene, 1, CFG, CAR)
-    assert _run_two_curve._cache_size() == n and bool(np.all(again.success[1:]))
+    assert run_two_curve._cache_size() == n and bool(np.all(again.success[1:]))
 
 
 def test_plan_parkout_api():

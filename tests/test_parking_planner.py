@@ -116,9 +116,9 @@ def test_refill_lanes_match_one_scene_per_call(heldout):
         alone = pk.plan_grids(scene.start[i:i + 1], pk.Grid(grids.cells[i:i + 1], grids.pose[i:i + 1]), CFG, CAR)
         for a, b in zip(jax.tree_util.tree_leaves(alone), jax.tree_util.tree_leaves(res)):
             assert np.array_equal(np.asarray(a)[0], np.asarray(b)[i])
-    from jaxplan.parking.driver import _run_search, _run_two_curve
+    from jaxplan.parking.driver import run_search, run_two_curve
 
-    assert _run_two_curve._cache_size() == 1 and _run_search._cache_size() == 1  # one compile each for all of it
+    assert run_two_curve._cache_size() == 1 and run_search._cache_size() == 1  # one compile each for all of it
 
 
 def test_speed_profile(heldout):

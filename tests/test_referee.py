@@ -17,7 +17,7 @@ pytest.importorskip("commonroad", reason="commonroad-io not installed (extra jax
 from jaxplan.eval import referee as R  # noqa: E402
 
 try:
-    R._require()
+    R.require_referee()
 except ImportError as e:
     pytest.skip(str(e), allow_module_level=True)
 

@@ -47,14 +47,14 @@ def request(start, goal, park, obs=(), vel=(), speed=0.0, phase=1, gear=1):
                 prev_end=start, prev_via=start)
 
 
-_SIGNS = np.array([(1, 1), (-1, 1), (-1, -1), (1, -1)], float)
+WORD_SIGNS = np.array([(1, 1), (-1, 1), (-1, -1), (1, -1)], float)
 
 
 def corners(x, y, L, W, h):
     """Box corners ``(..., 4, 2)`` from centre, size and heading (numpy, independent of the library)."""
     x, y, L, W, h = np.broadcast_arrays(*(np.asarray(a, float) for a in (x, y, L, W, h)))
     c, s = np.cos(h)[..., None], np.sin(h)[..., None]
-    a, e = _SIGNS[:, 0] * L[..., None] / 2, _SIGNS[:, 1] * W[..., None] / 2
+    a, e = WORD_SIGNS[:, 0] * L[..., None] / 2, WORD_SIGNS[:, 1] * W[..., None] / 2
     return np.stack([x[..., None] + a * c - e * s, y[..., None] + a * s + e * c], -1)
 
 
@@ -88,7 +88,7 @@ def test_dubins_words_reach_their_targets_by_independent_integration(rng):
     # Integrate every word of every pair: 200 midpoint steps per segment (float64, numpy).
     x, y, h = (np.repeat(st[:, i:i + 1].astype(float), 6, 1) for i in range(3))
     for seg in range(3):
-        sign = np.array([w[seg] for w in D._SIGNS], float)[None]
+        sign = np.array([w[seg] for w in D.WORD_SIGNS], float)[None]
         ds = lengths[:, :, seg].astype(float) / 200
         for _ in range(200):
             hm = h + 0.5 * sign * ds / R

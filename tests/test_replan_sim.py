@@ -36,7 +36,7 @@ def runs():
 
 def test_strategies_share_one_compiled_loop_and_agree_without_obstacles(runs):
     _, out = runs
-    assert S._simulate._cache_size() == 1  # the strategy is a traced int: one program for all three
+    assert S.simulate_batch._cache_size() == 1  # the strategy is a traced int: one program for all three
     ref = out[LAZY][1]
     for s in (PERIODIC, IMMEDIATE):
         L = out[s][1]

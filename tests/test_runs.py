@@ -79,7 +79,7 @@ def tiny_suite(monkeypatch):
             f.write(b"png")
         return {"figure": 1.5, "n": args.n or 3}
 
-    registry._load_builtin_suites()
+    registry.load_builtin_suites()
     monkeypatch.setitem(registry.SUITES, "tiny", tiny)
     return "tiny"
 

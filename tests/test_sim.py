@@ -13,7 +13,7 @@ from shapely.geometry import Point, Polygon
 from shapely.ops import unary_union
 
 from jaxplan.baselines import BrakePlanner, IDMPlanner
-from jaxplan.compile_options import NO_YNN, _supported, options_key
+from jaxplan.compile_options import NO_YNN, options_supported, options_key
 from jaxplan.plan_context import road_context
 from jaxplan.planner import SIM_VEHICLE, EgoState
 from jaxplan.scenarios import builtin
@@ -32,12 +32,12 @@ CAR = BrakePlanner().vehicle
 
 def _road_dict(obstacles=(), n_lanes=2, v0=12.0, kappa=0.0, heading=0.3, goal_t=(0.0, 12.0), start_lane=0):
     """A scenario object: straight (or curved) road of ``n_lanes``, the car in ``start_lane``."""
-    road = builtin._Road(kappa, heading)
+    road = builtin.SyntheticRoad(kappa, heading)
     start, th0 = road.pose(builtin.START_S, start_lane * builtin.LANE)
     gc, gth = road.pose(builtin.START_S + 120.0, 0.5 * (n_lanes - 1) * builtin.LANE)
-    obs = [builtin._car(i + 1, road, *o) if len(o) == 2 else builtin._car(i + 1, road, o[0], o[1], role=o[2])
+    obs = [builtin.road_obstacle(i + 1, road, *o) if len(o) == 2 else builtin.road_obstacle(i + 1, road, o[0], o[1], role=o[2])
            for i, o in enumerate(obstacles)]
-    return {"id": "TEST", "dt": 0.1, "lanelets": builtin._lanelets(road, n_lanes, 20.0), "obstacles": obs,
+    return {"id": "TEST", "dt": 0.1, "lanelets": builtin.road_lanelets(road, n_lanes, 20.0), "obstacles": obs,
             "planning_problems": [{"id": 1, "initial_state": {"t": 0.0, "position": start.tolist(),
                                                              "orientation": float(th0), "velocity": v0},
                                    "goals": [{"rectangle": {"center": gc.tolist(), "length": 20.0,
@@ -406,7 +406,7 @@ def test_release_compiled_frees_the_memory_maps_of_compiled_programs():
 def test_the_drive_is_compiled_with_the_planners_xla_options():
     """A planner's ``compiler_options`` reach the program its drive runs (and the one that times its
     plan); a planner without them drives in the plain program. The options change no result."""
-    from jaxplan.sim.drive import _plan, time_plans
+    from jaxplan.sim.drive import plan_at_start, time_plans
     from jaxplan.sim.rollout import compiled_with
 
     recs, _ = _brake_case()
@@ -417,13 +417,13 @@ def test_the_drive_is_compiled_with_the_planners_xla_options():
     with_options = rollout(_BrakeWithOptions(decel=5.0), one, cfg)
     program = compiled_with(key)
     assert program._cache_size() == 1
-    assert program.applied == (NO_YNN if _supported(key) else {})
+    assert program.applied == (NO_YNN if options_supported(key) else {})
     plain = rollout(BrakePlanner(decel=5.0), one, cfg)
     assert compiled_with(()).applied == {} and compiled_with(())._cache_size() >= 1
     for f in ("x", "y", "v"):
         np.testing.assert_allclose(np.asarray(getattr(with_options, f)), np.asarray(getattr(plain, f)), atol=1e-5)
     assert time_plans(_BrakeWithOptions(decel=5.0), one, 1)["plan_ms_median"] > 0
-    assert compiled_with(key, _plan, ("planner",))._cache_size() == 1
+    assert compiled_with(key, plan_at_start, ("planner",))._cache_size() == 1
     with pytest.raises(TypeError, match="compiler_options: needs a dict"):
         rollout(_BadOptions(), one, cfg)  # refused before anything compiles
 

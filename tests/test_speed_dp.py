@@ -386,10 +386,10 @@ def test_batched_equals_single_and_no_recompile():
     for k in range(3):
         p1 = one(scenes[k], float(v0[k]))
         assert np.allclose(pb.s[k], p1.s) and np.allclose(pb.v[k], p1.v)
-    from jaxplan.speed.dp import _plan_jit
-    n = _plan_jit._cache_size()
+    from jaxplan.speed.dp import plan_speed_kernel
+    n = plan_speed_kernel._cache_size()
     one(scenes[1], 4.0)
-    assert _plan_jit._cache_size() == n
+    assert plan_speed_kernel._cache_size() == n
 
 
 def test_expected_profile_converges_and_is_differentiable():

@@ -505,9 +505,9 @@ def test_the_lane_the_car_is_in_is_followed_where_the_route_changes_lanes(kappa)
         path_stations(2, 20.0, 100.0, jnp.float32)
     assert float(l_car[-1]) == pytest.approx(-builtin.LANE, abs=0.05)  # the route ends in the middle lane
     assert float(jnp.max(jnp.abs(l_car[u <= 0]))) < 0.05  # where the car is, the route is in its lane
-    lane0 = sg.LineString([builtin._Road(kappa, 0.3).pose(s, 0.0)[0] for s in np.linspace(0.0, 400.0, 801)])
+    lane0 = sg.LineString([builtin.SyntheticRoad(kappa, 0.3).pose(s, 0.0)[0] for s in np.linspace(0.0, 400.0, 801)])
     # the scene's coordinates are relative to the car's start (the loader's origin)
-    origin = np.asarray(builtin._Road(kappa, 0.3).pose(builtin.START_S, 0.0)[0])
+    origin = np.asarray(builtin.SyntheticRoad(kappa, 0.3).pose(builtin.START_S, 0.0)[0])
     xy = np.asarray(to_cartesian(sc.route, ctx.s + u, l_car)) + origin
     gap = max(lane0.distance(sg.Point(p)) for p in xy)
     assert gap < 0.05, gap

@@ -9,7 +9,7 @@ import scipy.sparse as sps
 
 from jaxplan.solvers import admm_prefactored
 from jaxplan.speed import SpeedConfig
-from jaxplan.speed.smooth import SmoothWeights, _maps, hardest_braking, leavable_a0, qp_matrices, qp_problem
+from jaxplan.speed.smooth import SmoothWeights, integration_maps, hardest_braking, leavable_a0, qp_matrices, qp_problem
 
 CFG = SpeedConfig()
 W = SmoothWeights()
@@ -46,7 +46,7 @@ def _problems(rng, B):
 
 def test_piecewise_jerk_maps_integrate_exactly(rng):
     """v and s from the maps equal a fine Euler integration of the linear acceleration."""
-    Va, Vy, Sa, Sy = _maps(N, H)
+    Va, Vy, Sa, Sy = integration_maps(N, H)
     for _ in range(3):
         a = rng.uniform(-5, 2, N)
         a0, v0 = rng.uniform(-2, 2), rng.uniform(0, 15)

@@ -36,12 +36,12 @@ def synth() -> LatticeData:
 
 
 def test_candidate_data_compiles_with_the_lattices_xla_options():
-    from jaxplan.compile_options import NO_YNN, _supported, options_key
+    from jaxplan.compile_options import NO_YNN, options_supported, options_key
     from jaxplan.tuning import lattice_tuning
 
     synth()
-    assert lattice_tuning._chunk_data._cache_size() >= 1
-    assert lattice_tuning._chunk_data.applied == (NO_YNN if _supported(options_key(NO_YNN)) else {})
+    assert lattice_tuning.chunk_data._cache_size() >= 1
+    assert lattice_tuning.chunk_data.applied == (NO_YNN if options_supported(options_key(NO_YNN)) else {})
 
 
 def _numpy_idm(ts, tl, tv, tlen, tvalid, s0, l_lane, v0, p, dt, length=4.8, band=1.75):

@@ -129,7 +129,7 @@ QP = PathQPConfig(jerk_max=0.2)
 PATH = PathConfig(vehicle=CAR, lat_buffer=0.3, lon_buffer=0.2, buffer_ramp=2.0)
 
 
-def _densify(x, axis):
+def densify(x, axis):
     """Insert the midpoint between consecutive entries along ``axis`` (``T -> 2T - 1``)."""
     x = jnp.moveaxis(x, axis, 0)
     mid = 0.5 * (x[1:] + x[:-1])
@@ -137,10 +137,10 @@ def _densify(x, axis):
     return jnp.moveaxis(out, 0, axis)
 
 
-def _frame_path(ref, s, l, boxes):
+def frame_path(ref, s, l, boxes):
     """The planner's path for one frame: ``s, l (T,)``, ``boxes (K, T, 5)``."""
-    st = _densify(s, 0)
-    bx = jnp.swapaxes(_densify(boxes, 1), 0, 1)  # (N, K, 5)
+    st = densify(s, 0)
+    bx = jnp.swapaxes(densify(boxes, 1), 0, 1)  # (N, K, 5)
     N = st.shape[0]
     edge = jnp.full((N,), LANE + 0.5 * CAR.width, st.dtype)
     ds, init = st[1] - st[0], jnp.stack([l[0], 0.0, 0.0]).astype(st.dtype)
@@ -275,7 +275,7 @@ def _one_radius(ref_xy, s, l, obs, boxes):
             upper=b.upper,
             heading=b.heading,
         )
-    out["path"] = jax.vmap(lambda s1, l1, b1: _frame_path(ref, s1, l1, b1))(s, l, boxes)
+    out["path"] = jax.vmap(lambda s1, l1, b1: frame_path(ref, s1, l1, b1))(s, l, boxes)
     return out
 
 

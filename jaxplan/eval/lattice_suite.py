@@ -197,13 +197,13 @@ def recorded_obstacles(sc, cfg: LatticeConfig = NORMAL, k_max: int = K_SYN) -> O
     return Obstacles(jnp.asarray(bb, jnp.float32), jnp.asarray(vv), jnp.asarray(t, jnp.float32), jnp.asarray(ss))
 
 
-def _run_recorded(directory, limit, batch, cfg=NORMAL):
+def run_recorded(directory, limit, batch, cfg=NORMAL):
     """Recorded scenes planned ``batch`` at a time (the synthetic batch's shapes: no new compile).
 
     Returns (table, (times, example), files skipped, scenes skipped)."""
     import sys
 
-    from jaxplan.scenarios.loader import load_folder
+    from jaxplan.scenarios.files import load_folder
     from jaxplan.scenarios.scenario import lane_reference
 
     folder = load_folder(directory, horizon=cfg.horizon, limit=limit)
@@ -284,7 +284,7 @@ def lattice_suite(args: SuiteArgs) -> dict:
         m["time_per_plan_ms_single"] = 1e3 * float(np.median(ts))
     _plot_fan(results, args.out)
     if args.scenarios:
-        rec, extra, skipped, unusable = _run_recorded(args.scenarios, 8 if args.quick else None, timing[NORMAL][2])
+        rec, extra, skipped, unusable = run_recorded(args.scenarios, 8 if args.quick else None, timing[NORMAL][2])
         m["skipped_files"] = skipped
         m["recorded_skipped_scenes"] = unusable
         if rec:

@@ -46,7 +46,7 @@ EXTRA = "referee"
 ROAD_TOL = 0.05  # m: lanelet polygons are buffered by this (jaxplan's off-road metric uses the same tolerance)
 
 
-def _require():
+def require_referee():
     """Import the referee's tools or raise one line naming the extra."""
     try:
         import commonroad  # noqa: F401
@@ -144,7 +144,7 @@ class Referee:
     """
 
     def __init__(self, scenario, planning_problem, id_map: dict | None = None):
-        _require()
+        require_referee()
         from commonroad_dc.boundary.boundary import create_road_boundary_obstacle
         from commonroad_dc.collision.collision_detection.pycrcc_collision_dispatch import (
             create_collision_checker,
@@ -173,7 +173,7 @@ class Referee:
     @classmethod
     def from_file(cls, path: str) -> Referee:
         """A referee for a shared-JSON or CommonRoad XML scenario file."""
-        _require()
+        require_referee()
         return cls(*_open(path))
 
     def _box(self, x, y, th, length, width):

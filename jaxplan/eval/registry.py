@@ -73,7 +73,7 @@ def register(name: str):
     return wrap
 
 
-def _load_builtin_suites():
+def load_builtin_suites():
     """Import every ``jaxplan/eval/*_suite.py``; each registers itself."""
     import importlib
     import pkgutil
@@ -188,7 +188,7 @@ def run_suite(name: str, args: SuiteArgs) -> dict:
     ``OUT/run.json`` (replacing an earlier run's, see the module docstring); return the metrics."""
     args.validate()
     names = suite_names(name)
-    _load_builtin_suites()
+    load_builtin_suites()
     missing = [n for n in names if n not in SUITES]
     if missing:
         raise ValueError(f"suite {missing[0]!r} is listed but did not register itself")

@@ -43,33 +43,19 @@ def recorded_scenes(directories, n: int | None = None) -> tuple[list, int]:
     ``directories`` (a folder or a list of them; read by ``load_folder``, the one loading
     path of the suites, each file that fails named on stderr and counted; a scenario whose
     route cannot be built counts as skipped), at most ``n``, names unique."""
-    import glob
-    import os
     import sys
 
     from jaxplan.scenarios.build import build_scene
-    from jaxplan.scenarios.fields import ScenarioError
-    from jaxplan.scenarios.files import unique_names
-    from jaxplan.scenarios.loader import load_folder
+    from jaxplan.scenarios.files import load_folder, unique_names
     from jaxplan.scenarios.route import RouteError
     from jaxplan.scenarios.scene import SceneRecord
 
     recs: list[SceneRecord] = []
     skipped = 0
     for d in [directories] if isinstance(directories, str) else directories:
-        pairs = []
-        if glob.glob(os.path.join(d, "*.json")) or not glob.glob(os.path.join(d, "*.xml")):
-            folder = load_folder(d)
-            skipped += len(folder.skipped)
-            pairs += list(zip(folder.files, folder.scenarios))
-        for f in sorted(glob.glob(os.path.join(d, "*.xml"))):  # CommonRoad XML, as jaxplan drive reads it
-            from jaxplan.scenarios.commonroad import load_commonroad
-
-            try:
-                pairs.append((f, load_commonroad(f, None)))
-            except (ScenarioError, ValueError, ImportError) as e:
-                print(f"jaxplan: speed: skipping {f}: {e}", file=sys.stderr)
-                skipped += 1
+        folder = load_folder(d)
+        skipped += len(folder.skipped)
+        pairs = list(zip(folder.files, folder.scenarios))
         for f, sc in pairs:
             if n is not None and len(recs) >= n:
                 break

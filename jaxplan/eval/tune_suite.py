@@ -235,7 +235,7 @@ def tune_suite(args: SuiteArgs) -> dict:
     n = args.n or (24 if args.quick else 64)
     folder = None
     if args.scenarios:
-        from jaxplan.scenarios.loader import load_folder
+        from jaxplan.scenarios.files import load_folder
 
         folder = load_folder(args.scenarios)
     train, val, source = demonstrations(

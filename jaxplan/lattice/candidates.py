@@ -29,7 +29,7 @@ from jaxplan.lattice.parts import LatticeParts, lattice_parts
 from jaxplan.lattice.state import PlanState
 from jaxplan.types import Trajectory, pytree_dataclass
 
-CHUNK_POINTS = 1 << 12  # at most this many candidate points per chunk of the generator (``_chunk``)
+CHUNK_POINTS = 1 << 12  # at most this many candidate points per chunk of the generator (``chunk_profiles``)
 
 
 @pytree_dataclass(
@@ -116,7 +116,7 @@ def candidate_trajectory(parts: LatticeParts, index) -> Trajectory:
     return jax.tree_util.tree_map(lambda a: a[0], _trajectory(fields, parts.t))
 
 
-def _chunk(G: int, points: int) -> int:
+def chunk_profiles(G: int, points: int) -> int:
     """Speed profiles per chunk of the generator's loop over ``G`` profiles of ``points``
     candidate samples each: the largest divisor of ``G`` below ``G`` whose chunk holds at most
     ``CHUNK_POINTS`` samples (1 if none).
@@ -156,7 +156,7 @@ def generate_from(parts: LatticeParts, config: LatticeConfig) -> Candidates:
         profile, ref_at, S_g = g
         return lateral_paths(parts, profile, ref_at, parts.offsets, S_g)
 
-    chunk = _chunk(G, P * T)
+    chunk = chunk_profiles(G, P * T)
     xs = (parts.profiles, parts.ref_at, parts.S)
     fields = lax.map(group, xs, batch_size=chunk) if chunk < G else jax.vmap(group)(xs)
     x, y, theta, kappa, speed, acc, ux, uy, l, dl = (o.reshape(N, T) for o in fields)

@@ -412,7 +412,7 @@ def choose(
         emergency_ok: ``(..., N)`` bool or None: candidates within the emergency limits (and on the
             road) that may replace a pool whose every candidate collides.
         on_road: ``(..., N)`` bool or None (every candidate): the candidate stays on the road (or,
-            where none does, leaves it least: ``plan._least_off_road``).
+            where none does, leaves it least: ``plan.least_off_road``).
 
     Returns:
         (index ``(...)``, mode ``(...)`` (``FREE``, ``ESCALATED``, ``EMERGENCY``, ``CONSTRAINED``,

@@ -224,7 +224,7 @@ def _kinematics(cand: Candidates, ref, targets, config, v_set, t, stations_ok):
     return out
 
 
-def _plan(
+def plan_unchecked(
     state: PlanState,
     ref: ReferenceLine,
     obstacles: Obstacles,
@@ -233,6 +233,8 @@ def _plan(
     targets: RoadTargets | None = None,
     keep_candidates: bool = True,
 ) -> LatticeResult:
+    """``plan`` without its host-side checks and not jitted (for a caller's own transformation:
+    ``jax.grad``, ``jax.vmap``, ``jax.jit``); the arguments are ``plan``'s."""
     f = ref.xy.dtype
     if targets is None:
         targets = RoadTargets.from_config(config, f)
@@ -303,7 +305,7 @@ def _plan(
     feats = feats.at[:, 0].set(kin["d_lane"][:, lane])
     n_comfort = len(config.escalation)
     risk_cost = weights.gamma * feats[:, 2]
-    on_road = _least_off_road(off_road, kin["edge_excess"], pool & ~risk.collided)
+    on_road = least_off_road(off_road, kin["edge_excess"], pool & ~risk.collided)
     idx, mode, sel = choose(
         weights,
         feats,
@@ -428,7 +430,7 @@ MARGIN_TOL = 0.01  # m: how much closer to an edge than the car is now a candida
 LEAST_OFF_ROAD_TOL = 0.05  # m: candidates within this of the least excess past an edge count as leaving it least
 
 
-def _least_off_road(off_road, edge_excess, pool):
+def least_off_road(off_road, edge_excess, pool):
     """``(N,)``: the candidate stays on the road, or, where every candidate of ``pool`` leaves it
     (the route's corridor can be narrower than the road, e.g. in a junction), leaves it about as
     little as any does (``edge_excess`` within ``LEAST_OFF_ROAD_TOL`` of the least)."""
@@ -526,16 +528,17 @@ def _lane_decision(cand, progress, targets, ok, l_car, config):
     return centres[lane], lane
 
 
-_plan_jit = jit(_plan, options=NO_YNN, static_argnames=("config", "keep_candidates"))
+# the jitted kernel ``plan`` dispatches to after its host-side checks
+plan_kernel = jit(plan_unchecked, options=NO_YNN, static_argnames=("config", "keep_candidates"))
 
 
 @jit(options=NO_YNN, static_argnames=("config", "keep_candidates"))
 def _plan_batch_jit(state, reference_line, obstacles, config, weights, targets=None, keep_candidates=True):
     if targets is None:
-        return jax.vmap(lambda s, r, o: _plan(s, r, o, config, weights, None, keep_candidates))(
+        return jax.vmap(lambda s, r, o: plan_unchecked(s, r, o, config, weights, None, keep_candidates))(
             state, reference_line, obstacles
         )
-    return jax.vmap(lambda s, r, o, g: _plan(s, r, o, config, weights, g, keep_candidates))(
+    return jax.vmap(lambda s, r, o, g: plan_unchecked(s, r, o, config, weights, g, keep_candidates))(
         state, reference_line, obstacles, targets
     )
 
@@ -604,7 +607,7 @@ def plan(
     weights = CostWeights() if weights is None else weights
     _check_shapes("plan", state, reference_line, obstacles, 0)
     _validate(state, reference_line, obstacles, config, weights)
-    return _plan_jit(state, reference_line, obstacles, config, weights, targets, keep_candidates)
+    return plan_kernel(state, reference_line, obstacles, config, weights, targets, keep_candidates)
 
 
 def plan_batch(

@@ -28,7 +28,7 @@ import jax.numpy as jnp
 from jaxplan.compile_options import NO_YNN
 from jaxplan.lattice.config import LatticeConfig
 from jaxplan.lattice.cost import INVALID, MODE_NAMES, RISK, CostWeights
-from jaxplan.lattice.plan import LatticeResult, _plan
+from jaxplan.lattice.plan import LatticeResult, plan_unchecked
 from jaxplan.lattice.state import PlanState
 from jaxplan.lattice.targets import RoadTargets
 from jaxplan.plan_context import road_context, route_sample, set_speed
@@ -108,7 +108,7 @@ class LatticePlanner:
             borrow[idx],
             jnp.stack([scene.road_left, scene.road_right], -1),
         )
-        return _plan(state, scene.route, ctx.obstacles, cfg, params, targets), ctx, v_set
+        return plan_unchecked(state, scene.route, ctx.obstacles, cfg, params, targets), ctx, v_set
 
     def describe(self, info: dict) -> str:
         """Words for the ``info`` of a few consecutive plans (numpy ``(C,)`` each): their modes,

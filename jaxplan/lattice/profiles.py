@@ -42,7 +42,7 @@ from jax import lax
 from jaxplan.geometry.lines import safe_sqrt
 
 
-def _eval_segments(t, v_start, a_start, jerks, durations, v_hold):
+def eval_segments(t, v_start, a_start, jerks, durations, v_hold):
     """Evaluate piecewise-constant-jerk segments followed by a hold at ``v_hold``.
 
     Args:
@@ -101,7 +101,7 @@ def accel_profile(v0, v_end, t, a_min=-3.0, a_max=2.0, t_reach=None):
     t_hit = jnp.where(acc == 0, 0.0, dv / safe)
     shape = jnp.broadcast_shapes(v0.shape, v_end.shape, jnp.shape(acc))
     v0, acc, t_hit, v_end = (jnp.broadcast_to(x, shape) for x in (v0, acc, t_hit, v_end))
-    s, v, a = _eval_segments(t, [v0], [acc], [jnp.zeros_like(acc)], [t_hit], v_end)
+    s, v, a = eval_segments(t, [v0], [acc], [jnp.zeros_like(acc)], [t_hit], v_end)
     return _no_reverse(s, v, a)
 
 
@@ -161,5 +161,5 @@ def jerk_profile(v0, a0, v_end, t, jerk=2.0, a_min=-3.0, a_max=2.0):
     v2 = v1 + ap * p["t2"]
     v3 = v2 + ap * p["t3"] + 0.5 * p["j3"] * p["t3"] ** 2
     zero = jnp.zeros_like(ap)
-    s, v, a = _eval_segments(t, [v0, v1, v2], [a0, ap, ap], [p["j1"], zero, p["j3"]], [p["t1"], p["t2"], p["t3"]], v3)
+    s, v, a = eval_segments(t, [v0, v1, v2], [a0, ap, ap], [p["j1"], zero, p["j3"]], [p["t1"], p["t2"], p["t3"]], v3)
     return _no_reverse(s, v, a)

@@ -60,7 +60,7 @@ def _slot_model(models, idx, config: ParkoutConfig):
 
 
 @functools.partial(jax.jit, static_argnames=("config", "slots"))
-def _run_two_curve(starts, models, n_real, config, vehicle, slots):
+def run_two_curve(starts, models, n_real, config, vehicle, slots):
     """Two-curve loops of ``C`` scenes through ``slots`` lanes; returns a ``ParkoutResult`` with leading ``C``."""
     C = starts.shape[0]
     W = slots
@@ -104,7 +104,7 @@ def _run_two_curve(starts, models, n_real, config, vehicle, slots):
 
 
 @functools.partial(jax.jit, static_argnames=("config", "slots"))
-def _run_search(starts, models, ids, n_ids, config, vehicle, table, slots):
+def run_search(starts, models, ids, n_ids, config, vehicle, table, slots):
     """Searches for the scenes ``ids[:n_ids]`` (indices into the chunk) through ``slots`` lanes, one depth
     per iteration; a lane whose search is done takes the next scene. Returns a ``ParkoutResult`` ``(Q, ...)``
     in the order of ``ids``."""
@@ -185,7 +185,7 @@ def _plan_models(starts, models, config: ParkoutConfig, vehicle, slots=None) -> 
         else:
             m = PointModel(put(models.points), put(models.ok))
         W = max(1, min(C // 2, 64)) if slots is None else min(int(slots), C)
-        jobs.append((lo, hi, st, m, _run_two_curve(st, m, jnp.asarray(hi - lo, jnp.int32), config, vehicle, W)))
+        jobs.append((lo, hi, st, m, run_two_curve(st, m, jnp.asarray(hi - lo, jnp.int32), config, vehicle, W)))
     searches = []
     for lo, hi, st, m, res in jobs:
         failed = np.nonzero(~np.asarray(res.success)[: hi - lo])[0] if config.search else np.zeros(0, int)
@@ -193,7 +193,7 @@ def _plan_models(starts, models, config: ParkoutConfig, vehicle, slots=None) -> 
         if len(failed):
             Q = _bucket(len(failed))
             ids = jnp.asarray(np.concatenate([failed, np.zeros(Q - len(failed), int)]), jnp.int32)
-            sr = _run_search(
+            sr = run_search(
                 st,
                 m,
                 ids,

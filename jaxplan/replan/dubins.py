@@ -18,7 +18,7 @@ import jax.numpy as jnp
 
 WORDS = ("LSL", "RSR", "LSR", "RSL", "RLR", "LRL")
 # Curvature sign of each segment (+1 left, 0 straight, -1 right), per word.
-_SIGNS = ((1, 0, 1), (-1, 0, -1), (1, 0, -1), (-1, 0, 1), (-1, 1, -1), (1, -1, 1))
+WORD_SIGNS = ((1, 0, 1), (-1, 0, -1), (1, 0, -1), (-1, 0, 1), (-1, 1, -1), (1, -1, 1))
 _TWO_PI = 2 * jnp.pi
 
 
@@ -121,7 +121,7 @@ def shortest(start, end, radius) -> DubinsPath:
     lengths, feasible = word_lengths(start, end, radius)
     total = jnp.where(feasible, jnp.sum(lengths, -1), jnp.inf)
     k = jnp.argmin(total, axis=-1)
-    signs = jnp.asarray(_SIGNS, start.dtype)[k]
+    signs = jnp.asarray(WORD_SIGNS, start.dtype)[k]
     lk = jnp.take_along_axis(lengths, k[..., None, None], axis=-2)[..., 0, :]
     return DubinsPath(start, lk, signs, radius, jnp.sum(lk, -1), jnp.any(feasible, -1))
 

@@ -405,7 +405,8 @@ def _run_batch(sc: ManeuverScenario, strategy, cfg: ManeuverSimConfig):
     return final, jax.tree.map(lambda a: jnp.swapaxes(a, 0, 1), logs)
 
 
-_simulate = jax.jit(_run_batch, static_argnums=2)
+# the jitted batch simulation ``simulate`` runs (strategy static)
+simulate_batch = jax.jit(_run_batch, static_argnums=2)
 
 
 def simulate(scenarios: ManeuverScenario, strategy, cfg: ManeuverSimConfig = ManeuverSimConfig()):
@@ -418,7 +419,7 @@ def simulate(scenarios: ManeuverScenario, strategy, cfg: ManeuverSimConfig = Man
     _check_strategy(strategy)
     n = jax.tree.leaves(scenarios)[0].shape[0]
     strategy = jnp.broadcast_to(jnp.asarray(strategy, jnp.int32), (n,))
-    return _simulate(scenarios, strategy, cfg)
+    return simulate_batch(scenarios, strategy, cfg)
 
 
 def _check_strategy(strategy):

@@ -35,7 +35,7 @@ RECORD_STEPS = 251  # 25 s of obstacle trajectories
 SURVIVAL_DECEL = 5.0
 
 
-class _Road:
+class SyntheticRoad:
     """A straight road (curvature 0) or an arc, parametrised by arc length ``s`` of its
     centre reference (the right edge of lane 0 is at ``l = -LANE / 2``)."""
 
@@ -53,7 +53,7 @@ class _Road:
         return np.stack([x - l * np.sin(th), y + l * np.cos(th)], -1), th
 
 
-def _lanelets(road: _Road, n_lanes: int, limit: float) -> list:
+def road_lanelets(road: SyntheticRoad, n_lanes: int, limit: float) -> list:
     length = ROAD_LENGTH if abs(road.kappa) < 1e-9 else min(ROAD_LENGTH, 0.95 * math.pi / abs(road.kappa))
     s = np.arange(0.0, length + 1e-6, 2.0)  # a curve turns by less than 180 degrees
     out = []
@@ -76,7 +76,7 @@ def _lanelets(road: _Road, n_lanes: int, limit: float) -> list:
     return out
 
 
-def _car(oid, road, s, l, length=4.6, width=1.8, role="dynamic", kind="car"):
+def road_obstacle(oid, road, s, l, length=4.6, width=1.8, role="dynamic", kind="car"):
     """An obstacle following stations ``s (T,)`` and offsets ``l (T,)`` (one pair: static)."""
     s, l = np.atleast_1d(s).astype(float), np.atleast_1d(l).astype(float)
     xy, th = road.pose(s, l)
@@ -100,7 +100,7 @@ def scene_dict(kind: str, rng: np.random.Generator, index: int) -> dict:
     curved = kind == "curve_stop" or (kind != "parked_cars" and rng.random() < 0.3)
     radius = rng.uniform(80.0, 200.0) if kind == "curve_stop" else rng.uniform(250.0, 600.0)
     kappa = (rng.choice([-1.0, 1.0]) / radius) if curved else 0.0
-    road = _Road(kappa, rng.uniform(-math.pi, math.pi))
+    road = SyntheticRoad(kappa, rng.uniform(-math.pi, math.pi))
     n_lanes = 3 if kind in ("dense_next_lane", "cut_in") else int(rng.integers(2, 4))
     ego_lane = (
         0
@@ -117,12 +117,12 @@ def scene_dict(kind: str, rng: np.random.Generator, index: int) -> dict:
     obstacles, oid = [], 1
     if kind in ("stopped_car", "curve_stop", "dense_next_lane"):
         gap = brake_dist + rng.uniform(6.0, 30.0)
-        obstacles.append(_car(oid, road, START_S + 2.3 + gap + 2.3, l_ego, role="static"))
+        obstacles.append(road_obstacle(oid, road, START_S + 2.3 + gap + 2.3, l_ego, role="static"))
         oid += 1
     if kind == "slow_leader":
         v_l = rng.uniform(0.0, 0.5 * v0)
         gap = rng.uniform(15.0, 45.0)
-        obstacles.append(_car(oid, road, START_S + gap + 4.6 + v_l * t, np.full_like(t, l_ego)))
+        obstacles.append(road_obstacle(oid, road, START_S + gap + 4.6 + v_l * t, np.full_like(t, l_ego)))
         oid += 1
     if kind == "cut_in":
         side = 1 if ego_lane == 0 else -1 if ego_lane == n_lanes - 1 else int(rng.choice([-1, 1]))
@@ -131,7 +131,7 @@ def scene_dict(kind: str, rng: np.random.Generator, index: int) -> dict:
         t_in, dur = rng.uniform(0.5, 2.0), rng.uniform(1.5, 3.0)
         u = np.clip((t - t_in) / dur, 0.0, 1.0)
         l = l_ego + side * LANE * (1.0 - (3 * u**2 - 2 * u**3))
-        obstacles.append(_car(oid, road, s0 + v_c * t, l))
+        obstacles.append(road_obstacle(oid, road, s0 + v_c * t, l))
         oid += 1
     if kind == "parked_cars":
         s = START_S + rng.uniform(25.0, 45.0)
@@ -139,20 +139,20 @@ def scene_dict(kind: str, rng: np.random.Generator, index: int) -> dict:
             into = rng.uniform(0.3, 1.0)  # metres into the ego lane
             width = 1.8
             l = l_ego - 0.5 * LANE - 0.5 * width + into
-            obstacles.append(_car(oid, road, s, l, width=width, role="static", kind="parkedVehicle"))
+            obstacles.append(road_obstacle(oid, road, s, l, width=width, role="static", kind="parkedVehicle"))
             oid += 1
             s += rng.uniform(6.0, 14.0)
     if kind == "dense_next_lane":
         v_p = v0 + rng.uniform(0.0, 5.0)
         s = START_S + rng.uniform(-40.0, 0.0)
         for _ in range(int(rng.integers(4, 8))):
-            obstacles.append(_car(oid, road, s + v_p * t, np.full_like(t, l_ego + LANE)))
+            obstacles.append(road_obstacle(oid, road, s + v_p * t, np.full_like(t, l_ego + LANE)))
             oid += 1
             s += rng.uniform(9.0, 16.0)
     if kind in ("stopped_car", "slow_leader") and n_lanes > 1 and rng.random() < 0.5:
         other = (ego_lane + 1) % n_lanes
         obstacles.append(
-            _car(
+            road_obstacle(
                 oid,
                 road,
                 START_S + rng.uniform(-30.0, 40.0) + (v0 + rng.uniform(-2, 3)) * t,
@@ -170,7 +170,7 @@ def scene_dict(kind: str, rng: np.random.Generator, index: int) -> dict:
         "source": "jaxplan.scenarios.builtin",
         "tags": ["synthetic", kind],
         "dt": DT,
-        "lanelets": _lanelets(road, n_lanes, limit),
+        "lanelets": road_lanelets(road, n_lanes, limit),
         "obstacles": obstacles,
         "planning_problems": [
             {

@@ -3,7 +3,8 @@ scenes built from them.
 
 Formats: the shared JSON (``.json``) and CommonRoad 2020a XML (``.xml``), each also
 gzip-compressed (``.json.gz``, ``.xml.gz``: large collections are kept that way).
-``load_file`` reads any of them into a ``Scenario``; ``load_records`` reads files into
+``load_file`` reads any of them into a ``Scenario``, ``load_folder`` every one of a folder (the
+loading path of every command and suite that reads ``--scenarios DIR``); ``load_records`` reads files into
 ``SceneRecord``s (the scenario, its ``Scene`` from ``jaxplan.scenarios.build.build_scene``, its
 route), ``load_scenes`` into their ``Scene``s, and ``world_route`` gives the route a planner drives
 on in a file, in world coordinates.
@@ -19,9 +20,11 @@ later one gets ``<id>@<file name>``, so keys stay unique and say where they came
 from __future__ import annotations
 
 import dataclasses
+import fnmatch
 import glob
 import json
 import os
+import sys
 
 import numpy as np
 
@@ -88,6 +91,104 @@ def expand_paths(paths) -> list[str]:
         else:
             raise ValueError(f"{p}: no such file or folder")
     return out
+
+
+def file_stem(path: str) -> str:
+    """The file's name without its scenario suffix (``SUFFIXES``; ``a/b/X_1.xml.gz`` -> ``X_1``)."""
+    name = os.path.basename(path)
+    for suffix in sorted(SUFFIXES, key=len, reverse=True):
+        if name.lower().endswith(suffix):
+            return name[: -len(suffix)]
+    return name
+
+
+def folder_files(directory: str, pattern: str | None = None) -> list[str]:
+    """The scenario files of a folder and its sub-folders (``expand_paths``), those whose
+    ``file_stem`` matches ``pattern`` (``fnmatch``; None: all); a ``ScenarioError`` names a folder
+    that does not exist, is a file, or holds no such file."""
+    if not os.path.exists(directory):
+        raise ScenarioError(f"{directory}: no such folder")
+    if not os.path.isdir(directory):
+        raise ScenarioError(f"{directory}: is a file, not a folder of scenarios")
+    try:
+        files = expand_paths([directory])
+    except ValueError as e:
+        raise ScenarioError(str(e)) from None
+    files = [f for f in files if pattern is None or fnmatch.fnmatch(file_stem(f), pattern)]
+    if not files:
+        raise ScenarioError(f"{directory}: no scenario files named {pattern} ({', '.join(SUFFIXES)})")
+    return files
+
+
+@dataclasses.dataclass(frozen=True)
+class Folder:
+    """Scenarios loaded from a folder by ``load_folder``.
+
+    Attributes:
+        directory: the folder.
+        scenarios: the scenarios that loaded, in file-name order.
+        files: their files.
+        skipped: ``(file, reason)`` of every file that did not load.
+    """
+
+    directory: str
+    scenarios: tuple
+    files: tuple
+    skipped: tuple
+
+    def __len__(self) -> int:
+        return len(self.scenarios)
+
+
+def load_folder(
+    directory: str, pattern: str | None = None, horizon: float | None = None, limit: int | None = None, stderr=None
+) -> Folder:
+    """Every loadable scenario of a folder, in any format (``folder_files``, ``load_file``); each
+    file that fails is named on stderr and counted.
+
+    The one loading path of every command and suite that reads ``--scenarios DIR`` (their
+    metrics report ``skipped_files = len(folder.skipped)``).
+
+    Args:
+        directory: folder of scenario files (its sub-folders too).
+        pattern: file names (without the suffix) to read, e.g. ``"USA_US101-*"``; None: all.
+        horizon: keep obstacle predictions up to this time (s); default all.
+        limit: read at most this many files (the first by path).
+        stderr: where skipped files are named (default ``sys.stderr``).
+
+    Raises:
+        ScenarioError: the folder does not exist, holds no matching file, or none of them loads;
+        ImportError: CommonRoad XML without the ``commonroad`` extra.
+    """
+    out = sys.stderr if stderr is None else stderr
+    files = folder_files(directory, pattern)[:limit]
+    scenarios, loaded, skipped = [], [], []
+    for f in files:
+        try:
+            scenarios.append(load_file(f, horizon=horizon))
+            loaded.append(f)
+        except ScenarioError as e:
+            skipped.append((f, str(e)))
+            print(f"jaxplan: skipping {e}", file=out)
+    if not scenarios:
+        raise ScenarioError(
+            f"{directory}: none of its {len(files)} scenario files could be loaded (first: {skipped[0][1]})"
+        )
+    return Folder(directory, tuple(scenarios), tuple(loaded), tuple(skipped))
+
+
+def first_loadable(directory: str, pattern: str | None = None) -> str:
+    """The first file of a folder that loads (a cheap check before heavy work); a
+    ``ScenarioError`` names the folder when none does."""
+    files = folder_files(directory, pattern)
+    first = None
+    for f in files:
+        try:
+            load_file(f)
+            return f
+        except ScenarioError as e:
+            first = first or str(e)
+    raise ScenarioError(f"{directory}: none of its {len(files)} scenario files could be loaded (first: {first})")
 
 
 def scenario_id(path: str) -> str:

@@ -28,7 +28,6 @@ the field checks of ``fields``, into the types of ``scenario``.
 
 from __future__ import annotations
 
-import dataclasses
 import glob
 import gzip
 import json
@@ -72,17 +71,14 @@ __all__ = [
     "MAX_ANGLE",
     "MAX_DT",
     "EgoRecord",
-    "Folder",
     "Lane",
     "Scenario",
     "ScenarioError",
     "TrafficLight",
-    "first_loadable",
     "lane_at",
     "lane_polyline",
     "lane_reference",
     "load_dir",
-    "load_folder",
     "load_scenario",
     "parse_scenario",
     "read_bytes",
@@ -207,74 +203,6 @@ def scenario_files(directory: str, pattern: str = "*.json") -> list[str]:
 def load_dir(directory: str, pattern: str = "*.json", **kw) -> list[Scenario]:
     """Load every scenario file in ``directory`` (sorted by name); the first bad file raises.
 
-    Suites use ``load_folder``, which skips bad files and names them."""
+    Suites use ``jaxplan.scenarios.files.load_folder``, which reads every format and skips bad
+    files, naming them."""
     return [load_scenario(f, **kw) for f in scenario_files(directory, pattern)]
-
-
-@dataclasses.dataclass(frozen=True)
-class Folder:
-    """Scenarios loaded from a folder by ``load_folder``.
-
-    Attributes:
-        directory: the folder.
-        scenarios: the scenarios that loaded, in file-name order.
-        files: their files.
-        skipped: ``(file, reason)`` of every file that did not load.
-    """
-
-    directory: str
-    scenarios: tuple
-    files: tuple
-    skipped: tuple
-
-    def __len__(self) -> int:
-        return len(self.scenarios)
-
-
-def load_folder(
-    directory: str, pattern: str = "*.json", horizon: float | None = None, limit: int | None = None, stderr=None
-) -> Folder:
-    """Every loadable scenario of a folder; each file that fails is named on stderr and counted.
-
-    The one loading path of every suite that reads ``--scenarios DIR`` (their metrics
-    report ``skipped_files = len(folder.skipped)``).
-
-    Args:
-        directory: folder of scenario files.
-        pattern: file-name pattern.
-        horizon: keep obstacle predictions up to this time (s); default all.
-        limit: read at most this many files (the first by name).
-        stderr: where skipped files are named (default ``sys.stderr``).
-
-    Raises:
-        ScenarioError: the folder does not exist, holds no matching file, or none of them loads.
-    """
-    out = sys.stderr if stderr is None else stderr
-    files = scenario_files(directory, pattern)[:limit]
-    scenarios, loaded, skipped = [], [], []
-    for f in files:
-        try:
-            scenarios.append(load_scenario(f, horizon=horizon))
-            loaded.append(f)
-        except ScenarioError as e:
-            skipped.append((f, str(e)))
-            print(f"jaxplan: skipping {e}", file=out)
-    if not scenarios:
-        raise ScenarioError(
-            f"{directory}: none of its {len(files)} scenario files could be loaded (first: {skipped[0][1]})"
-        )
-    return Folder(directory, tuple(scenarios), tuple(loaded), tuple(skipped))
-
-
-def first_loadable(directory: str, pattern: str = "*.json") -> str:
-    """The first file of a folder that loads (a cheap check before heavy work); a
-    ``ScenarioError`` names the folder when none does."""
-    files = scenario_files(directory, pattern)
-    first = None
-    for f in files:
-        try:
-            load_scenario(f)
-            return f
-        except ScenarioError as e:
-            first = first or str(e)
-    raise ScenarioError(f"{directory}: none of its {len(files)} scenario files could be loaded (first: {first})")

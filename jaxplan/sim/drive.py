@@ -149,20 +149,21 @@ def time_plans(planner, batch, n: int, params=None) -> dict:
     for i in range(n):
         sc = jax.tree_util.tree_map(lambda x: x[i], batch)
         ego = EgoState.from_box_centre(sc.start, planner.vehicle)
-        jax.block_until_ready(_plan_once(planner, params, sc, ego))  # compiles once (same shapes), then warm
+        jax.block_until_ready(plan_once_compiled(planner, params, sc, ego))  # compiles once (same shapes), then warm
         t = time.perf_counter()
-        jax.block_until_ready(_plan_once(planner, params, sc, ego))
+        jax.block_until_ready(plan_once_compiled(planner, params, sc, ego))
         times.append(1e3 * (time.perf_counter() - t))
     return {"plan_ms_median": float(np.median(times)), "plan_ms_p90": float(np.percentile(times, 90))}
 
 
-def _plan(planner, params, scene, ego):
+def plan_at_start(planner, params, scene, ego):
+    """The planner's plan at step 0 of ``scene`` from ``ego`` (the call ``time_plans`` times)."""
     return planner.plan(params, scene, ego, 0)
 
 
-def _plan_once(planner, params, scene, ego):
+def plan_once_compiled(planner, params, scene, ego):
     """One planning call at step 0, compiled as ``rollout`` compiles the drive (the planner's options)."""
-    return planner_program(planner, _plan, ("planner",))(planner, params, scene, ego)
+    return planner_program(planner, plan_at_start, ("planner",))(planner, params, scene, ego)
 
 
 def run_planner(planner, batch, config: SimConfig, chunk: int | None = None, params=None) -> tuple:

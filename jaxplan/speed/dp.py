@@ -378,7 +378,8 @@ def _plan_impl(path, obstacles, v0, a0, s0, keep_clear, road, vehicle, weights, 
     return map_batched(fn, nb, (path, obstacles, v0, a0, s0, keep_clear, road, weights))
 
 
-_plan_jit = jax.jit(_plan_impl, static_argnames=("config",))
+# the jitted kernel ``plan_speed`` dispatches to after its input checks
+plan_speed_kernel = jax.jit(_plan_impl, static_argnames=("config",))
 
 
 def plan_speed(
@@ -411,7 +412,7 @@ def plan_speed(
     _check_inputs(path, obstacles, config, v0, weights)
     weights = CostWeights.default(path.xy.dtype) if weights is None else weights
     vehicle = VehicleParams() if vehicle is None else vehicle
-    return _plan_jit(path, obstacles, v0, a0, s0, keep_clear, road, vehicle, weights, config)
+    return plan_speed_kernel(path, obstacles, v0, a0, s0, keep_clear, road, vehicle, weights, config)
 
 
 def _expected_impl(path, obstacles, v0, a0, s0, keep_clear, road, vehicle, weights, temperature, config):

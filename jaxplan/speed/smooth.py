@@ -106,7 +106,7 @@ class SpeedProfile:
     r_dual: Any
 
 
-def _maps(n: int, h: float):
+def integration_maps(n: int, h: float):
     """Linear maps of the QP (float64): ``(v, s) = M_x x + M_y [a0, v0]`` for accelerations
     ``x (n,)``: returns Va, Vy, Sa, Sy ``(n, n) / (n, 2)``."""
 
@@ -136,7 +136,7 @@ def qp_matrices(n: int, h: float, w: SmoothWeights):
     """The constant QP data (float64 numpy): ``P (n, n)``, the constraint matrix ``A (4n, n)``
     with its row blocks [a, jerk, v, s], the affine parts (``Va, Vy, Sa, Sy, Ja, Jy``) and
     ``fixed``, the ``jaxplan.solvers.Prefactored`` problem for ``RHO_LADDER``."""
-    Va, Vy, Sa, Sy = _maps(n, h)
+    Va, Vy, Sa, Sy = integration_maps(n, h)
     I = np.eye(n)
     Ja = (I - np.eye(n, k=-1)) / h  # j_k = (a_{k+1} - a_k) / h, a_0 in Jy
     Jy = np.zeros((n, 2))

@@ -127,7 +127,9 @@ def _obstacles(demos: Demo) -> Obstacles:
 # the lattice's XLA options (jaxplan.compile_options): 128 synthetic demonstrations took 1.44-1.71 s
 # with them against 2.34-2.69 s without (three alternations in one process)
 @jit(options=NO_YNN, static_argnames=("configs", "fcfg", "start_accel"))
-def _chunk_data(demos: Demo, idm: IDMParams, configs: tuple, fcfg: FeatureConfig, start_accel: str):
+def chunk_data(demos: Demo, idm: IDMParams, configs: tuple, fcfg: FeatureConfig, start_accel: str):
+    """The lattice's candidate data of a chunk of demonstrations (one compiled program per chunk
+    shape and configs)."""
     state = start_states(demos, start_accel)
     refs = jax.vmap(reference_line)(demos.ref_xy)
     obs = _obstacles(demos)
@@ -194,7 +196,7 @@ def lattice_data(
         raise ValueError("lattice_data: no demonstrations")
     parts, kept = [], []
     for part, n in chunks(demos, chunk):
-        out, raw = _chunk_data(part, idm, configs, fcfg, start_accel)
+        out, raw = chunk_data(part, idm, configs, fcfg, start_accel)
         parts.append(jax.tree_util.tree_map(lambda x: np.asarray(x)[:n], out))
         kept.append({k: np.asarray(raw[k])[:n] for k in keep})
     data = jax.tree_util.tree_map(lambda *xs: jnp.asarray(np.concatenate(xs)), *parts)

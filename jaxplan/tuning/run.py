@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import dataclasses
 import fnmatch
-import os
 from typing import TYPE_CHECKING
 
 import jax.numpy as jnp
@@ -48,7 +47,7 @@ from jaxplan.tuning.traffic import IDMParams
 from jaxplan.tuning.vehicles import split_by_vehicle
 
 if TYPE_CHECKING:
-    from jaxplan.scenarios.loader import Folder
+    from jaxplan.scenarios.files import Folder
 
 # Candidate sets by name (stored in a model's metadata, so evaluation plans the same set).
 CANDIDATE_SETS = {"rich": TUNING_CONFIGS, "small": (TUNING_CONFIG,)}
@@ -79,21 +78,22 @@ def recorded_set(
     """Every demonstration of a scenario folder, with vehicle identities across its files.
 
     Args:
-        scenarios: a folder (loaded by ``jaxplan.scenarios.loader.load_folder``: files that fail
-            are named on stderr and skipped) or the ``Folder`` it returned.
-        max_files: the first files only; pattern: file names ``pattern.json`` only.
+        scenarios: a folder of scenario files in any format (loaded by
+            ``jaxplan.scenarios.files.load_folder``: files that fail are named on stderr and
+            skipped) or the ``Folder`` it returned.
+        max_files: the first files only; pattern: file names (without the suffix) matching it only.
     """
-    from jaxplan.scenarios import loader
+    from jaxplan.scenarios import files
 
     folder = (
         scenarios
-        if isinstance(scenarios, loader.Folder)
-        else loader.load_folder(scenarios, pattern=(pattern or "*") + ".json", limit=max_files)
+        if isinstance(scenarios, files.Folder)
+        else files.load_folder(scenarios, pattern=pattern, limit=max_files)
     )
     scs = [
         s
         for s, f in zip(folder.scenarios, folder.files)
-        if pattern is None or fnmatch.fnmatch(os.path.basename(f), pattern + ".json")
+        if pattern is None or fnmatch.fnmatch(files.file_stem(f), pattern)
     ][:max_files]
     ds = demo_set(scs, cfg)
     if ds is None or len(ds) < 2:
