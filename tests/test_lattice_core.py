@@ -51,14 +51,16 @@ def test_quintic_boundary_conditions(rng):
     with jax.enable_x64(True):
         n = 200
         l0, dl0, ddl0 = rng.normal(0, 1, n), rng.normal(0, 0.2, n), rng.normal(0, 0.02, n)
-        l1, S = rng.uniform(-5, 5, n), rng.uniform(5, 80, n)
+        l1, S, dl1 = rng.uniform(-5, 5, n), rng.uniform(5, 80, n), rng.normal(0, 0.3, n)
         c = np.asarray(quintic_coeffs(l0, dl0, ddl0, l1, S))
+        c_slope = np.asarray(quintic_coeffs(l0, dl0, ddl0, l1, S, dl1=dl1))  # an end slope (s(t) at a speed)
         assert c.dtype == np.float64
         for i in range(n):
-            p = np.polynomial.Polynomial(c[i])
-            for x, want in ((0.0, (l0[i], dl0[i], ddl0[i])), (S[i], (l1[i], 0.0, 0.0))):
-                got = (p(x), p.deriv(1)(x), p.deriv(2)(x))
-                np.testing.assert_allclose(got, want, atol=1e-6, rtol=0)
+            for cc, end in ((c[i], 0.0), (c_slope[i], dl1[i])):
+                p = np.polynomial.Polynomial(cc)
+                for x, want in ((0.0, (l0[i], dl0[i], ddl0[i])), (S[i], (l1[i], end, 0.0))):
+                    got = (p(x), p.deriv(1)(x), p.deriv(2)(x))
+                    np.testing.assert_allclose(got, want, atol=1e-6, rtol=0)
 
 
 def test_frenet_state_round_trip(rng):

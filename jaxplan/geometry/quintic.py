@@ -2,8 +2,9 @@
 
 A candidate path is ``l(s)`` for ``0 <= s <= S`` (s measured from the car along the
 reference line), a 5th-degree polynomial from the car's ``(l0, l0', l0'')`` to
-``(l1, 0, 0)`` at ``s = S``; beyond ``S`` it keeps ``l = l1``. With
-``h = l1 - (l0 + l0' S + l0'' S^2 / 2)``, ``h1 = -(l0' + l0'' S)`` and ``h2 = -l0''``,
+``(l1, l1', 0)`` at ``s = S`` (a lateral path ends with ``l1' = 0``; the lattice's longitudinal
+quintic ``s(t)`` ends at a speed); beyond ``S`` a path keeps ``l = l1``. With
+``h = l1 - (l0 + l0' S + l0'' S^2 / 2)``, ``h1 = l1' - (l0' + l0'' S)`` and ``h2 = -l0''``,
 
     c3 = (10 h - 4 h1 S + h2 S^2 / 2) / S^3
     c4 = (-15 h + 7 h1 S - h2 S^2) / S^4
@@ -26,14 +27,15 @@ def quintic_coeffs(
     ddl0: Float[ArrayLike, " ..."],
     l1: Float[ArrayLike, " ..."],
     S: Float[ArrayLike, " ..."],
+    dl1: Float[ArrayLike, " ..."] = 0.0,
 ) -> Float[Array, "... 6"]:
     """Coefficients ``(..., 6)`` (ascending powers of s) of the quintic from
-    ``(l0, dl0, ddl0)`` at 0 to ``(l1, 0, 0)`` at ``S``; all args ``(...)``, ``S > 0``."""
-    l0, dl0, ddl0, l1, S = jnp.broadcast_arrays(
-        *(jnp.asarray(x, jnp.result_type(float)) for x in (l0, dl0, ddl0, l1, S))
+    ``(l0, dl0, ddl0)`` at 0 to ``(l1, dl1, 0)`` at ``S``; all args ``(...)``, ``S > 0``."""
+    l0, dl0, ddl0, l1, S, dl1 = jnp.broadcast_arrays(
+        *(jnp.asarray(x, jnp.result_type(float)) for x in (l0, dl0, ddl0, l1, S, dl1))
     )
     h = l1 - (l0 + dl0 * S + 0.5 * ddl0 * S**2)
-    h1 = -(dl0 + ddl0 * S)
+    h1 = dl1 - (dl0 + ddl0 * S)
     h2 = -ddl0
     c3 = (10 * h - 4 * h1 * S + 0.5 * h2 * S**2) / S**3
     c4 = (-15 * h + 7 * h1 * S - h2 * S**2) / S**4

@@ -22,11 +22,9 @@ The set, in this order (``LatticeConfig`` switches the parts on):
 
 Modes whose target does not exist (no leader, no stop point, no goal) are marked
 unavailable (``available = False``), never silently turned into another mode.
-A quintic ``s(t)`` from ``(0, v0, a0)`` to ``(s1, v1, 0)`` at ``T`` is
-``s = v0 t + a0 t^2 / 2 + c3 t^3 + c4 t^4 + c5 t^5`` with, for ``h = s1 - v0 T - a0 T^2 / 2``,
-``h1 = v1 - v0 - a0 T`` and ``h2 = -a0``: ``c3 = (10 h - 4 h1 T + h2 T^2 / 2) / T^3``,
-``c4 = (-15 h + 7 h1 T - h2 T^2) / T^4``, ``c5 = (6 h - 3 h1 T + h2 T^2 / 2) / T^5``;
-after ``T`` the speed ``v1`` is held. Quintics may reverse or exceed the limits: the
+A quintic ``s(t)`` from ``(0, v0, a0)`` to ``(s1, v1, 0)`` at ``T`` is the closed form of
+``jaxplan.geometry.quintic`` (its ``quintic_coeffs`` with the end slope ``v1``); after ``T`` the
+speed ``v1`` is held. Quintics may reverse or exceed the limits: the
 feasibility filter rejects those, the profile is not clamped.
 """
 
@@ -36,6 +34,7 @@ from typing import Any
 
 import jax.numpy as jnp
 
+from jaxplan.geometry.quintic import quintic_coeffs, quintic_eval
 from jaxplan.lattice.config import KMH
 from jaxplan.lattice.profiles import accel_profile, jerk_profile
 from jaxplan.types import pytree_dataclass
@@ -78,18 +77,10 @@ def quintic_profile(v0, a0, s1, v1, T, t):
         (s, v, a) each ``(..., T_samples)``.
     """
     v0, a0, s1, v1, T = jnp.broadcast_arrays(*(jnp.asarray(x, t.dtype) for x in (v0, a0, s1, v1, T)))
-    h = s1 - v0 * T - 0.5 * a0 * T**2
-    h1 = v1 - v0 - a0 * T
-    h2 = -a0
-    c3 = (10 * h - 4 * h1 * T + 0.5 * h2 * T**2) / T**3
-    c4 = (-15 * h + 7 * h1 * T - h2 * T**2) / T**4
-    c5 = (6 * h - 3 * h1 * T + 0.5 * h2 * T**2) / T**5
+    coeffs = quintic_coeffs(jnp.zeros_like(v0), v0, a0, s1, T, dl1=v1).astype(t.dtype)
+    s, v, a = quintic_eval(coeffs, T, jnp.broadcast_to(t, v0.shape + t.shape))
     e = lambda x: x[..., None]
-    x = jnp.minimum(t, e(T))
-    s = x * (e(v0) + x * (0.5 * e(a0) + x * (e(c3) + x * (e(c4) + x * e(c5)))))
-    v = e(v0) + x * (e(a0) + x * (3 * e(c3) + x * (4 * e(c4) + x * 5 * e(c5))))
-    a = e(a0) + x * (6 * e(c3) + x * (12 * e(c4) + x * 20 * e(c5)))
-    past = t > e(T)
+    past = t >= e(T)  # (quintic_eval ends a path with zero slope there; the profile keeps v1)
     s = jnp.where(past, e(s1) + e(v1) * (t - e(T)), s)
     return s, jnp.where(past, e(v1), v), jnp.where(past, 0.0, a)
 
