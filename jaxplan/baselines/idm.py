@@ -16,6 +16,7 @@ import jax.numpy as jnp
 from jax import lax
 
 from jaxplan.baselines.route_follow import follow_route
+from jaxplan.geometry.boxes import box_half_extents
 from jaxplan.geometry.frenet import ref_state
 from jaxplan.models.idm import idm_accel as idm_model
 from jaxplan.plan_context import NO_LEADER, road_context
@@ -48,13 +49,6 @@ def idm_accel(v, v_set, gap, dv, p: IDMParams = IDMParams()):
     return jnp.clip(a, -p.b_max, p.a_max)
 
 
-def _extents(boxes, route_heading):
-    """Half extents ``(..., 2)`` (along, across the route) of boxes ``(..., 5)``."""
-    d = boxes[..., 4] - route_heading
-    c, s = jnp.abs(jnp.cos(d)), jnp.abs(jnp.sin(d))
-    return jnp.stack([0.5 * (boxes[..., 2] * c + boxes[..., 3] * s), 0.5 * (boxes[..., 2] * s + boxes[..., 3] * c)], -1)
-
-
 @dataclasses.dataclass(frozen=True)
 class IDMPlanner:
     """Lane-keeping IDM over ``horizon`` seconds (see the module docstring); its params are the
@@ -82,7 +76,7 @@ class IDMPlanner:
         half_w = 0.5 * jnp.asarray(veh.width, f)
         obs = ctx.obstacles
         hdg = ref_state(scene.route, ctx.obstacle_s)[1]
-        ext = _extents(obs.boxes, hdg)  # (K, H, 2)
+        ext = box_half_extents(obs.boxes, hdg)  # (K, H, 2)
         dt = self.dt
         # obstacle speed along the route, from consecutive predicted positions
         ds_obs = jnp.diff(ctx.obstacle_s, axis=1) / dt

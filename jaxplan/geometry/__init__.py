@@ -2,6 +2,7 @@
 
 from jaxplan.geometry.boxes import (
     box_corners,
+    box_half_extents,
     box_has_overlap,
     box_separation,
     headings_from_path,
@@ -53,6 +54,7 @@ __all__ = [
     "OverlapPolygon",
     "ReferenceLine",
     "box_corners",
+    "box_half_extents",
     "box_has_overlap",
     "box_separation",
     "cartesian_to_frenet_state",

@@ -42,6 +42,15 @@ def _box_corners(boxes):
     return jnp.stack([cx, cy], axis=-1)
 
 
+def box_half_extents(boxes: Float[ArrayLike, "... 5"], heading: Float[ArrayLike, " ..."]) -> Float[Array, "... 2"]:
+    """Half extents ``(..., 2)`` of boxes ``(..., 5)`` along and across the direction ``heading``
+    ``(...)``: half the lengths of their projections onto that axis and its normal."""
+    boxes = jnp.asarray(boxes)
+    d = boxes[..., 4] - heading
+    c, s = jnp.abs(jnp.cos(d)), jnp.abs(jnp.sin(d))
+    return 0.5 * jnp.stack([boxes[..., 2] * c + boxes[..., 3] * s, boxes[..., 2] * s + boxes[..., 3] * c], -1)
+
+
 def headings_from_path(xy: Float[ArrayLike, "... T 2"], eps: float = 1e-9) -> Float[Array, "... T"]:
     """Heading of every path point from consecutive points.
 

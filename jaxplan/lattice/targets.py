@@ -19,6 +19,7 @@ from typing import Any
 
 import jax.numpy as jnp
 
+from jaxplan.geometry.boxes import box_half_extents
 from jaxplan.geometry.frenet import ref_state, to_frenet
 from jaxplan.types import pytree_dataclass
 
@@ -99,11 +100,7 @@ def obstacle_frenet(ref, obstacles):
 
 def extents(ref, boxes, s):
     """Half extents along and across the line ``(..., 2)`` of boxes ``(..., 5)`` centred at arc lengths ``s``."""
-    d = boxes[..., 4] - ref_state(ref, s)[1]
-    c, sn = jnp.abs(jnp.cos(d)), jnp.abs(jnp.sin(d))
-    return jnp.stack(
-        [0.5 * (boxes[..., 2] * c + boxes[..., 3] * sn), 0.5 * (boxes[..., 2] * sn + boxes[..., 3] * c)], -1
-    )
+    return box_half_extents(boxes, ref_state(ref, s)[1])
 
 
 def speed_along(sl, valid, dt):
