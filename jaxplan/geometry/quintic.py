@@ -27,15 +27,16 @@ def quintic_coeffs(
     ddl0: Float[ArrayLike, " ..."],
     l1: Float[ArrayLike, " ..."],
     S: Float[ArrayLike, " ..."],
-    dl1: Float[ArrayLike, " ..."] = 0.0,
+    dl1: Float[ArrayLike, " ..."] | None = None,
 ) -> Float[Array, "... 6"]:
     """Coefficients ``(..., 6)`` (ascending powers of s) of the quintic from
-    ``(l0, dl0, ddl0)`` at 0 to ``(l1, dl1, 0)`` at ``S``; all args ``(...)``, ``S > 0``."""
-    l0, dl0, ddl0, l1, S, dl1 = jnp.broadcast_arrays(
-        *(jnp.asarray(x, jnp.result_type(float)) for x in (l0, dl0, ddl0, l1, S, dl1))
+    ``(l0, dl0, ddl0)`` at 0 to ``(l1, dl1, 0)`` at ``S`` (``dl1`` None: 0); all args ``(...)``,
+    ``S > 0``."""
+    l0, dl0, ddl0, l1, S = jnp.broadcast_arrays(
+        *(jnp.asarray(x, jnp.result_type(float)) for x in (l0, dl0, ddl0, l1, S))
     )
     h = l1 - (l0 + dl0 * S + 0.5 * ddl0 * S**2)
-    h1 = dl1 - (dl0 + ddl0 * S)
+    h1 = -(dl0 + ddl0 * S) if dl1 is None else jnp.asarray(dl1, h.dtype) - (dl0 + ddl0 * S)
     h2 = -ddl0
     c3 = (10 * h - 4 * h1 * S + 0.5 * h2 * S**2) / S**3
     c4 = (-15 * h + 7 * h1 * S - h2 * S**2) / S**4
