@@ -126,7 +126,7 @@ class Folder:
 
     Attributes:
         directory: the folder.
-        scenarios: the scenarios that loaded, in file-name order.
+        scenarios: the scenarios that loaded, in path order (sub-folders included).
         files: their files.
         skipped: ``(file, reason)`` of every file that did not load.
     """
