@@ -26,6 +26,9 @@ class LatticeConfig:
         horizon: planning horizon (s); the candidates have ``round(horizon / dt) + 1`` samples.
         dt: time step (s); keep 0.1 to compare with recorded futures.
         speed_deltas_kmh: end speeds ``v0 + delta`` (km/h), clipped to ``[0, v_max]``.
+        target_speed: one more cruise end speed on level 0: the set speed, capped by the
+            reference line's curvature ahead (``longitudinal.target_speed``), so that a car
+            whose grid steps past what a curve allows still reaches that speed.
         escalation: scale of the deltas for each re-plan level; level 0 is the normal
             plan, the others are tried (in order) when every candidate of the lower
             levels collides. ``(1.0,)`` disables escalation.
@@ -160,6 +163,7 @@ class LatticeConfig:
     max_lanes: int = 5
     goal_weight_time: float = 1.0
     select_temperature: float = 0.0
+    target_speed: bool = False
 
     @property
     def n_steps(self) -> int:
@@ -230,6 +234,7 @@ class LatticeConfig:
             near_budget=0.0,
             near_k=6,
             d_threshold=150.0,
+            target_speed=True,
         )
         base.update(overrides)
         return cls(**base)

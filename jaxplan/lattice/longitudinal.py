@@ -4,7 +4,9 @@ Each profile runs in ``ds/dt`` along the reference line from the car's ``(sdot0,
 The set, in this order (``LatticeConfig`` switches the parts on):
 
 - **cruise** (the base profiles): constant-jerk (or constant-acceleration) ramps to end
-  speeds ``v0 + scale * delta`` for each escalation level ``scale`` (levels ``0 .. E-1``);
+  speeds ``v0 + scale * delta`` for each escalation level ``scale`` (levels ``0 .. E-1``),
+  and, with ``target_speed``, one more on level 0 to the set speed capped by the curvature
+  ahead (``target_speed``);
 - **follow** a leader: a quintic ``s(t)`` that ends, at each end time ``T``, a time gap
   ``follow_gap + follow_time_gap * v_lead(T)`` behind the leader's predicted rear at the
   leader's speed and zero acceleration (Werling et al. 2010, "following");
@@ -48,6 +50,7 @@ EMERGENCY_SHARE = 0.96
 MODE_NAMES = ("cruise", "follow", "stop", "goal", "emergency", "fallback")
 MIN_END_TIME = 1.0  # s: the earliest end time of a quintic profile
 ESCAPE_DV = 10.0  # m/s: the emergency escape's speed gain
+TARGET_LAT_SHARE = 0.9  # of lat_acc_max: the curvature cap of the target speed leaves this much for curves
 
 
 @pytree_dataclass(data_fields=("s", "v", "a", "v_end", "level", "kind", "available", "end_time"))
@@ -85,9 +88,18 @@ def quintic_profile(v0, a0, s1, v1, T, t):
     return s, jnp.where(past, e(v1), v), jnp.where(past, 0.0, a)
 
 
+def target_speed(kappa_ahead, v_set, lat_acc_max):
+    """``()`` the target speed's end speed: ``v_set`` capped by the curvature limit
+    ``sqrt(TARGET_LAT_SHARE lat_acc_max / |kappa|)`` of the reference line at the samples
+    ``kappa_ahead (n,)`` ahead of the car."""
+    kap = jnp.max(jnp.abs(kappa_ahead))
+    cap = jnp.sqrt(TARGET_LAT_SHARE * lat_acc_max / jnp.maximum(kap, 1e-6))
+    return jnp.minimum(jnp.asarray(v_set, cap.dtype), cap)
+
+
 def n_profiles(config) -> int:
     """``G``, the number of longitudinal profiles of ``config``."""
-    n = len(config.escalation) * len(config.speed_deltas_kmh)
+    n = len(config.escalation) * len(config.speed_deltas_kmh) + int(config.target_speed)
     nt = len(config.end_times)
     modes = set(config.modes)
     n += nt * ("follow" in modes) + (nt + 1) * ("stop" in modes) + 3 * ("goal" in modes)
@@ -107,6 +119,7 @@ def longitudinal_set(
     goal_t=(0.0, jnp.inf),
     goal_v=(-jnp.inf, jnp.inf),
     v_grid=None,
+    v_target=None,
 ) -> Longitudinal:
     """Every longitudinal profile of ``config`` (see the module docstring), for one car.
 
@@ -120,6 +133,7 @@ def longitudinal_set(
         goal_t: ``(2,)`` the goal's time window from now; goal_v: ``(2,)`` its speed range.
         v_grid: ``()`` the speed the cruise end speeds are offsets of (default ``sdot0``; the
             lattice passes the car's speed).
+        v_target: ``()`` the end speed of the ``target_speed`` profile (needed with it).
 
     Returns:
         ``Longitudinal`` with ``G = n_profiles(config)``.
@@ -132,6 +146,13 @@ def longitudinal_set(
     deltas = jnp.asarray(config.speed_deltas_kmh, f)[None, :] * KMH
     vg = v0 if v_grid is None else jnp.asarray(v_grid, f)
     v_end = jnp.clip(vg + scale * deltas, 0.0, config.v_max).reshape(-1)  # (E V,)
+    levels = jnp.repeat(jnp.arange(E), len(config.speed_deltas_kmh))
+    if config.target_speed:
+        if v_target is None:
+            raise ValueError("longitudinal_set: config.target_speed needs v_target")
+        v_t = jnp.clip(jnp.asarray(v_target, f), 0.0, config.v_max)
+        v_end = jnp.concatenate([v_end, v_t[None]])  # (E V + 1,)
+        levels = jnp.concatenate([levels, jnp.zeros((1,), levels.dtype)])
     if config.profile == "jerk":
         s, v, a = jerk_profile(v0, a0, v_end, t, config.jerk, config.a_min, config.a_max)
     else:
@@ -142,7 +163,7 @@ def longitudinal_set(
             v,
             a,
             v_end,
-            jnp.repeat(jnp.arange(E), len(config.speed_deltas_kmh)),
+            levels,
             jnp.full(v_end.shape, CRUISE),
             jnp.ones(v_end.shape, bool),
             jnp.full(v_end.shape, jnp.inf, f),

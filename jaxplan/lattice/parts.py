@@ -58,7 +58,7 @@ def lattice_parts(
 ) -> LatticeParts:
     """The longitudinal profiles and lateral targets of one plan (arguments as ``generate``;
     ``sl``: optional ``(s, l)`` of the car's position on ``ref``, already computed)."""
-    from jaxplan.lattice.longitudinal import longitudinal_set
+    from jaxplan.lattice.longitudinal import longitudinal_set, target_speed
     from jaxplan.lattice.targets import RoadTargets
 
     dtype = ref.xy.dtype
@@ -78,6 +78,11 @@ def lattice_parts(
     lead_s, lead_v, lead_ok = leader if leader is not None else (None, None, False)
     goal_s = jnp.asarray(targets.goal_s, dtype)
     goal_mid = jnp.where(jnp.all(jnp.isfinite(goal_s)), 0.5 * (goal_s[0] + goal_s[1]), jnp.inf)
+    v_target = None
+    if config.target_speed:
+        reach = jnp.maximum(v0, 5.0) * config.horizon
+        _, _, k_ahead, _ = ref_state(ref, s0 + reach * jnp.linspace(0.0, 1.0, 16, dtype=dtype))
+        v_target = target_speed(k_ahead, state.v_set, config.lat_acc_max)
     lon = longitudinal_set(
         sdot0,
         a0,
@@ -91,6 +96,7 @@ def lattice_parts(
         targets.goal_t,
         targets.goal_v,
         v_grid=v0,
+        v_target=v_target,
     )
     G = lon.s.shape[0]
     Lw, O, Lt = config.lateral_grid
