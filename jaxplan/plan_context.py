@@ -39,14 +39,19 @@ LIGHT_DEPTH = 1.0  # m: depth of a stop line's virtual box, from the line on
 LIGHT_SIDE = 0.5  # m: the box reaches this far beyond the road's edges
 
 
+def curvature_speed(kappa, a_lat):
+    """``(...)`` the speed at which curvature ``kappa (...)`` (1/m) takes lateral acceleration
+    ``a_lat`` (m/s^2): ``sqrt(a_lat / |kappa|)`` (finite on a straight: ``|kappa|`` at least 1e-6)."""
+    return jnp.sqrt(a_lat / jnp.maximum(jnp.abs(kappa), 1e-6))
+
+
 def curve_speed(scene, s, reach, a_lat, decel, n: int = 32):
     """``()`` the highest speed at ``s`` from which the car can slow, at ``decel`` (m/s^2), to
     the curvature limit ``sqrt(a_lat / |kappa|)`` of the route at every point of the
     ``reach`` metres ahead (``n`` samples): ``min_i sqrt(v_curve(s_i)^2 + 2 decel (s_i - s))``."""
     f = scene.route.xy.dtype
     d = jnp.linspace(0.0, 1.0, n, dtype=f) * reach
-    kap = jnp.abs(route_sample(scene, scene.route.kappa, s + d))
-    v_curve = jnp.sqrt(a_lat / jnp.maximum(kap, 1e-6))
+    v_curve = curvature_speed(route_sample(scene, scene.route.kappa, s + d), a_lat)
     return jnp.min(jnp.sqrt(v_curve**2 + 2.0 * decel * d))
 
 

@@ -39,6 +39,7 @@ import jax.numpy as jnp
 from jaxplan.geometry.quintic import quintic_coeffs, quintic_eval
 from jaxplan.lattice.config import KMH
 from jaxplan.lattice.profiles import accel_profile, jerk_profile
+from jaxplan.plan_context import curvature_speed
 from jaxplan.types import pytree_dataclass
 
 # Mode ids of the longitudinal profiles.
@@ -90,10 +91,9 @@ def quintic_profile(v0, a0, s1, v1, T, t):
 
 def target_speed(kappa_ahead, v_set, lat_acc_max):
     """``()`` the target speed's end speed: ``v_set`` capped by the curvature limit
-    ``sqrt(TARGET_LAT_SHARE lat_acc_max / |kappa|)`` of the reference line at the samples
-    ``kappa_ahead (n,)`` ahead of the car."""
-    kap = jnp.max(jnp.abs(kappa_ahead))
-    cap = jnp.sqrt(TARGET_LAT_SHARE * lat_acc_max / jnp.maximum(kap, 1e-6))
+    (``plan_context.curvature_speed`` at ``TARGET_LAT_SHARE lat_acc_max``) of the reference line
+    at the samples ``kappa_ahead (n,)`` ahead of the car."""
+    cap = jnp.min(curvature_speed(kappa_ahead, TARGET_LAT_SHARE * lat_acc_max))
     return jnp.minimum(jnp.asarray(v_set, cap.dtype), cap)
 
 

@@ -12,6 +12,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxplan.geometry.frenet import ReferenceLine
+from jaxplan.plan_context import curvature_speed
 from jaxplan.speed.nonblocking import classify, keep_clear_intervals
 from jaxplan.speed.path_profile import PathProfile, path_profile, resample_obstacles
 from jaxplan.speed.problem import SpeedConfig, SpeedRoad, SpeedScene
@@ -136,7 +137,7 @@ def build_speed_scene(
     lane = jnp.interp(
         profile.s - s0, jnp.asarray(road.limit_s, dtype), jnp.minimum(jnp.asarray(road.limit_v, dtype), 1e3)
     )
-    curve = jnp.sqrt(config.a_lat_max / jnp.maximum(jnp.abs(profile.kappa), 1e-6))
+    curve = curvature_speed(profile.kappa, config.a_lat_max)
     v_limit = speed_envelope(
         jnp.minimum(jnp.minimum(lane, curve), config.v_max), config.ds, config.b_comfort, config.a_max
     )
