@@ -236,25 +236,51 @@ def _wall_scene():
 
 
 @functools.lru_cache(maxsize=None)
-def _plan_batch():
-    from jaxplan.planner import SIM_VEHICLE
+def _plan_fn(nudge: bool = True):
+    """``(cfg, jit(vmap(one)))``: the bounds path and the obstacles of a batch of scenes and cars
+    (``EgoState`` with ``(B,)`` fields) at step 0. One compiled program for the tests below that
+    plan six scenes padded to ``_plan_batch``'s sizes."""
     from jaxplan.plan_context import road_context
-    from jaxplan.planner import EgoState
-    from jaxplan.scenarios.batch import stack_scenes
+    from jaxplan.planner import SIM_VEHICLE
 
-    kinds = [("stopped_car", 1), ("parked_cars", 2), ("curve_stop", 3), ("slow_leader", 4), ("stopped_car", 6)]
-    scenes = [_scene(k, s)[1] for k, s in kinds]
-    scenes.append(_wall_scene()[1])
-    cfg = PathConfig(vehicle=SIM_VEHICLE)
+    cfg = PathConfig(vehicle=SIM_VEHICLE, nudge=nudge)
 
-    def one(scene):
-        ego = EgoState.from_box_centre(scene.start, SIM_VEHICLE)
+    def one(scene, ego):
         ctx = road_context(scene, ego, 0, 60, SIM_VEHICLE)
         return plan_path(scene, ctx, cfg), ctx.obstacles
 
-    batch = stack_scenes(scenes)
-    plan, obs = jax.jit(jax.vmap(one))(batch)
-    return jax.tree_util.tree_map(np.asarray, plan), jax.tree_util.tree_map(np.asarray, obs), cfg
+    return cfg, jax.jit(jax.vmap(one))
+
+
+def _plan(scenes, egos=None, nudge=True):
+    """``(plan, obstacles)`` (numpy) of ``scenes`` (at most six; padded to ``_plan_batch``'s sizes and
+    filled up to six with copies of the first) from ``egos`` (default: each scene's start)."""
+    from jaxplan.planner import SIM_VEHICLE, EgoState
+    from jaxplan.scenarios.batch import stack_scenes
+
+    n, rows = len(scenes), len(_batch_scenes()[0])
+    batch = stack_scenes(list(scenes) + [scenes[0]] * (rows - n), min_sizes=_batch_scenes()[1])
+    ego = EgoState.from_box_centre(batch.start, SIM_VEHICLE)
+    if egos is not None:
+        ego = jax.tree_util.tree_map(lambda a, b: a.at[:n].set(b), ego, egos)
+    plan, obs = _plan_fn(nudge)[1](batch, ego)
+    return tuple(jax.tree_util.tree_map(lambda x: np.asarray(x)[:n], t) for t in (plan, obs))
+
+
+@functools.lru_cache(maxsize=None)
+def _batch_scenes():
+    """The six scenes of ``_plan_batch`` and their padded sizes (``stack_scenes``' ``min_sizes``)."""
+    from jaxplan.scenarios.batch import scene_sizes
+
+    kinds = [("stopped_car", 1), ("parked_cars", 2), ("curve_stop", 3), ("slow_leader", 4), ("stopped_car", 6)]
+    scenes = [_scene(k, s)[1] for k, s in kinds] + [_wall_scene()[1]]
+    return scenes, {k: max(scene_sizes(s)[k] for s in scenes) for k in scene_sizes(scenes[0])}
+
+
+@functools.lru_cache(maxsize=None)
+def _plan_batch():
+    """``(plan, obstacles, cfg)`` of the built-in scenes of five kinds and the wall scene."""
+    return (*_plan(_batch_scenes()[0]), _plan_fn()[0])
 
 
 def test_planned_paths_are_clear_by_shapely():
@@ -439,21 +465,20 @@ def test_path_starts_at_the_cars_pose_heading_and_curvature():
     solved bounds path starts exactly at the car (its Frenet start state is the exact inverse of
     the path's, ``geometry.quintic.cartesian_to_frenet_state``; a first-order start missed the
     curvature by 2e-5)."""
-    from jaxplan.plan_context import road_context
     from jaxplan.planner import SIM_VEHICLE, EgoState
 
-    _, sc = _scene("curve_stop", 3)
-    cfg = PathConfig(vehicle=SIM_VEHICLE)
-    plan = jax.jit(lambda sc, ctx: plan_path(sc, ctx, cfg))
+    sc = _batch_scenes()[0][2]  # curve_stop, seed 3
     e0 = EgoState.from_box_centre(sc.start, SIM_VEHICLE)
-    for l_off, dh, k in [(0.0, 0.0, 0.0), (-0.5, -0.1, 0.04), (0.3, 0.05, -0.02)]:
-        ego = EgoState(e0.x - l_off * jnp.sin(e0.heading), e0.y + l_off * jnp.cos(e0.heading), e0.heading + dh,
-                       e0.v, 0.0, jnp.float32(k))
-        pp = plan(sc, road_context(sc, ego, 0, 60, SIM_VEHICLE))
-        assert bool(pp.ok)
-        assert np.allclose(np.asarray(pp.xy[0]), [float(ego.x), float(ego.y)], atol=1e-5)
-        assert float(pp.theta[0]) == pytest.approx(float(ego.heading), abs=1e-5)
-        assert float(pp.kappa[0]) == pytest.approx(k, abs=1e-6)
+    cases = [(0.0, 0.0, 0.0), (-0.5, -0.1, 0.04), (0.3, 0.05, -0.02)]
+    l_off, dh, k = (jnp.asarray(c, jnp.float32) for c in zip(*cases))
+    egos = EgoState(e0.x - l_off * jnp.sin(e0.heading), e0.y + l_off * jnp.cos(e0.heading), e0.heading + dh,
+                    jnp.full(3, e0.v), jnp.zeros(3, jnp.float32), k)
+    pp, _ = _plan([sc] * 3, egos)
+    for i in range(3):
+        assert bool(pp.ok[i])
+        assert np.allclose(pp.xy[i, 0], [float(egos.x[i]), float(egos.y[i])], atol=1e-5)
+        assert float(pp.theta[i, 0]) == pytest.approx(float(egos.heading[i]), abs=1e-5)
+        assert float(pp.kappa[i, 0]) == pytest.approx(float(k[i]), abs=1e-6)
 
 
 def _passing_scene(cars):
@@ -485,12 +510,10 @@ def test_path_moves_over_in_its_lane_for_a_moving_car_reaching_in(nudge):
     a car crossing the lane centre does not move the path (the speed plan yields to it), nor does
     a car driving inside the next lane when the path passes a stopped car through that lane (the
     speed plan times the pass); without ``nudge`` the path stays at the centre."""
-    from jaxplan.plan_context import road_context
-    from jaxplan.planner import SIM_VEHICLE, EgoState
+    from jaxplan.planner import SIM_VEHICLE
     from jaxplan.scenarios.builtin import LANE, RECORD_STEPS
-    from jaxplan.scenarios.batch import stack_scenes
 
-    cfg = PathConfig(vehicle=SIM_VEHICLE, nudge=nudge)
+    cfg = _plan_fn(nudge)[0]
     near = 0.5 * LANE - 0.8  # the oncoming car's near side, from the car's lane centre
     t = np.arange(RECORD_STEPS) * 0.1
     oncoming = 80.0 - 10.0 * t  # from 80 m ahead at 10 m/s: the two meet about 40 m ahead
@@ -498,14 +521,8 @@ def test_path_moves_over_in_its_lane_for_a_moving_car_reaching_in(nudge):
     crossing = (oncoming, np.linspace(-6.0, 8.0, RECORD_STEPS), "dynamic")  # over the road within the horizon
     stopped = (np.full(1, 30.0), np.zeros(1), "static")
     next_lane = (-10.0 + 14.0 * t, np.full(RECORD_STEPS, LANE), "dynamic")  # passes the car, 0.85 m inside its lane
-    scenes = [_passing_scene([reach_in]), _passing_scene([crossing]), _passing_scene([stopped, next_lane])]
-    batch = stack_scenes(scenes)
-
-    def one(scene):
-        ego = EgoState.from_box_centre(scene.start, SIM_VEHICLE)
-        return plan_path(scene, road_context(scene, ego, 0, 60, SIM_VEHICLE), cfg)
-
-    pp = jax.tree_util.tree_map(np.asarray, jax.jit(jax.vmap(one))(batch))
+    pp, _ = _plan([_passing_scene([reach_in]), _passing_scene([crossing]), _passing_scene([stopped, next_lane])],
+                  nudge=nudge)
     assert pp.ok.all()
     s, l = pp.s[0], pp.l[0]
     meet = np.abs(s - 40.0) < 3.0

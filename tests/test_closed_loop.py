@@ -28,9 +28,10 @@ def test_objective_terms_respond_to_what_they_measure():
     """Progress lowers ``short``; a car moved into an obstacle or past the road's edge raises
     ``clearance`` / ``road``; the total is the weighted sum and its gradient by the states is finite."""
     car = IDMPlanner().vehicle
+    objective = jax.jit(drive_objective, static_argnums=2)  # one program per shape, not one per operation
     go, scene = _drives(IDMPlanner())
     stop, _ = _drives(BrakePlanner())
-    t_go, t_stop = drive_objective(go, scene, car), drive_objective(stop, scene, car)
+    t_go, t_stop = objective(go, scene, car), objective(stop, scene, car)
     assert float(t_go["short"][0]) < float(t_stop["short"][0]) - 30.0  # the free road: IDM drives on
     assert float(t_go["human"][0]) == 0.0  # no recording given
     w = ObjectiveWeights()
@@ -40,11 +41,11 @@ def test_objective_terms_respond_to_what_they_measure():
     sc1 = jax.tree_util.tree_map(lambda a: a[2], scene)
     box = np.asarray(one.traffic.boxes[0, -5:])
     hit = dataclasses.replace(one, x=one.x.at[-5:].set(box[:, 0]), y=one.y.at[-5:].set(box[:, 1]))
-    base, bad = drive_objective(one, sc1, car), drive_objective(hit, sc1, car)
+    base, bad = objective(one, sc1, car), objective(hit, sc1, car)
     assert float(bad["clearance"]) > float(base["clearance"]) + 0.2
     off = dataclasses.replace(one, y=one.y + 30.0)
-    assert float(drive_objective(off, sc1, car)["road"]) > float(base["road"]) + 10.0
-    g = jax.grad(lambda y: drive_objective(dataclasses.replace(hit, y=y), sc1, car)["total"])(hit.y)
+    assert float(objective(off, sc1, car)["road"]) > float(base["road"]) + 10.0
+    g = jax.jit(jax.grad(lambda y: drive_objective(dataclasses.replace(hit, y=y), sc1, car)["total"]))(hit.y)
     assert np.all(np.isfinite(np.asarray(g))) and float(jnp.max(jnp.abs(g))) > 0
 
 

@@ -384,7 +384,8 @@ def test_vehicles_moving_over_into_the_cars_lane_are_passed_without_the_crossing
     lane is not merging."""
     from types import SimpleNamespace
 
-    from jaxplan.speed import SpeedConfig, make_scene
+    from jaxplan.speed import SpeedConfig
+    from jaxplan.speed import make_scene as make_st_scene
     from jaxplan.speed.paths import merging_in
 
     def boxes(t):
@@ -417,6 +418,7 @@ def test_vehicles_moving_over_into_the_cars_lane_are_passed_without_the_crossing
 
     ref = ReferenceLine.from_polyline(np.array([[-60.0, 0.0], [300.0, 0.0]]))
     cfg = SpeedConfig()
+    make_scene = jax.jit(make_st_scene, static_argnames=("config", "vehicle"))  # one program per call's shapes
     moving = merging_in(ctx, u, lane)
     _, plain = make_scene(ref, obs, cfg, CAR, 60.0, v0=10.0)
     _, merge = make_scene(ref, obs, cfg, CAR, 60.0, v0=10.0, merging=moving)

@@ -256,9 +256,14 @@ def test_blocked_road_falls_back_to_the_route_path_and_stops_before_the_blockage
 
 
 @functools.partial(jax.jit, static_argnums=2)
-def _path_at(sc, ego, planner):
+def _path_at_jit(sc, ego, planner):
     ctx = road_context(sc, ego, 0, planner.horizon_steps, planner.vehicle)
     return ctx, route_path(sc, ctx, ego)
+
+
+def _path_at(sc, ego, planner):
+    """``(ctx, route path)`` of the car ``ego`` at step 0 (its fields as float32 arrays: one program)."""
+    return _path_at_jit(sc, jax.tree_util.tree_map(lambda x: jnp.asarray(x, jnp.float32), ego), planner)
 
 
 def test_route_path_joins_the_route_from_the_car():
