@@ -207,8 +207,10 @@ def tune_closed_loop(
     f_exact = _objective_fn(exact, config, objective)
     p0 = planner.init_params()
     x = jnp.log(jnp.stack([jnp.asarray(getattr(p0, k), jnp.result_type(float)) for k in names]))
-    grad_fn = jax.value_and_grad(lambda lw, sc: f_soft(_with(p0, names, lw), sc))
-    val_fn = lambda lw: float(f_exact(_with(p0, names, lw), val))  # noqa: E731
+    # one compiled program each for a training step's objective and gradient and for validation
+    grad_fn = jax.jit(jax.value_and_grad(lambda lw, sc: f_soft(_with(p0, names, lw), sc)))
+    val_exact = jax.jit(lambda lw, sc: f_exact(_with(p0, names, lw), sc))
+    val_fn = lambda lw: float(val_exact(jnp.asarray(lw, x.dtype), val))  # noqa: E731
     n_train = int(train.start.shape[0])
     n_val = int(val.start.shape[0])
     rng = np.random.default_rng(seed)
