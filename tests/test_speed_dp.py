@@ -627,7 +627,11 @@ def test_a_vehicle_closing_in_from_behind_is_escaped_at_the_limits():
     the grid speed nearest to what ``a_max`` reaches, 18 m/s, not 16 m/s only because 18 is a
     little beyond), the smoothing QP's corridor has that car as its lower side wherever the DP
     stays ahead of it, and the executed profile keeps it as far as the limits allow."""
-    from jaxplan.speed.smooth import LOWER_MARGIN, corridor, hardest_acceleration, smooth_plan
+    from jaxplan.speed import smooth
+    from jaxplan.speed.smooth import LOWER_MARGIN, hardest_acceleration
+
+    corridor = jax.jit(smooth.corridor, static_argnums=1)  # one program each, not one per operation
+    smooth_plan = jax.jit(smooth.smooth_plan, static_argnums=3)
 
     cfg = SpeedConfig()
     obs = _moving([[-11.0, 0.0, 4.5, 1.8, 0.0]], [21.0])
@@ -638,7 +642,7 @@ def test_a_vehicle_closing_in_from_behind_is_escaped_at_the_limits():
     rear = p.scene.classified.rear
     assert bool(jnp.any(rear.hit)), "the car behind is not classified as behind"
     lower, _ = corridor(p, cfg, t)
-    s_dp = np.asarray(profile_at(p, t)[0])
+    s_dp = np.asarray(jax.jit(profile_at)(p, t)[0])
     # the car behind at the checks on both sides of each QP time (the farther counts)
     fc = np.asarray(t) / (cfg.dt / cfg.n_sub)
     hit, up = np.asarray(rear.hit), np.asarray(rear.upper)
