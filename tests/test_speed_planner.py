@@ -41,6 +41,7 @@ def _synthetic():
     closing up to the car ahead leaves room until the goal's time); SQUEEZE: one lane, the car at 10
     m/s, an oncoming car passing 0.15 m clear of it (inside the speed plan's 0.3 m buffer, outside
     the car) and a car 14 m behind at 12 m/s (stopping for the oncoming car gets the car hit);
+    ALONE: SQUEEZE without the car behind;
     MAPEND: one lane that ends 120 m ahead of the car (15 m/s), a goal region 75-95 m ahead to be
     met at 13-20 m/s (the drive ends there: the end of the map beyond it is no reason to slow);
     DEADEND: one lane that ends 100 m ahead of the car (15 m/s), a goal of time only (11-12 s)."""
@@ -53,6 +54,8 @@ def _synthetic():
                                   n_lanes=1, v0=10.0, goal_t=(0.0, 8.0)),
              "SQUEEZE": _road_dict(obstacles=[(START + 70.0 - 10.0 * TT, np.full(251, SQUEEZE_L)),
                                               (START - 14.0 + 12.0 * TT, lane0)], n_lanes=1, v0=10.0, goal_t=(0.0, 8.0)),
+             "ALONE": _road_dict(obstacles=[(START + 70.0 - 10.0 * TT, np.full(251, SQUEEZE_L))], n_lanes=1, v0=10.0,
+                                 goal_t=(0.0, 8.0)),
              "MAPEND": _road_dict(n_lanes=1, v0=15.0, goal_t=(0.0, 10.0)),
              "DEADEND": _road_dict(n_lanes=1, v0=15.0, goal_t=(11.0, 12.0))}
     mapend = roads["MAPEND"]
@@ -407,6 +410,14 @@ def test_passes_an_oncoming_car_inside_the_buffer_rather_than_be_hit_from_behind
     assert not m["overlap.collided"] and not m["offroad.offroad"]
     assert np.asarray(log.info["tight"]).any()
     assert log.v[: int(m["goal.step"]) + 1].min() > 5.0
+
+
+def test_with_nobody_behind_the_oncoming_car_is_not_passed_inside_the_buffer():
+    """ALONE: SQUEEZE without the car behind. Stopping is safe, so the plan without the buffer is
+    never taken (it was wherever the buffered plan collided, follower or not)."""
+    log, m, _ = _synthetic_drive("ALONE")
+    assert not m["overlap.collided"] and not m["offroad.offroad"]
+    assert not np.asarray(log.info["tight"]).any()
 
 
 def test_the_drive_report_names_the_paths_taken_and_what_blocked():

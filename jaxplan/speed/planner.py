@@ -23,8 +23,8 @@ Each cycle (one scene, jittable; the simulator batches it with ``jax.vmap``):
    gap that closes, or a car from behind that would have to brake, makes it collide or cost
    more), and stays in it while that holds (``info["lane_change"]``). With ``tight`` the first path
    is planned once more without the clearance buffer around obstacles and the crossing margin,
-   a way past that only the exact overlap leaves open, taken when the buffered plan collides or is hit from behind
-   (``info["tight"]``);
+   a way past that only the exact overlap leaves open, taken when the buffered plan is hit from behind
+   or collides while a vehicle is behind the car (``info["tight"]``);
 3. the **speed**: the ST boundaries of the predictions on that path (blocking,
    non-blocking with decisions, a wall before the path's blockage and the end of the
    map), the DP over the reachable band (``dp.py``, its costs ``costs.py``) towards the set speed
@@ -123,7 +123,7 @@ LANE_DECISIVE = 2.0  # cheaper by this many lane changes' costs
 LANE_MOVING = 0.01  # the car's lateral slope (dl/ds) above which it is moving over
 LANE_HOLD = 1.0  # lane changes' cost share of turning back a move under way
 # the plan without the clearance buffer is taken when the buffered one costs more by at least
-# this many seconds of contact with a vehicle behind (REAR_CONTACT), or collides
+# this many seconds of contact with a vehicle behind (REAR_CONTACT), or collides while one is behind
 TIGHT_GAIN_S = 0.1
 
 
@@ -156,9 +156,9 @@ class PathSpeedPlanner:
             obstacles and no crossing margin (``speed.buffer`` and ``speed.pass_margin`` 0: only
             the exact overlap blocks), and take that plan
             where the lane-keeping plan (the first path's, or the route path's where the first
-            is a usable bounds path) collides, or costs more by ``TIGHT_GAIN_S`` seconds of
-            contact with a vehicle behind (stopping for an oncoming car that passes 0.1 m clear,
-            and being hit from behind); ``info["tight"]``.
+            is a usable bounds path) collides while a vehicle is behind the car, or costs more by
+            ``TIGHT_GAIN_S`` seconds of contact with a vehicle behind (stopping for an oncoming car
+            that passes 0.1 m clear, and being hit from behind); ``info["tight"]``.
     """
 
     vehicle: VehicleParams = SIM_VEHICLE
@@ -334,7 +334,12 @@ class PathSpeedPlanner:
             it = len(paths) - 1
             gain = REAR_CONTACT * self.speed.big * TIGHT_GAIN_S
             lane_kept = (keep == 0) if bp is None else (keep == 0) | ((keep == 1) & bp_ok)
-            tight = lane_kept & plans.feasible[it] & (plans.cost[it] < plans.cost[keep] - gain)
+            # a lane-keeping plan that collides yields to it only with a vehicle behind the car
+            # (with none, stopping short of the buffer is safe: an obstacle beside the path that
+            # the path moves toward on later cycles is not passed at a hand's breadth)
+            followed = jnp.any(plans.scene.classified.rear.hit[keep])
+            cheaper = plans.cost[it] < plans.cost[keep] - gain
+            tight = lane_kept & plans.feasible[it] & cheaper & (plans.feasible[keep] | followed)
             keep = jnp.where(tight, it, keep)
             if bp is not None:
                 use = jnp.where(tight, True, use)
