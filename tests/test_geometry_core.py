@@ -107,6 +107,27 @@ def test_frenet_curve_state_on_offset_circle():
         assert np.allclose(np.linalg.norm(np.asarray(xy) - [0, 10], axis=-1), 8.0, atol=1e-3)
 
 
+def test_frenet_of_a_host_side_float64_line_runs_in_jaxs_float_without_a_warning():
+    """A scene built on the host has float64 numpy leaves (``build_scene``): ``to_frenet`` on its
+    route runs in float32 as JAX does by default (no warning about a float64 request) and gives the
+    float32 line's answer; with x64 on it stays float64."""
+    import warnings
+
+    ref = ReferenceLine.from_polyline(_arc(10.0, n=200))
+    host = ReferenceLine(*(np.asarray(x, np.float64) for x in (ref.xy, ref.s, ref.theta, ref.kappa)))
+    pts = np.array([[3.0, 1.0], [5.0, 2.5], [7.0, 4.0]])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        s, l = to_frenet(host, pts)
+    assert s.dtype == l.dtype == jnp.float32
+    s32, l32 = to_frenet(ref, pts)
+    np.testing.assert_allclose(np.asarray(s), np.asarray(s32), atol=1e-5)
+    np.testing.assert_allclose(np.asarray(l), np.asarray(l32), atol=1e-5)
+    with jax.enable_x64(True):
+        s64, _ = to_frenet(host, pts)
+        assert s64.dtype == jnp.float64
+
+
 def test_parity_single_vmap_jit(rng):
     a = box_corners(np.asarray(rng.normal(size=(64, 5)) * [2, 2, 0, 0, 2] + [0, 0, 4, 2, 0], np.float32))
     b = box_corners(np.asarray(rng.normal(size=(64, 5)) * [2, 2, 0, 0, 2] + [0, 0, 3, 1.5, 0], np.float32))

@@ -230,8 +230,9 @@ def frenet_points(ref: ReferenceLine, px, py, newton_steps: int = 4):
 def to_frenet(
     ref: ReferenceLine, xy: Float[ArrayLike, "... 2"], newton_steps: int = 4
 ) -> tuple[Float[Array, " ..."], Float[Array, " ..."]]:
-    """Cartesian points ``(..., 2)`` to Frenet ``(s, l)``, each ``(...)`` (``frenet_points``)."""
-    p = jnp.asarray(xy, ref.xy.dtype)
+    """Cartesian points ``(..., 2)`` to Frenet ``(s, l)``, each ``(...)`` (``frenet_points``), in the
+    line's float type as JAX runs it (float32 for a host-side float64 line unless x64 is on)."""
+    p = jnp.asarray(xy, jax.dtypes.canonicalize_dtype(ref.xy.dtype))
     s, l, _, _ = frenet_points(ref, p[..., 0], p[..., 1], newton_steps)
     return s, l
 

@@ -190,7 +190,7 @@ def route_path(
     leaves a car ``width`` wide, less ``JOIN_MARGIN``); ``n`` points from ``back`` metres behind
     the car to ``ahead`` metres ahead of it (the path when the bounds path is off or fails)."""
     ref = scene.route
-    f = ref.xy.dtype
+    f = jax.dtypes.canonicalize_dtype(ref.xy.dtype)  # a host-side float64 scene runs in float32
     u = path_stations(n, back, ahead, f)
     sr = ctx.s + u
     start = frenet_start(ref, ctx.s, ctx.l, ego.heading, ego.kappa)
@@ -244,7 +244,7 @@ def car_lane(scene, ctx: RoadContext, sr) -> tuple[Any, Any]:
     offset goes on straight: the lane ends there, or the route's own lane changes between two
     route points, ``LANE_ID_JUMP``); stations behind the car take that lane's offset under its
     index at the car. Where the route changes lanes, this is the lane it leaves."""
-    f = scene.route.xy.dtype
+    f = jax.dtypes.canonicalize_dtype(scene.route.xy.dtype)  # a host-side float64 scene runs in float32
     rs, offset = jnp.asarray(scene.route.s), jnp.asarray(scene.lane_offset)
     R = rs.shape[0]
     j = jnp.clip(jnp.searchsorted(rs, sr, side="right") - 1, 0, R - 2)
