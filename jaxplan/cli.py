@@ -1,5 +1,7 @@
-"""Command line: ``jaxplan drive PATHS``, ``jaxplan eval SUITE``, ``jaxplan tune PLANNER``, ``jaxplan report DIR``,
-``jaxplan parkout SCENE`` (also ``python -m jaxplan``).
+"""Plan, drive and judge: ``jaxplan drive``, ``eval``, ``tune``, ``report``, ``parkout`` (also ``python -m jaxplan``).
+
+``jaxplan drive PATHS``, ``jaxplan eval SUITE``, ``jaxplan tune PLANNER``, ``jaxplan report DIR``,
+``jaxplan parkout SCENE``.
 
 Every argument is checked before any heavy work (``jaxplan.cli_args``); a bad one gets one
 line ``jaxplan: error: ...`` naming it, and exit status 2.
