@@ -13,6 +13,8 @@ Reads what the runs wrote and nothing else:
 - ``--peers DIR``: ``experiments/compare_peers.py``'s output (``compare_peers.json``: the peers and
   jaxplan's planners on the same sample, judged by jaxplan's verdict and by the referee);
 - ``--bench FILE``: ``experiments/bench_drive.py``'s JSON (cold, warm and single-file timings);
+- ``--keep SECTION ...``: sections of the existing ``--json`` carried over as they are, where their
+  runs' folders are gone (``peers``, ``combos``, ``sample``, ``bench``);
 - ``--brake DIR``: a ``jaxplan drive --planner brake`` folder over the ``--dev`` scenes: the scenes
   where braking in lane from t = 0 touches nothing, and every ``--dev`` planner's collisions there.
 
@@ -330,6 +332,9 @@ def main(argv=None) -> int:
                                             "which version of the planners drove it)")
     ap.add_argument("--bench")
     ap.add_argument("--brake", help="a jaxplan drive --planner brake folder over the --dev scenes")
+    ap.add_argument("--keep", nargs="*", default=[], choices=("sample", "combos", "peers", "bench"),
+                    help="sections carried over from the existing --json as they are (their runs' folders gone); "
+                         "give each a caveat (--peers-caveat, --sample-caveat) where its versions differ")
     ap.add_argument("--json", default="docs/benchmarks.json")
     ap.add_argument("--out", default="docs/benchmarks.md")
     ap.add_argument("--from-json", action="store_true", help="render --out from --json alone (no runs needed)")
@@ -337,7 +342,15 @@ def main(argv=None) -> int:
     if args.from_json:
         d = _load(args.json)
     else:
+        kept = _load(args.json) if args.keep else {}
         d = collect(args)
+        for k in args.keep:
+            if k not in kept:
+                raise SystemExit(f"benchmarks_page: --keep {k}: {args.json} has no such section")
+            d[k] = kept[k]
+            caveat = {"peers": args.peers_caveat, "sample": args.sample_caveat}.get(k)
+            if caveat and isinstance(d[k], dict):
+                d[k]["caveat"] = caveat
         with open(args.json, "w") as f:
             json.dump(d, f, indent=1)
     with open(args.out, "w") as f:

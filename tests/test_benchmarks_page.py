@@ -113,3 +113,22 @@ def test_development_runs_of_different_planners_are_merged_and_a_planner_twice_i
     c = run("c", [row("idm", "DEU_A-1"), row("idm", "DEU_B-1")], ["idm"], {"agents": "idm"})
     with pytest.raises(SystemExit, match="other scenes or settings"):
         page._dev_summary([a, c])
+
+
+def test_kept_sections_come_from_the_existing_json_and_a_missing_one_is_one_line(tmp_path):
+    """``--keep peers`` carries the peers' section of the existing JSON over (with the caveat given)
+    while the rest is collected anew; a section the JSON lacks is refused with one line."""
+    import pytest
+
+    js, out = tmp_path / "b.json", tmp_path / "b.md"
+    peers = {"verdict": {"frenetix": {"summary": {"scenes": 2, "success_share": 0.5}}},
+             "agreement": {}, "settings": {}, "scenarios": 2, "caveat": None}
+    js.write_text(json.dumps({"peers": peers, "combos": {}}))
+    page = _page()
+    assert page.main(["--keep", "peers", "--peers-caveat", "An earlier run.", "--json", str(js), "--out", str(out)]) == 0
+    d = json.loads(js.read_text())
+    assert d["peers"]["verdict"] == peers["verdict"] and d["peers"]["caveat"] == "An earlier run."
+    assert "An earlier run." in out.read_text() and "| frenetix | 2 | 50.0% |" in out.read_text()
+    js.write_text(json.dumps({"combos": {}}))
+    with pytest.raises(SystemExit, match="--keep peers: .* has no such section"):
+        page.main(["--keep", "peers", "--json", str(js), "--out", str(out)])
