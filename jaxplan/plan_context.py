@@ -181,7 +181,10 @@ class RoadContext:
         road_left, road_right: ``()`` the drivable corridor's edges at ``s``.
         t_now: ``()`` time of this cycle from the scenario start.
         goal_t: ``(2,)`` the goal's time window from now (s); goal_s, goal_l, goal_v: ``(2,)``.
-        route_end_s: ``()`` where the mapped road ends on the route.
+        route_end_s: ``()`` where the mapped road ends on the route; without a goal region ahead,
+            ``inf`` where the car's front cannot get there before the goal's time window closes
+            (the drive ends then) even at its speed or the highest speed limit within the
+            look-ahead, whichever is higher.
         leader_gap: ``()`` bumper-to-bumper distance (m) along the route to the leader now
             (``NO_LEADER`` without one); leader_v: ``()`` its speed along the route;
             leader_index: ``()`` its obstacle index (-1 without one).
@@ -307,6 +310,13 @@ def road_context(scene, ego: EgoState, step, horizon_steps: int, vehicle: Vehicl
     else:
         vel, ok1 = jnp.zeros_like(b0[:, :2]), obs.valid[:, 0]
     v_along = jnp.where(ok1, vel[:, 0] * jnp.cos(hdg) + vel[:, 1] * jnp.sin(hdg), 0.0)
+    # without a goal region ahead, the drive ends when the goal's time window closes: how far the car's
+    # front can get by then, at its speed or the highest limit ahead, whichever is higher (a dead end
+    # beyond is no end to plan for; with a goal region ahead the end stays, a place the car may stop)
+    t_close = scene.goal.time[1] - t_now
+    v_reach = jnp.maximum(ego.v, jnp.max(route_sample(scene, scene.speed_limit, probe)))
+    reach = jnp.where(jnp.isfinite(t_close), v_reach * jnp.maximum(t_close, 0.0), jnp.inf)
+    reach = jnp.where(goal_region_ahead(scene.goal.s_range, s + jnp.asarray(vehicle.center_offset, f)), jnp.inf, reach)
     return RoadContext(
         obs,
         os_,
@@ -325,7 +335,7 @@ def road_context(scene, ego: EgoState, step, horizon_steps: int, vehicle: Vehicl
         scene.goal.s_range,
         scene.goal.l_range,
         scene.goal.speed,
-        scene.route_end_s,
+        jnp.where(front + reach >= scene.route_end_s, scene.route_end_s, jnp.inf),
         jnp.where(has, gap[k], NO_LEADER),
         jnp.where(has, v_along[k], 0.0),
         jnp.where(has, k, -1),

@@ -1,5 +1,6 @@
 """The lattice in closed loop: it keeps moving when nothing asks it to stop, starts from a queue
-when the leader leaves, stops before a dead end, leaves room to a vehicle closing in from behind,
+when the leader leaves, stops before a dead end (and keeps its speed for one it cannot reach before
+the drive ends), leaves room to a vehicle closing in from behind,
 and yields at a T-junction before turning (one compiled drive for the synthetic scenes)."""
 import dataclasses
 import glob
@@ -49,6 +50,16 @@ def _dead_end():
     return dataclasses.replace(_record(d), name="DEADEND")
 
 
+def _far_dead_end():
+    """The road ends 70 m ahead of the car (15 m/s, limit 20 m/s) and the goal is only a time
+    (survive until 3.3 s): the drive ends before the car could get to the end."""
+    d = _road_dict(v0=15.0)
+    for lane in d["lanelets"]:
+        lane["left"], lane["right"] = lane["left"][:51], lane["right"][:51]  # 100 m of road
+    d["planning_problems"][0]["goals"][0] = {"time": [3.0, 3.3]}
+    return dataclasses.replace(_record(d), name="FAREND")
+
+
 def _closing_in():
     """A car 12 m behind (bumper to bumper about 7.5 m) at 20 m/s while the car drives 15 m/s on a
     two-lane road: keeping the speed gets it rear-ended within 1.5 s."""
@@ -71,7 +82,7 @@ def _tjunction():
 @pytest.fixture(scope="module")
 def drives():
     """Every scene in one batch: one compiled drive."""
-    recs = [_queue(), _empty_time_goal(), _closing_in(), _dead_end()]
+    recs = [_queue(), _empty_time_goal(), _closing_in(), _dead_end(), _far_dead_end()]
     tj = _tjunction()
     recs += [tj] if tj is not None else []
     batch = stack_scenes([r.scene for r in recs])
@@ -103,6 +114,12 @@ def test_stops_before_a_dead_end_when_the_goal_is_only_a_time(drives):
     log, m, _ = drives["DEADEND"]
     assert m["goal.reached"] and not m["overlap.collided"] and not m["offroad.offroad"]
     assert log.v[int(log.end_step)] < 0.5 and m["comfort.min_accel"] > -5.0  # stopped, within the comfortable limits
+
+
+def test_keeps_its_speed_for_a_dead_end_it_cannot_reach_before_the_drive_ends(drives):
+    log, m, _ = drives["FAREND"]
+    assert m["goal.reached"] and not m["overlap.collided"] and not m["offroad.offroad"]
+    assert m["comfort.min_accel"] > -0.5 and log.v[int(log.end_step)] > 14.5, (m["comfort.min_accel"], log.v)
 
 
 def test_leaves_room_to_a_car_closing_in_from_behind(drives):

@@ -80,6 +80,33 @@ def test_a_scene_without_obstacles_has_one_invalid_one():
     assert int(ctx.leader_index) == -1
 
 
+@pytest.mark.parametrize("t_close, step, region, counts", [(14.0, 0, False, True), (4.0, 0, False, False),
+                                                           (14.0, 100, False, False), (6.5, 0, False, True),
+                                                           (5.5, 0, False, False), (4.0, 0, True, True)])
+def test_a_dead_end_counts_only_where_the_car_can_reach_it_before_the_goal_window_closes(t_close, step, region, counts):
+    """One lane of 150 m, the car at 15 m/s with its front about 120 m before the end, a limit of
+    20 m/s, a goal of time only: the end of the road is where the planners' context has it only
+    when the front, at 20 m/s, gets there before the window closes (the drive ends then): 14 s from
+    now yes, 4 s no, 14 s from the start seen at 10 s no; 6.5 s and 5.5 s on either side of 6 s.
+    With a goal region ahead the end stays (a place to stop in the region's time window)."""
+    d = _road_dict(n_lanes=1, v0=15.0, goal_t=(t_close, t_close))
+    for lane in d["lanelets"]:
+        lane["left"], lane["right"] = lane["left"][:76], lane["right"][:76]  # 150 m from s = 0
+    if region:  # 60-80 m ahead of the car
+        goal = d["planning_problems"][0]["goals"][0]
+        cx, cy = goal["rectangle"]["center"]
+        goal["rectangle"]["center"] = [cx - 50.0 * np.cos(0.3), cy - 50.0 * np.sin(0.3)]
+    else:
+        del d["planning_problems"][0]["goals"][0]["rectangle"]
+    sc = _record(d).scene
+    ego = EgoState.from_box_centre(jnp.asarray(sc.start), SIM_VEHICLE)
+    ctx = road_context(sc, ego, step, 71, SIM_VEHICLE)
+    end = float(sc.route_end_s)
+    to_end = end - (float(ctx.s) + SIM_VEHICLE.front_offset)
+    assert 117.0 < to_end < 123.0 and np.isfinite(end)  # the scene is what the cases assume
+    assert (float(ctx.route_end_s) == pytest.approx(end)) if counts else np.isinf(float(ctx.route_end_s))
+
+
 def test_route_smoothing_keeps_lines_and_arcs_and_removes_kinks():
     """``smooth_polyline``: a straight line and a circular arc keep their shape (curvature of
     the arc within 1 % away from the ends); a kinked polyline (what lanelet centre lines are)

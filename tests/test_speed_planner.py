@@ -44,7 +44,9 @@ def _synthetic():
     ALONE: SQUEEZE without the car behind;
     MAPEND: one lane that ends 120 m ahead of the car (15 m/s), a goal region 75-95 m ahead to be
     met at 13-20 m/s (the drive ends there: the end of the map beyond it is no reason to slow);
-    DEADEND: one lane that ends 100 m ahead of the car (15 m/s), a goal of time only (11-12 s)."""
+    DEADEND: one lane that ends 100 m ahead of the car (15 m/s), a goal of time only (11-12 s);
+    FAREND: one lane that ends 70 m ahead of the car (15 m/s, limit 20 m/s), a goal of time only
+    (3.0-3.3 s: the drive ends before the car could get there)."""
     lane0 = np.zeros(251)
     slow = (START + 25.0 + 4.0 * TT, lane0)
     roads = {"SLOW": _road_dict(obstacles=[slow]),
@@ -57,7 +59,8 @@ def _synthetic():
              "ALONE": _road_dict(obstacles=[(START + 70.0 - 10.0 * TT, np.full(251, SQUEEZE_L))], n_lanes=1, v0=10.0,
                                  goal_t=(0.0, 8.0)),
              "MAPEND": _road_dict(n_lanes=1, v0=15.0, goal_t=(0.0, 10.0)),
-             "DEADEND": _road_dict(n_lanes=1, v0=15.0, goal_t=(11.0, 12.0))}
+             "DEADEND": _road_dict(n_lanes=1, v0=15.0, goal_t=(11.0, 12.0)),
+             "FAREND": _road_dict(n_lanes=1, v0=15.0, goal_t=(3.0, 3.3))}
     mapend = roads["MAPEND"]
     for lane in mapend["lanelets"]:
         lane["left"], lane["right"] = lane["left"][:76], lane["right"][:76]  # 150 m of road from s = 0
@@ -68,6 +71,9 @@ def _synthetic():
     for lane in roads["DEADEND"]["lanelets"]:
         lane["left"], lane["right"] = lane["left"][:66], lane["right"][:66]  # 130 m of road from s = 0
     del roads["DEADEND"]["planning_problems"][0]["goals"][0]["rectangle"]
+    for lane in roads["FAREND"]["lanelets"]:
+        lane["left"], lane["right"] = lane["left"][:51], lane["right"][:51]  # 100 m of road from s = 0
+    del roads["FAREND"]["planning_problems"][0]["goals"][0]["rectangle"]
     return {k: dataclasses.replace(_record(d), name=k) for k, d in roads.items()}
 
 
@@ -464,6 +470,15 @@ def test_a_dead_end_is_approached_as_gently_as_the_set_speed_slows():
     )
     assert 60.0 < ahead < 100.0 - 0.5 * PathSpeedPlanner().vehicle.length  # ... before the end
     assert np.diff(log.v[:n]).min() / 0.1 >= -(CURVE_DECEL + 0.5), np.diff(log.v[:n]).min() / 0.1
+
+
+def test_a_dead_end_beyond_the_drive_is_no_reason_to_brake():
+    """FAREND: the car cannot reach the end of the road before the goal's window closes (the drive
+    ends then), so it keeps its speed (it braked to stand there, for a stop it would never reach)."""
+    log, m, _ = _synthetic_drive("FAREND")
+    n = int(log.end_step) + 1
+    assert m["goal.reached"] and not m["overlap.collided"] and not m["offroad.offroad"], m
+    assert np.diff(log.v[:n]).min() / 0.1 > -0.5 and log.v[n - 1] > 14.5, (np.diff(log.v[:n]).min() / 0.1, log.v[n - 1])
 
 
 def _numpy_quintic(l0, m, k, d, length, n=2001):
