@@ -97,6 +97,9 @@ def parser() -> argparse.ArgumentParser:
         help="--closed-loop: the lattice's soft-selection temperature (cost units, default 1)",
     )
     t.add_argument(
+        "--lr", type=ca.positive_float, help="--closed-loop: Adam's step on the log-weights (default 0.1)"
+    )
+    t.add_argument(
         "--out", type=ca.output_file, default="weights.json", help="weights file to write (default: weights.json)"
     )
     t.add_argument(
@@ -177,7 +180,7 @@ def _tune(args) -> int:
 
         given = {
             k: getattr(args, k)
-            for k in ("scenes", "drive_steps", "steps", "batch", "temperature")
+            for k in ("scenes", "drive_steps", "steps", "batch", "lr", "temperature")
             if getattr(args, k) is not None
         }  # the rest: tune_files' defaults
         figures = tune_files([args.scenarios], args.planner, args.out, seed=args.seed, **given)
@@ -191,7 +194,7 @@ def _tune(args) -> int:
         raise ValueError("tune idm: only with --closed-loop (demonstrations tune lattice and speed)")
     closed_only = [
         f"--{k.replace('_', '-')}"
-        for k in ("scenes", "drive_steps", "batch", "temperature")
+        for k in ("scenes", "drive_steps", "batch", "lr", "temperature")
         if getattr(args, k) is not None
     ]
     if closed_only:

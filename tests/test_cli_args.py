@@ -98,6 +98,8 @@ BAD = [  # (argv, words the one error line must contain)
     (["tune", "lattice", "--scenarios", "{missing}"], ["--scenarios", "no such file or folder"]),
     (["tune", "boat"], ["planner", "boat"]),
     (["tune", "lattice", "--batch", "3"], ["--batch", "only with --closed-loop"]),
+    (["tune", "lattice", "--lr", "0.02"], ["--lr", "only with --closed-loop"]),
+    (["tune", "lattice", "--closed-loop", "--scenarios", "{root}", "--lr", "0"], ["--lr", "0"]),
     (["tune", "idm"], ["tune idm", "only with --closed-loop"]),
     (["tune", "lattice", "--closed-loop"], ["--closed-loop", "--scenarios"]),
     (["drive", "--builtin", "--out", "{root}/d", "--weights", "{missing}"],

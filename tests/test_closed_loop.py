@@ -84,9 +84,10 @@ def test_tune_closed_loop_command_splits_by_location_and_writes_weights_drive_ta
             (folder / f"{name}.json").write_text(json.dumps(d))
     out = tmp_path / "w.json"
     assert main(["tune", "idm", "--closed-loop", "--scenarios", str(folder), "--steps", "1", "--drive-steps", "20",
-                 "--batch", "2", "--out", str(out)]) == 0
+                 "--batch", "2", "--lr", "0.05", "--out", str(out)]) == 0
     figures = json.loads(capsys.readouterr().out.rsplit("\nwrote", 1)[0])
     assert figures["train_scenes"] == 2 and figures["validation_scenes"] == 2 and figures["steps_run"] == 1
+    assert figures["lr"] == 0.05
     assert figures["validation.tuned"] <= figures["validation.default"] + 1e-9
     # drives: the validation scenes at the start, then per step a training batch and the validation scenes;
     # the baselines get as many validation evaluations as those drives allow

@@ -389,6 +389,7 @@ def tune_files(
         "train_scenes": len(recs["train"]),
         "validation_scenes": len(recs["validation"]),
         "drive_steps": drive_steps,
+        "lr": lr,
         "temperature": temperature,
         "steps_run": len(res.history) - 1,
         "drives": res.history[-1]["drives"],
