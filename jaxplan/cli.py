@@ -96,9 +96,7 @@ def parser() -> argparse.ArgumentParser:
         type=ca.positive_float,
         help="--closed-loop: the lattice's soft-selection temperature (cost units, default 1)",
     )
-    t.add_argument(
-        "--lr", type=ca.positive_float, help="--closed-loop: Adam's step on the log-weights (default 0.1)"
-    )
+    t.add_argument("--lr", type=ca.positive_float, help="--closed-loop: Adam's step on the log-weights (default 0.1)")
     t.add_argument(
         "--out", type=ca.output_file, default="weights.json", help="weights file to write (default: weights.json)"
     )
