@@ -137,3 +137,27 @@ def test_lattice_soft_selection_tends_to_the_exact_plan_and_has_a_gradient():
     assert np.all(np.isfinite(leaves)) and np.max(np.abs(leaves)) > 0
     with pytest.raises(ValueError, match="select_temperature"):
         LatticeConfig(select_temperature=-1.0).validate()
+
+
+def test_a_non_finite_gradient_stops_tuning_and_keeps_the_defaults(monkeypatch):
+    """An objective whose gradient is not finite at the defaults (sqrt at 0): the loop stops at that
+    step, says so in its history, and keeps the default weights (it stepped to NaN weights and drove
+    with them)."""
+    import collections
+
+    import jax.numpy as jnp
+
+    from jaxplan.planner import make_planner
+    from jaxplan.tuning import closed_loop as cl
+
+    fake = lambda planner, config, objective: (  # noqa: E731
+        lambda params, scenes: jnp.sqrt(jnp.maximum(params.alpha - 1.0, 0.0)) + 0.0 * jnp.sum(scenes.start))
+    monkeypatch.setattr(cl, "_objective_fn", fake)
+    Scenes = collections.namedtuple("Scenes", "start")
+    planner = make_planner("lattice", options=(("select_temperature", 1.0),))
+    res = cl.tune_closed_loop(planner, Scenes(jnp.zeros((4, 5))), Scenes(jnp.zeros((2, 5))), None, steps=3,
+                              batch=2, baselines=False, progress=False)
+    assert [h["step"] for h in res.history] == [0, 1] and res.history[-1]["nonfinite_gradient"]
+    assert res.history[-1]["val"] is None
+    assert res.weights["alpha"] == pytest.approx(float(planner.init_params().alpha))
+    assert all(np.isfinite(v) for v in res.weights.values())

@@ -124,7 +124,8 @@ TUNED = ("alpha", "beta", "delta", "jerk_lon", "jerk_lat", "obstacle", "v_offset
 @dataclasses.dataclass
 class TuneResult:
     """What ``tune_closed_loop`` found: ``weights`` (``{name: value}`` for the planner's
-    ``init_params``), the ``history`` (per step: train loss, validation loss, drives so far),
+    ``init_params``), the ``history`` (per step: train loss, validation loss, drives so far; a
+    step whose gradient was not finite ends the loop with ``nonfinite_gradient`` and no validation),
     the best validation loss and the baselines' (``{"default", "random_search", "cma_es"}``:
     best validation loss and weights found in the same budget of closed-loop drives)."""
 
@@ -224,6 +225,18 @@ def tune_closed_loop(
         idx = rng.choice(n_train, size=min(batch, n_train), replace=False)
         part = jax.tree_util.tree_map(lambda a: a[idx], train)
         loss, g = grad_fn(x, part)
+        if not bool(jnp.all(jnp.isfinite(g))):  # never step to NaN weights: stop, keeping the best so far
+            history.append(
+                {
+                    "step": k + 1,
+                    "train": float(loss),
+                    "val": None,
+                    "drives": drives + len(idx),
+                    "nonfinite_gradient": True,
+                }
+            )
+            bar.set_postfix_str(f"non-finite gradient at step {k + 1}: stopped")
+            break
         upd, state = opt.update(g, state, x)
         x = optax.apply_updates(x, upd)
         v = val_fn(x)
@@ -392,6 +405,7 @@ def tune_files(
         "lr": lr,
         "temperature": temperature,
         "steps_run": len(res.history) - 1,
+        "nonfinite_gradient": any(h.get("nonfinite_gradient", False) for h in res.history),
         "drives": res.history[-1]["drives"],
         "validation.default": res.baselines["default"]["val"],
         "validation.tuned": res.best_val,
@@ -416,7 +430,8 @@ def plot_history(res: TuneResult, path: str) -> None:
     h = res.history
     fig, ax = plt.subplots(figsize=(7, 4))
     ax.plot([r["drives"] for r in h[1:]], [r["train"] for r in h[1:]], "o-", label="training batch (soft selection)")
-    ax.plot([r["drives"] for r in h], [r["val"] for r in h], "s-", label="validation (exact choice)")
+    hv = [r for r in h if r["val"] is not None]  # a step stopped by a non-finite gradient has none
+    ax.plot([r["drives"] for r in hv], [r["val"] for r in hv], "s-", label="validation (exact choice)")
     for name, style in (("default", "k--"), ("random_search", "g:"), ("cma_es", "m-.")):
         if name in res.baselines:
             ax.axhline(
