@@ -280,7 +280,8 @@ def road_context(scene, ego: EgoState, step, horizon_steps: int, vehicle: Vehicl
         os_, ol = jnp.concatenate([os_, ls.astype(os_.dtype)]), jnp.concatenate([ol, ll.astype(ol.dtype)])
     ahead = jnp.maximum(30.0, ego.v * SPEED_LOOKAHEAD)
     probe = s + jnp.linspace(0.0, 1.0, 16, dtype=f) * ahead
-    v_set = jnp.min(route_sample(scene, scene.speed_limit, probe))
+    limits = route_sample(scene, scene.speed_limit, probe)  # (16,) the speed limits ahead
+    v_set = jnp.min(limits)
     at = lambda v: route_sample(scene, v, s)
     lane_valid = route_sample(scene, scene.lane_valid.astype(f), s) > 0.5
     same = route_sample(scene, scene.lane_same_dir.astype(f), s) > 0.5
@@ -314,7 +315,7 @@ def road_context(scene, ego: EgoState, step, horizon_steps: int, vehicle: Vehicl
     # front can get by then, at its speed or the highest limit ahead, whichever is higher (a dead end
     # beyond is no end to plan for; with a goal region ahead the end stays, a place the car may stop)
     t_close = scene.goal.time[1] - t_now
-    v_reach = jnp.maximum(ego.v, jnp.max(route_sample(scene, scene.speed_limit, probe)))
+    v_reach = jnp.maximum(ego.v, jnp.max(limits))
     reach = jnp.where(jnp.isfinite(t_close), v_reach * jnp.maximum(t_close, 0.0), jnp.inf)
     reach = jnp.where(goal_region_ahead(scene.goal.s_range, s + jnp.asarray(vehicle.center_offset, f)), jnp.inf, reach)
     return RoadContext(
